@@ -1,0 +1,87 @@
+"""The hybrid mode model: each object is FREE (moved by physics) or HELD (moved by an agent).
+
+Mode switches are the human actions the system infers:
+
+====================  ==============================  ========
+previous -> new       condition                       event
+====================  ==============================  ========
+FREE -> HELD          (perceived or not)              Pick
+HELD -> FREE          object perceived (put down)     Place
+HELD -> FREE          object not perceived (let go)   Release
+====================  ==============================  ========
+
+The functions work on arrays of any shape (one scene ``(M,)`` or particles ``(K, M)``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+FREE = np.int8(0)
+HELD = np.int8(1)
+
+NO_EVENT = 0
+PICK = 1
+PLACE = 2
+RELEASE = 3
+EVENT_NAMES = {PICK: "Pick", PLACE: "Place", RELEASE: "Release"}
+
+
+def switch_events(previous: np.ndarray, new: np.ndarray, perceived: np.ndarray) -> np.ndarray:
+    """Event codes (``int8``, same shape) for the mode switches ``previous -> new``.
+
+    ``perceived`` says whether the object is perceived at the time of the switch; it broadcasts
+    against the modes. Codes: :data:`NO_EVENT`, :data:`PICK`, :data:`PLACE`, :data:`RELEASE`.
+    """
+    previous = np.asarray(previous)
+    new = np.asarray(new)
+    perceived = np.broadcast_to(np.asarray(perceived, dtype=bool), new.shape)
+    out = np.zeros(new.shape, dtype=np.int8)
+    out[(previous == FREE) & (new == HELD)] = PICK
+    released = (previous == HELD) & (new == FREE)
+    out[released & perceived] = PLACE
+    out[released & ~perceived] = RELEASE
+    return out
+
+
+@dataclass(frozen=True)
+class ModePriors:
+    """Prior probabilities of mode switches, per object and update.
+
+    * ``pick`` (FREE -> HELD) and ``place`` (HELD -> FREE while perceived) are triggered by evidence
+      (a divergence, a perceived put-down); a particle that makes the switch pays ``log(pick)`` or
+      ``log(place)`` in its weight, one that does not pays ``log(1 - p)``.
+    * ``release_on_loss``: probability that a held object was let go when it stops being perceived
+      (sampled: that fraction of the particles releases it, the rest keep it held);
+      ``release``: probability per update that a held, unperceived object is let go later.
+      Releases are drawn from these priors, so they cost nothing in the weights.
+    """
+
+    pick: float = 0.02
+    place: float = 0.2
+    release: float = 0.01
+    release_on_loss: float = 0.5
+
+    def __post_init__(self):
+        for name in ("pick", "place", "release", "release_on_loss"):
+            v = getattr(self, name)
+            if not 0.0 <= v <= 1.0:
+                raise ValueError(f"ModePriors.{name} must be in [0, 1], got {v}")
+
+    def log_prior_cost(self, previous: np.ndarray, new: np.ndarray, perceived: np.ndarray) -> np.ndarray:
+        """Log-prior of the evidence-triggered switches (Pick, Place) for each object (same shape).
+
+        Objects that could have switched and did not pay ``log(1 - p)``; unperceived held objects
+        (whose releases are sampled from the prior) pay nothing.
+        """
+        previous = np.asarray(previous)
+        new = np.asarray(new)
+        perceived = np.broadcast_to(np.asarray(perceived, dtype=bool), new.shape)
+        p = np.ones(new.shape)
+        free = previous == FREE
+        p = np.where(free & perceived, np.where(new == HELD, self.pick, 1.0 - self.pick), p)
+        held_seen = (previous == HELD) & perceived
+        p = np.where(held_seen, np.where(new == FREE, self.place, 1.0 - self.place), p)
+        with np.errstate(divide="ignore"):
+            return np.log(p)

@@ -1,0 +1,182 @@
+"""The belief: what the weighted particles say about every object, and its JSON form.
+
+Per object: consensus pose (weighted mean position and covariance; weighted chordal mean orientation
+and angular spread), discrete hypotheses grouped by support ("on the floor" 0.8, "in blue_box" 0.2,
+"held"), P(isPhysicallyPlausible), P(held). Per pair: relation probabilities. Per update: events.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from actions.events import EventRecord
+from actions.modes import HELD
+from physics.transforms import quat_angle
+
+from .relations import relation_list
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    """A group of particles agreeing on where an object is: ``relation`` is ``"isOnTop"``,
+    ``"isIn"``, ``"held"`` or ``"none"`` (airborne / unsupported), ``support`` the object it rests on or
+    is in (``"floor"`` for the floor; ``None`` for held / none), ``p`` the group's weight and
+    ``position (3,)`` its weighted mean position (m)."""
+
+    p: float
+    relation: str
+    support: str | None
+    position: np.ndarray
+
+    def to_json(self) -> dict:
+        return {"p": round(float(self.p), 4), "relation": self.relation, "support": self.support,
+                "position": _r(self.position)}
+
+
+@dataclass(frozen=True)
+class ObjectBelief:
+    """Belief about one object. ``position (3,)`` m, ``orientation (4,)`` x,y,z,w, ``position_cov
+    (3, 3)`` m^2, ``angular_std`` rad (weighted RMS angle to the mean orientation)."""
+
+    position: np.ndarray
+    orientation: np.ndarray
+    position_cov: np.ndarray
+    angular_std: float
+    perceived: bool
+    p_plausible: float
+    p_held: float
+    hypotheses: tuple[Hypothesis, ...] = ()
+
+    def to_json(self) -> dict:
+        return {"position": _r(self.position), "orientation": _r(self.orientation),
+                "position_cov": [_r(row, 8) for row in self.position_cov],
+                "angular_std": round(float(self.angular_std), 6), "perceived": bool(self.perceived),
+                "p_plausible": round(float(self.p_plausible), 4), "p_held": round(float(self.p_held), 4),
+                "hypotheses": [h.to_json() for h in self.hypotheses]}
+
+
+@dataclass(frozen=True)
+class Belief:
+    """The estimator's output at time ``t`` (s), one line of the estimate stream.
+
+    ``particles`` ``(K, M, 7)`` poses and ``weights`` ``(K,)`` are kept for visualisation and search;
+    ``object_ids`` names the M columns.
+    """
+
+    t: float
+    objects: dict[str, ObjectBelief]
+    relations: list[dict]
+    events: list[EventRecord]
+    ess: float
+    object_ids: tuple[str, ...] = ()
+    particles: np.ndarray | None = field(default=None, repr=False)
+    weights: np.ndarray | None = field(default=None, repr=False)
+
+    def to_json(self) -> dict:
+        return {"t": round(float(self.t), 6),
+                "objects": {k: v.to_json() for k, v in self.objects.items()},
+                "relations": self.relations,
+                "events": [e.to_json() for e in self.events],
+                "ess": round(float(self.ess), 3)}
+
+    def relation_p(self, subject: str, predicate: str, obj: str) -> float:
+        """Probability of a relation (0 when it is not listed)."""
+        for r in self.relations:
+            if (r["subject"], r["predicate"], r["object"]) == (subject, predicate, obj):
+                return float(r["p"])
+        return 0.0
+
+    def hypothesis_p(self, subject: str, relation: str, support: str | None) -> float:
+        """Probability of one hypothesis of ``subject`` (0 when absent)."""
+        for h in self.objects[subject].hypotheses:
+            if h.relation == relation and h.support == support:
+                return float(h.p)
+        return 0.0
+
+
+def _r(values, digits: int = 6) -> list[float]:
+    return [round(float(v), digits) for v in np.asarray(values).ravel()]
+
+
+def support_labels(modes: np.ndarray, on_top: np.ndarray, is_in: np.ndarray) -> np.ndarray:
+    """Integer support label ``(K, M)`` per particle and object.
+
+    0: held; ``1 + b``: in object b; ``1 + M + b``: on top of b (b = M is the floor); ``2 + 2M``:
+    unsupported. Containment wins over support; among several supports the first is taken.
+    """
+    k, m = modes.shape
+    label = np.full((k, m), 2 + 2 * m, dtype=int)
+    any_on = on_top.any(axis=-1)
+    label = np.where(any_on, 1 + m + np.argmax(on_top, axis=-1), label)
+    any_in = is_in.any(axis=-1)
+    label = np.where(any_in, 1 + np.argmax(is_in, axis=-1), label)
+    return np.where(modes == HELD, 0, label)
+
+
+def _label_name(label: int, object_ids) -> tuple[str, str | None]:
+    m = len(object_ids)
+    names = list(object_ids) + ["floor"]
+    if label == 0:
+        return "held", None
+    if label <= m:
+        return "isIn", names[label - 1]
+    if label <= 2 * m + 1:
+        return "isOnTop", names[label - 1 - m]
+    return "none", None
+
+
+def weighted_pose_stats(poses: np.ndarray, w: np.ndarray):
+    """Weighted mean position ``(3,)``, covariance ``(3, 3)``, mean orientation ``(4,)`` and angular
+    std (rad) of one object's particle poses ``(K, 7)`` with normalised weights ``(K,)``."""
+    if len(w) == 1 or np.max(w) >= 1.0:
+        k = int(np.argmax(w))
+        return poses[k, :3].copy(), np.zeros((3, 3)), poses[k, 3:].copy(), 0.0
+    mean = w @ poses[:, :3]
+    d = poses[:, :3] - mean
+    cov = (w[:, None] * d).T @ d
+    q = Rotation.from_quat(poses[:, 3:]).mean(weights=w).as_quat()
+    if q[3] < 0:
+        q = -q
+    ang = quat_angle(poses[:, 3:], q[None, :])
+    return mean, cov, q, float(np.sqrt(w @ (ang * ang)))
+
+
+def compute_belief(t: float, object_ids, known: np.ndarray, perceived: np.ndarray, poses: np.ndarray,
+                   weights: np.ndarray, modes: np.ndarray, on_top: np.ndarray, is_in: np.ndarray,
+                   events: list[EventRecord], ess: float, static: np.ndarray, min_p: float = 0.02,
+                   keep_particles: bool = True) -> Belief:
+    """Assemble a :class:`Belief` from particle arrays (K particles, M objects).
+
+    ``poses (K, M, 7)``, ``weights (K,)`` normalised, ``modes (K, M)``, ``on_top (K, M, M+1)``,
+    ``is_in (K, M, M)``; ``known``, ``perceived``, ``static`` ``(M,)`` bool. Unknown objects are left
+    out; static objects get their fixed pose and no hypotheses.
+    """
+    object_ids = tuple(object_ids)
+    labels = support_labels(modes, on_top, is_in)
+    held = modes == HELD
+    objects = {}
+    for m, oid in enumerate(object_ids):
+        if not known[m]:
+            continue
+        mean, cov, q, ang = weighted_pose_stats(poses[:, m], weights)
+        p_held = float(weights @ held[:, m])
+        p_plausible = 1.0 - p_held if perceived[m] else 1.0
+        hyps = []
+        if not static[m]:
+            for lab in np.unique(labels[:, m]):
+                sel = labels[:, m] == lab
+                p = float(weights[sel].sum())
+                if p < min_p:
+                    continue
+                rel, sup = _label_name(int(lab), object_ids)
+                pos = weights[sel] @ poses[sel, m, :3] / p
+                hyps.append(Hypothesis(p, rel, sup, pos))
+            hyps.sort(key=lambda h: -h.p)
+        objects[oid] = ObjectBelief(mean, q, cov, ang, bool(perceived[m]), p_plausible, p_held, tuple(hyps))
+    p_on = np.tensordot(weights, on_top.astype(float), axes=1)
+    p_in = np.tensordot(weights, is_in.astype(float), axes=1)
+    relations = relation_list(None, None, object_ids, p_on, p_in, threshold=min_p)
+    return Belief(t, objects, relations, events, ess, object_ids,
+                  poses.copy() if keep_particles else None, weights.copy() if keep_particles else None)

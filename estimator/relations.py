@@ -1,0 +1,141 @@
+"""Allocentric relations isOnTop and isIn from world-frame axis-aligned bounding boxes.
+
+Pure array functions, batched over any leading axes (one scene ``(M, 2, 3)`` or particles
+``(K, M, 2, 3)``). The floor, when present, is an extra support with index ``M`` (column ``M`` of the
+isOnTop matrix). Margins are symmetric: the same tolerance applies on every side of a box.
+
+Definitions, for objects a (subject) and b (object), with AABBs ``[lo, hi]``:
+
+* ``isIn(a, b)``: a's box lies inside b's box in x and y (within ``margin`` on each side), and a's
+  bottom is between b's bottom and b's top (within ``margin``) but not above b's top minus
+  ``rim``. Physics keeps solid objects from interpenetrating, so only a hollow b passes this test.
+* ``isOnTop(a, b)``: a's bottom is within ``z_margin`` of b's top, a's and b's footprints overlap by
+  at least ``overlap`` in x and y, a is not in b, and a is not in a container c that is itself on b.
+  ``isOnTop(a, floor)``: a's bottom is within ``z_margin`` of z = 0.
+
+Hysteresis: a relation that holds stays true until the test fails with every margin widened by
+``hysteresis``; one that does not hold needs the strict test.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class RelationConfig:
+    """Tolerances (metres) of the bounding-box relation tests."""
+
+    z_margin: float = 0.015
+    """isOnTop: maximum gap (or overlap) between a's bottom and b's top."""
+    overlap: float = 0.005
+    """isOnTop: minimum footprint overlap in x and in y."""
+    margin: float = 0.01
+    """isIn: tolerance on every side of the container's box."""
+    rim: float = 0.005
+    """isIn: a's bottom must be at least this far below b's top."""
+    hysteresis: float = 0.01
+    """Extra tolerance for a relation that already holds to keep holding."""
+
+    def __post_init__(self):
+        for name in ("z_margin", "overlap", "margin", "rim", "hysteresis"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"RelationConfig.{name} must be >= 0")
+
+
+def _masks(aabbs: np.ndarray, valid: np.ndarray, floor: bool, cfg: RelationConfig,
+           widen: float) -> tuple[np.ndarray, np.ndarray]:
+    lo = aabbs[..., 0, :]
+    hi = aabbs[..., 1, :]
+    a_lo, a_hi = lo[..., :, None, :], hi[..., :, None, :]  # subject on axis -3 (rows)
+    b_lo, b_hi = lo[..., None, :, :], hi[..., None, :, :]  # object on axis -2 (columns)
+    m = cfg.margin + widen
+    inside_xy = np.all((a_lo[..., :2] >= b_lo[..., :2] - m) & (a_hi[..., :2] <= b_hi[..., :2] + m),
+                       axis=-1)
+    bottom = a_lo[..., 2]
+    inside_z = (bottom >= b_lo[..., 2] - m) & (bottom <= b_hi[..., 2] - cfg.rim + widen)
+    # an object cannot contain one with a bigger footprint (guards against overlapping equal boxes)
+    smaller = np.all(a_hi[..., :2] - a_lo[..., :2] <= b_hi[..., :2] - b_lo[..., :2] + 1e-9, axis=-1)
+    is_in = inside_xy & inside_z & smaller
+    ov = np.minimum(a_hi[..., :2], b_hi[..., :2]) - np.maximum(a_lo[..., :2], b_lo[..., :2])
+    overlap_xy = np.all(ov >= cfg.overlap - widen, axis=-1)
+    near_top = np.abs(bottom - b_hi[..., 2]) <= cfg.z_margin + widen
+    on_top = overlap_xy & near_top & ~is_in
+    n = aabbs.shape[-3]
+    eye = np.eye(n, dtype=bool)
+    pair_ok = valid[..., :, None] & valid[..., None, :] & ~eye
+    is_in &= pair_ok
+    on_top &= pair_ok
+    floor_col = np.abs(lo[..., 2]) <= cfg.z_margin + widen
+    floor_col &= valid & np.bool_(floor)
+    on_top = np.concatenate([on_top, floor_col[..., None]], axis=-1)
+    return _not_through_containers(on_top, is_in), is_in
+
+
+def _not_through_containers(on_top: np.ndarray, is_in: np.ndarray) -> np.ndarray:
+    """An object in container c is not on top of what c stands on (a thin tray floor would pass the
+    test): drop isOnTop(a, b) when isIn(a, c) and isOnTop(c, b) for some c."""
+    through = np.einsum("...ac,...cb->...ab", is_in.astype(np.int32), on_top.astype(np.int32)) > 0
+    return on_top & ~through
+
+
+def relation_masks(aabbs: np.ndarray, valid: np.ndarray | None = None, *, static: np.ndarray | None = None,
+                   floor: bool = True, config: RelationConfig = RelationConfig(),
+                   previous: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """isOnTop and isIn as boolean matrices.
+
+    Args:
+        aabbs: ``(..., M, 2, 3)`` world AABBs (metres).
+        valid: ``(..., M)`` bool, objects to consider (e.g. known, not parked). Default: all.
+        static: ``(M,)`` bool; static objects are never subjects (the table is on nothing).
+        floor: whether the scene has a floor plane at z = 0 (support index ``M``).
+        previous: the ``(on_top, is_in)`` returned at the previous update, for hysteresis.
+
+    Returns:
+        ``on_top (..., M, M + 1)`` with ``on_top[..., a, b]`` = isOnTop(a, b) (column M: the floor),
+        and ``is_in (..., M, M)`` with ``is_in[..., a, b]`` = isIn(a, b).
+    """
+    aabbs = np.asarray(aabbs, dtype=float)
+    if aabbs.ndim < 3 or aabbs.shape[-2:] != (2, 3):
+        raise ValueError(f"aabbs must have shape (..., M, 2, 3), got {aabbs.shape}")
+    if valid is None:
+        valid = np.ones(aabbs.shape[:-2], dtype=bool)
+    valid = np.broadcast_to(np.asarray(valid, dtype=bool), aabbs.shape[:-2])
+    on_top, is_in = _masks(aabbs, valid, floor, config, 0.0)
+    if previous is not None:
+        on_relaxed, in_relaxed = _masks(aabbs, valid, floor, config, config.hysteresis)
+        is_in = is_in | (previous[1] & in_relaxed)
+        on_top = _not_through_containers(on_top | (previous[0] & on_relaxed), is_in)
+        on_top &= ~is_in_pad(is_in)
+    if static is not None:
+        subj = ~np.asarray(static, dtype=bool)
+        on_top = on_top & subj[:, None]
+        is_in = is_in & subj[:, None]
+    return on_top, is_in
+
+
+def is_in_pad(is_in: np.ndarray) -> np.ndarray:
+    """``is_in (..., M, M)`` padded with a False floor column to ``(..., M, M + 1)``."""
+    pad = np.zeros(is_in.shape[:-1] + (1,), dtype=bool)
+    return np.concatenate([is_in, pad], axis=-1)
+
+
+def relation_list(on_top: np.ndarray, is_in: np.ndarray, object_ids, p_on_top: np.ndarray | None = None,
+                  p_in: np.ndarray | None = None, threshold: float = 0.0):
+    """Relations as ``[{"subject", "predicate", "object", "p"}]`` for the estimate stream.
+
+    With boolean matrices only, p is 1.0 for each true entry. With probability matrices
+    ``p_on_top (M, M+1)`` / ``p_in (M, M)``, every entry with p > ``threshold`` is listed.
+    """
+    names = list(object_ids) + ["floor"]
+    out = []
+    src_on = p_on_top if p_on_top is not None else on_top.astype(float)
+    src_in = p_in if p_in is not None else is_in.astype(float)
+    for (a, b) in zip(*np.nonzero(src_in > threshold)):
+        out.append({"subject": names[a], "predicate": "isIn", "object": names[b],
+                    "p": round(float(src_in[a, b]), 4)})
+    for (a, b) in zip(*np.nonzero(src_on > threshold)):
+        out.append({"subject": names[a], "predicate": "isOnTop", "object": names[b],
+                    "p": round(float(src_on[a, b]), 4)})
+    return out

@@ -1,0 +1,49 @@
+"""Pure functions on log-weights: normalisation, effective sample size, resampling schemes.
+
+All randomness comes from the ``numpy.random.Generator`` passed in.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def normalise_log_weights(log_w: np.ndarray) -> tuple[np.ndarray, float]:
+    """Normalised weights ``(K,)`` and the log of the mean unnormalised weight.
+
+    Non-finite log-weights (NaN, -inf) count as zero weight. If every weight is zero, returns
+    uniform weights and ``-inf``: the caller decides how to recover.
+    """
+    log_w = np.asarray(log_w, dtype=float)
+    finite = np.isfinite(log_w)
+    if not np.any(finite):
+        return np.full(len(log_w), 1.0 / len(log_w)), -np.inf
+    m = np.max(log_w[finite])
+    w = np.where(finite, np.exp(np.where(finite, log_w, m) - m), 0.0)
+    s = w.sum()
+    return w / s, float(m + np.log(s / len(log_w)))
+
+
+def effective_sample_size(weights: np.ndarray) -> float:
+    """Kish's effective sample size ``1 / sum(w**2)`` of normalised weights."""
+    w = np.asarray(weights, dtype=float)
+    return float(1.0 / np.sum(w * w))
+
+
+def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Ancestor indices ``(K,)`` by systematic resampling (one uniform draw, K evenly spaced points).
+
+    The cumulative sum is pinned to exactly 1 at its end so that round-off never yields index K.
+    """
+    w = np.asarray(weights, dtype=float)
+    k = len(w)
+    cum = np.cumsum(w)
+    cum /= cum[-1]
+    cum[-1] = 1.0
+    points = (rng.random() + np.arange(k)) / k
+    return np.searchsorted(cum, points, side="right").clip(0, k - 1)
+
+
+def multinomial_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Ancestor indices ``(K,)`` drawn independently with probabilities ``weights``."""
+    w = np.asarray(weights, dtype=float)
+    return rng.choice(len(w), size=len(w), p=w / w.sum())

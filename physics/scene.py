@@ -1,0 +1,386 @@
+"""Scene files: the static description of a tabletop (objects, shapes, physical parameters, camera).
+
+A scene is a YAML (or JSON) file; see the README for the format. :func:`load_scene` validates it and
+returns a frozen :class:`Scene`. Every problem is reported as a :class:`~physics.errors.SceneError`
+naming the file, the line and the field.
+
+Units: metres, kilograms, seconds; quaternions ``(x, y, z, w)``.
+"""
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from .errors import SceneError
+
+PYBULLET_DATA_PREFIX = "pybullet_data://"
+SHAPES = ("urdf", "box", "sphere", "cylinder", "container")
+SCENE_FORMAT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    """One object of a scene.
+
+    ``shape`` is one of ``urdf``, ``box`` (``size`` = full extents), ``sphere`` (``radius``),
+    ``cylinder`` (``radius``, ``height``, axis along z) or ``container`` (an open-top box of five
+    walls; ``size`` = outer extents, ``wall`` = wall thickness). Primitive and container frames are
+    at the centre of their bounding box. ``position`` / ``orientation`` give the initial (for static
+    objects: fixed) pose, or are ``None`` when the object is unknown until first perceived.
+    ``mass`` ``None`` keeps the URDF's mass (primitives then default to 0.1 kg).
+    """
+
+    id: str
+    shape: str
+    urdf: str | None = None
+    size: tuple[float, float, float] | None = None
+    radius: float | None = None
+    height: float | None = None
+    wall: float | None = None
+    scale: float = 1.0
+    position: tuple[float, float, float] | None = None
+    orientation: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
+    static: bool = False
+    mass: float | None = None
+    friction: float | None = None
+    rolling_friction: float | None = None
+    spinning_friction: float | None = None
+    restitution: float | None = None
+    color: tuple[float, float, float, float] | None = None
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """A pinhole camera looking from ``position`` at ``target`` (metres), with a vertical field of
+    view ``fov_deg`` (degrees), ``aspect`` = width / height, and clipping distances ``near``/``far``."""
+
+    position: tuple[float, float, float]
+    target: tuple[float, float, float]
+    up: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    fov_deg: float = 60.0
+    aspect: float = 4.0 / 3.0
+    near: float = 0.1
+    far: float = 4.0
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A validated scene: name, optional floor plane at z = 0, optional camera, objects in order."""
+
+    name: str
+    objects: tuple[ObjectSpec, ...]
+    floor: bool = True
+    camera: CameraSpec | None = None
+    source: str | None = None
+
+    @property
+    def object_ids(self) -> tuple[str, ...]:
+        return tuple(o.id for o in self.objects)
+
+    def index(self, object_id: str) -> int:
+        """Position of ``object_id`` in :attr:`objects`; ``KeyError`` if unknown."""
+        for i, o in enumerate(self.objects):
+            if o.id == object_id:
+                return i
+        raise KeyError(object_id)
+
+    def get(self, object_id: str) -> ObjectSpec:
+        return self.objects[self.index(object_id)]
+
+    def with_objects(self, objects) -> "Scene":
+        return replace(self, objects=tuple(objects))
+
+    def to_dict(self) -> dict[str, Any]:
+        """The scene in the file format (round-trips through :func:`scene_from_dict`)."""
+        return scene_to_dict(self)
+
+
+# --------------------------------------------------------------------------------------------------
+# YAML with line numbers
+
+
+def _compose_with_lines(text: str, path: str | None) -> tuple[Any, dict[str, int]]:
+    """Parse YAML ``text``; return the data and a map from field path (``objects[1].mass``) to line."""
+    try:
+        node = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        line = mark.line + 1 if mark is not None else None
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise SceneError(f"invalid YAML/JSON: {problem}", path=path, line=line) from None
+    lines: dict[str, int] = {}
+
+    def convert(n: yaml.Node, where: str) -> Any:
+        lines[where] = n.start_mark.line + 1
+        if isinstance(n, yaml.MappingNode):
+            out = {}
+            for k, v in n.value:
+                key = k.value
+                child = f"{where}.{key}" if where else str(key)
+                lines[child] = k.start_mark.line + 1
+                out[key] = convert(v, child)
+            return out
+        if isinstance(n, yaml.SequenceNode):
+            return [convert(v, f"{where}[{i}]") for i, v in enumerate(n.value)]
+        loader = yaml.SafeLoader("")
+        try:
+            return loader.construct_object(n, deep=True)
+        finally:
+            loader.dispose()
+
+    if node is None:
+        return None, lines
+    return convert(node, ""), lines
+
+
+class _Fields:
+    """Validation helpers that raise :class:`SceneError` located at a field."""
+
+    def __init__(self, path: str | None, lines: dict[str, int]):
+        self.path = path
+        self.lines = lines
+
+    def error(self, where: str, message: str) -> SceneError:
+        probe = where
+        while probe and probe not in self.lines:
+            probe = probe.rsplit(".", 1)[0] if "." in probe else ""
+        return SceneError(message, path=self.path, line=self.lines.get(probe), field=where or None)
+
+    def number(self, value: Any, where: str, *, positive: bool = False, nonneg: bool = False) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self.error(where, f"must be a number, got {value!r}")
+        x = float(value)
+        if not math.isfinite(x):
+            raise self.error(where, f"must be finite, got {value!r}")
+        if positive and x <= 0:
+            raise self.error(where, f"must be > 0, got {value!r}")
+        if nonneg and x < 0:
+            raise self.error(where, f"must be >= 0, got {value!r}")
+        return x
+
+    def vector(self, value: Any, where: str, n: int, *, positive: bool = False) -> tuple[float, ...]:
+        if not isinstance(value, (list, tuple)) or len(value) != n:
+            raise self.error(where, f"must be a list of {n} numbers, got {value!r}")
+        return tuple(self.number(v, f"{where}[{i}]", positive=positive) for i, v in enumerate(value))
+
+    def quaternion(self, value: Any, where: str) -> tuple[float, float, float, float]:
+        q = np.array(self.vector(value, where, 4))
+        n = float(np.linalg.norm(q))
+        if n < 1e-9:
+            raise self.error(where, "zero-length quaternion (expected x, y, z, w)")
+        q = q / n
+        if q[3] < 0:
+            q = -q
+        return tuple(float(v) for v in q)
+
+    def mapping(self, value: Any, where: str) -> dict:
+        if not isinstance(value, dict):
+            raise self.error(where, f"must be a mapping, got {type(value).__name__}")
+        return value
+
+    def only(self, mapping: dict, allowed: set[str], where: str) -> None:
+        for key in mapping:
+            if key not in allowed:
+                sub = f"{where}.{key}" if where else str(key)
+                raise self.error(sub, f"unknown field (expected one of: {', '.join(sorted(allowed))})")
+
+
+def resolve_urdf(ref: str, scene_dir: Path | None) -> str:
+    """Absolute path of a URDF reference: ``pybullet_data://...``, absolute, or relative to the scene."""
+    if ref.startswith(PYBULLET_DATA_PREFIX):
+        import pybullet_data
+
+        return os.path.join(pybullet_data.getDataPath(), ref[len(PYBULLET_DATA_PREFIX):])
+    p = Path(ref)
+    if not p.is_absolute() and scene_dir is not None:
+        p = scene_dir / p
+    return str(p)
+
+
+_OBJECT_FIELDS = {"id", "urdf", "box", "sphere", "cylinder", "container", "pose", "static", "mass",
+                  "friction", "rolling_friction", "spinning_friction", "restitution", "color", "scale"}
+
+
+def _parse_object(f: _Fields, raw: Any, where: str, scene_dir: Path | None) -> ObjectSpec:
+    raw = f.mapping(raw, where)
+    f.only(raw, _OBJECT_FIELDS, where)
+    if "id" not in raw:
+        raise f.error(where, "missing field 'id'")
+    oid = raw["id"]
+    if not isinstance(oid, str) or not oid or oid == "floor":
+        raise f.error(f"{where}.id", f"must be a non-empty string other than 'floor', got {oid!r}")
+    geometry = [k for k in ("urdf", "box", "sphere", "cylinder", "container") if k in raw]
+    if len(geometry) != 1:
+        raise f.error(where, "needs exactly one geometry: urdf, box, sphere, cylinder or container "
+                             f"(got {geometry or 'none'})")
+    shape = geometry[0]
+    kw: dict[str, Any] = {"id": oid, "shape": shape}
+    if shape == "urdf":
+        ref = raw["urdf"]
+        if not isinstance(ref, str) or not ref:
+            raise f.error(f"{where}.urdf", f"must be a path, got {ref!r}")
+        resolved = resolve_urdf(ref, scene_dir)
+        if not os.path.isfile(resolved):
+            raise f.error(f"{where}.urdf", f"URDF file not found: {ref} (looked for {resolved})")
+        kw["urdf"] = resolved
+    else:
+        block = f.mapping(raw[shape], f"{where}.{shape}")
+        w = f"{where}.{shape}"
+        if shape == "box":
+            f.only(block, {"size"}, w)
+            kw["size"] = f.vector(block.get("size"), f"{w}.size", 3, positive=True)
+        elif shape == "sphere":
+            f.only(block, {"radius"}, w)
+            kw["radius"] = f.number(block.get("radius"), f"{w}.radius", positive=True)
+        elif shape == "cylinder":
+            f.only(block, {"radius", "height"}, w)
+            kw["radius"] = f.number(block.get("radius"), f"{w}.radius", positive=True)
+            kw["height"] = f.number(block.get("height"), f"{w}.height", positive=True)
+        else:
+            f.only(block, {"size", "wall"}, w)
+            size = f.vector(block.get("size"), f"{w}.size", 3, positive=True)
+            wall = f.number(block.get("wall", 0.01), f"{w}.wall", positive=True)
+            if 2 * wall >= min(size[0], size[1]) or wall >= size[2]:
+                raise f.error(f"{w}.wall", f"wall {wall} too thick for size {list(size)}")
+            kw["size"], kw["wall"] = size, wall
+    if "pose" in raw:
+        pose = f.mapping(raw["pose"], f"{where}.pose")
+        f.only(pose, {"position", "orientation"}, f"{where}.pose")
+        if "position" not in pose:
+            raise f.error(f"{where}.pose", "missing field 'position'")
+        kw["position"] = f.vector(pose["position"], f"{where}.pose.position", 3)
+        if "orientation" in pose:
+            kw["orientation"] = f.quaternion(pose["orientation"], f"{where}.pose.orientation")
+    static = raw.get("static", False)
+    if not isinstance(static, bool):
+        raise f.error(f"{where}.static", f"must be true or false, got {static!r}")
+    kw["static"] = static
+    if static and kw.get("position") is None:
+        raise f.error(where, "a static object needs a pose")
+    if "mass" in raw:
+        kw["mass"] = f.number(raw["mass"], f"{where}.mass", positive=True)
+    for key in ("friction", "rolling_friction", "spinning_friction", "restitution"):
+        if key in raw:
+            kw[key] = f.number(raw[key], f"{where}.{key}", nonneg=True)
+    if "scale" in raw:
+        kw["scale"] = f.number(raw["scale"], f"{where}.scale", positive=True)
+    if "color" in raw:
+        c = raw["color"]
+        if isinstance(c, (list, tuple)) and len(c) == 3:
+            c = list(c) + [1.0]
+        kw["color"] = f.vector(c, f"{where}.color", 4)
+    return ObjectSpec(**kw)
+
+
+def scene_from_dict(data: Any, *, path: str | None = None, lines: dict[str, int] | None = None,
+                    base_dir: str | Path | None = None) -> Scene:
+    """Validate a parsed scene mapping. ``base_dir`` resolves relative URDF paths."""
+    f = _Fields(path, lines or {})
+    data = f.mapping(data, "")
+    f.only(data, {"name", "floor", "camera", "objects", "version"}, "")
+    version = data.get("version", SCENE_FORMAT_VERSION)
+    if version != SCENE_FORMAT_VERSION:
+        raise f.error("version", f"unsupported scene format version {version!r} "
+                                 f"(this release reads {SCENE_FORMAT_VERSION})")
+    name = data.get("name", Path(path).stem if path else "scene")
+    if not isinstance(name, str):
+        raise f.error("name", f"must be a string, got {name!r}")
+    floor = data.get("floor", True)
+    if not isinstance(floor, bool):
+        raise f.error("floor", f"must be true or false, got {floor!r}")
+    camera = None
+    if data.get("camera") is not None:
+        c = f.mapping(data["camera"], "camera")
+        f.only(c, {"position", "target", "up", "fov_deg", "aspect", "near", "far"}, "camera")
+        for req in ("position", "target"):
+            if req not in c:
+                raise f.error("camera", f"missing field '{req}'")
+        camera = CameraSpec(
+            position=f.vector(c["position"], "camera.position", 3),
+            target=f.vector(c["target"], "camera.target", 3),
+            up=f.vector(c.get("up", [0, 0, 1]), "camera.up", 3),
+            fov_deg=f.number(c.get("fov_deg", 60.0), "camera.fov_deg", positive=True),
+            aspect=f.number(c.get("aspect", 4 / 3), "camera.aspect", positive=True),
+            near=f.number(c.get("near", 0.1), "camera.near", positive=True),
+            far=f.number(c.get("far", 4.0), "camera.far", positive=True),
+        )
+        if camera.far <= camera.near:
+            raise f.error("camera.far", "must be greater than camera.near")
+        if np.allclose(camera.position, camera.target):
+            raise f.error("camera.target", "must differ from camera.position")
+    raw_objects = data.get("objects")
+    if not isinstance(raw_objects, list) or not raw_objects:
+        raise f.error("objects", "must be a non-empty list of objects")
+    base = Path(base_dir) if base_dir is not None else (Path(path).parent if path else None)
+    objects = []
+    seen: set[str] = set()
+    for i, raw in enumerate(raw_objects):
+        spec = _parse_object(f, raw, f"objects[{i}]", base)
+        if spec.id in seen:
+            raise f.error(f"objects[{i}].id", f"duplicate object id {spec.id!r}")
+        seen.add(spec.id)
+        objects.append(spec)
+    return Scene(name=name, objects=tuple(objects), floor=floor, camera=camera, source=path)
+
+
+def load_scene(path: str | os.PathLike) -> Scene:
+    """Read and validate a scene file (YAML or JSON). Raises :class:`SceneError`."""
+    path = str(path)
+    try:
+        with open(path, encoding="utf-8") as fh:
+            text = fh.read()
+    except FileNotFoundError:
+        raise SceneError("scene file not found", path=path) from None
+    except OSError as exc:
+        raise SceneError(f"cannot read scene file: {exc.strerror}", path=path) from None
+    data, lines = _compose_with_lines(text, path)
+    return scene_from_dict(data, path=path, lines=lines)
+
+
+def scene_to_dict(scene: Scene) -> dict[str, Any]:
+    """Serialise a scene to the file format. URDF paths inside pybullet_data are written portably."""
+    import pybullet_data
+
+    data_dir = os.path.realpath(pybullet_data.getDataPath())
+    out: dict[str, Any] = {"version": SCENE_FORMAT_VERSION, "name": scene.name, "floor": scene.floor}
+    if scene.camera is not None:
+        c = scene.camera
+        out["camera"] = {"position": list(c.position), "target": list(c.target), "up": list(c.up),
+                         "fov_deg": c.fov_deg, "aspect": c.aspect, "near": c.near, "far": c.far}
+    objs = []
+    for o in scene.objects:
+        d: dict[str, Any] = {"id": o.id}
+        if o.shape == "urdf":
+            real = os.path.realpath(o.urdf)
+            d["urdf"] = (PYBULLET_DATA_PREFIX + os.path.relpath(real, data_dir)
+                         if real.startswith(data_dir + os.sep) else o.urdf)
+        elif o.shape == "box":
+            d["box"] = {"size": list(o.size)}
+        elif o.shape == "sphere":
+            d["sphere"] = {"radius": o.radius}
+        elif o.shape == "cylinder":
+            d["cylinder"] = {"radius": o.radius, "height": o.height}
+        else:
+            d["container"] = {"size": list(o.size), "wall": o.wall}
+        if o.position is not None:
+            d["pose"] = {"position": [float(v) for v in o.position],
+                         "orientation": [float(v) for v in o.orientation]}
+        if o.static:
+            d["static"] = True
+        for key in ("mass", "friction", "rolling_friction", "spinning_friction", "restitution"):
+            v = getattr(o, key)
+            if v is not None:
+                d[key] = float(v)
+        if o.scale != 1.0:
+            d["scale"] = o.scale
+        if o.color is not None:
+            d["color"] = list(o.color)
+        objs.append(d)
+    out["objects"] = objs
+    return out

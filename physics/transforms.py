@@ -1,0 +1,110 @@
+"""Vectorised rigid-body transforms on numpy arrays.
+
+Conventions: positions in metres; quaternions are ``(x, y, z, w)`` (pybullet's and scipy's order);
+a pose is a ``(..., 7)`` array ``[px, py, pz, qx, qy, qz, qw]``. All functions broadcast over leading
+axes and return new float64 arrays.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+IDENTITY_QUAT = np.array([0.0, 0.0, 0.0, 1.0])
+
+
+def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product ``a * b`` of ``(..., 4)`` quaternions (x, y, z, w): rotate by b, then by a."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    ax, ay, az, aw = np.moveaxis(a, -1, 0)
+    bx, by, bz, bw = np.moveaxis(b, -1, 0)
+    return np.stack([
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+        aw * bw - ax * bx - ay * by - az * bz,
+    ], axis=-1)
+
+
+def quat_conjugate(q: np.ndarray) -> np.ndarray:
+    """Inverse of unit quaternions ``(..., 4)``."""
+    q = np.array(q, dtype=float)
+    q[..., :3] *= -1.0
+    return q
+
+
+def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate vectors ``v`` ``(..., 3)`` by unit quaternions ``q`` ``(..., 4)``."""
+    q = np.asarray(q, dtype=float)
+    v = np.asarray(v, dtype=float)
+    u = q[..., :3]
+    w = q[..., 3:4]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
+
+
+def quat_normalize(q: np.ndarray, eps: float = 1e-12) -> np.ndarray:
+    """Unit quaternions with a non-negative w. Raises ``ValueError`` on a zero-length quaternion."""
+    q = np.asarray(q, dtype=float)
+    n = np.linalg.norm(q, axis=-1, keepdims=True)
+    if np.any(n < eps):
+        raise ValueError("zero-length quaternion")
+    q = q / n
+    return np.where(q[..., 3:4] < 0.0, -q, q)
+
+
+def quat_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Rotation angle in radians ``[0, pi]`` between unit quaternions ``a`` and ``b`` ``(..., 4)``."""
+    d = np.abs(np.sum(np.asarray(a, float) * np.asarray(b, float), axis=-1))
+    return 2.0 * np.arccos(np.clip(d, 0.0, 1.0))
+
+
+def pose_compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Pose product ``a * b`` of ``(..., 7)`` poses: b expressed in a's frame, mapped to the world."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    pos = a[..., :3] + quat_rotate(a[..., 3:], b[..., :3])
+    quat = quat_multiply(a[..., 3:], b[..., 3:])
+    return np.concatenate([pos, quat], axis=-1)
+
+
+def pose_inverse(a: np.ndarray) -> np.ndarray:
+    """Inverse of ``(..., 7)`` poses."""
+    a = np.asarray(a, dtype=float)
+    qi = quat_conjugate(a[..., 3:])
+    return np.concatenate([-quat_rotate(qi, a[..., :3]), qi], axis=-1)
+
+
+def carry_pose(child: np.ndarray, parent_before: np.ndarray, parent_after: np.ndarray) -> np.ndarray:
+    """Move ``child`` rigidly with a parent that moved from ``parent_before`` to ``parent_after``.
+
+    All ``(..., 7)``. Rotation of the parent is applied to the child, about the parent's origin.
+    """
+    rel = pose_compose(pose_inverse(parent_before), child)
+    return pose_compose(parent_after, rel)
+
+
+def quat_from_axis_angle(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Quaternions from unit ``axis`` ``(..., 3)`` and ``angle`` (radians, ``(...)``)."""
+    axis = np.asarray(axis, dtype=float)
+    half = 0.5 * np.asarray(angle, dtype=float)[..., None]
+    return np.concatenate([axis * np.sin(half), np.cos(half)], axis=-1)
+
+
+def quat_to_rotvec(q: np.ndarray) -> np.ndarray:
+    """Rotation vectors (axis * angle, radians) of unit quaternions ``(..., 4)``."""
+    q = quat_normalize(q)
+    s = np.linalg.norm(q[..., :3], axis=-1)
+    angle = 2.0 * np.arctan2(s, q[..., 3])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        scale = np.where(s > 1e-12, angle / np.maximum(s, 1e-300), 2.0)
+    return q[..., :3] * scale[..., None]
+
+
+def quat_from_rotvec(r: np.ndarray) -> np.ndarray:
+    """Unit quaternions from rotation vectors ``(..., 3)`` (axis * angle, radians)."""
+    r = np.asarray(r, dtype=float)
+    angle = np.linalg.norm(r, axis=-1)
+    half = 0.5 * angle
+    with np.errstate(invalid="ignore", divide="ignore"):
+        k = np.where(angle > 1e-12, np.sin(half) / np.maximum(angle, 1e-300), 0.5)
+    return np.concatenate([r * k[..., None], np.cos(half)[..., None]], axis=-1)

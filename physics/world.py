@@ -1,0 +1,361 @@
+"""A pybullet world built from a :class:`~physics.scene.Scene`, with named, array-based access.
+
+One :class:`World` owns one DIRECT pybullet client; every pybullet call names that client, and the
+client is closed by :meth:`World.close` (or by leaving a ``with`` block), never by a finaliser.
+
+Arrays (float64):
+
+* poses ``(M, 7)``: position (m) and orientation quaternion (x, y, z, w) of each object's base
+  *link frame* (the URDF frame, not pybullet's centre-of-mass frame);
+* velocities ``(M, 6)``: linear (m/s, of the link-frame origin) and angular (rad/s), world frame;
+* AABBs ``(M, 2, 3)``: world-frame ``[min, max]`` corners.
+
+``M`` is the number of objects of the scene, in scene order; :attr:`World.object_ids` names them.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pybullet as pb
+
+from .errors import SceneError
+from .scene import ObjectSpec, Scene
+from .transforms import pose_compose, pose_inverse, quat_rotate
+
+FLOOR = -2
+"""Body index returned by ray queries for the floor plane (``-1`` means nothing was hit)."""
+
+DEFAULT_PRIMITIVE_MASS = 0.1
+DEFAULT_URDF_MASS = 0.5
+PARK_DISTANCE = 50.0
+MAX_RAYS_PER_BATCH = 16000
+
+
+@dataclass(frozen=True)
+class PhysicsSettings:
+    """Engine settings of a world.
+
+    ``time_step`` is the fixed step (s); ``solver_iterations`` Bullet's constraint-solver iterations;
+    ``deterministic_pairs`` sorts overlapping pairs so that two identically built worlds agree bit
+    for bit. Sleeping is always disabled (a reset does not wake a sleeping body).
+    """
+
+    time_step: float = 1.0 / 240.0
+    gravity: float = -9.81
+    solver_iterations: int = 50
+    deterministic_pairs: bool = True
+
+    def __post_init__(self):
+        if not (self.time_step > 0 and math.isfinite(self.time_step)):
+            raise ValueError(f"time_step must be > 0, got {self.time_step}")
+        if self.solver_iterations < 1:
+            raise ValueError(f"solver_iterations must be >= 1, got {self.solver_iterations}")
+
+
+class World:
+    """A physics world holding the objects of ``scene`` (plus an optional floor plane at z = 0).
+
+    Objects whose scene pose is ``None`` are *parked* (far away, out of every other object's reach)
+    until the caller sets a pose; :attr:`parked_pose` gives the pose used.
+    """
+
+    def __init__(self, scene: Scene, settings: PhysicsSettings | None = None):
+        self.scene = scene
+        self.settings = settings or PhysicsSettings()
+        self.object_ids: tuple[str, ...] = scene.object_ids
+        self._index = {oid: i for i, oid in enumerate(self.object_ids)}
+        self.client = pb.connect(pb.DIRECT)
+        if self.client < 0:
+            raise RuntimeError("could not start a pybullet DIRECT client")
+        try:
+            self._build()
+        except BaseException:
+            self.close()
+            raise
+
+    # -- life cycle ---------------------------------------------------------------------------------
+    def close(self) -> None:
+        """Disconnect the pybullet client. Safe to call twice."""
+        if getattr(self, "client", -1) >= 0:
+            try:
+                pb.disconnect(physicsClientId=self.client)
+            except pb.error:
+                pass
+            self.client = -1
+
+    @property
+    def closed(self) -> bool:
+        return self.client < 0
+
+    def __enter__(self) -> "World":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- building -----------------------------------------------------------------------------------
+    def _build(self) -> None:
+        c = self.client
+        s = self.settings
+        pb.setGravity(0, 0, s.gravity, physicsClientId=c)
+        pb.setPhysicsEngineParameter(fixedTimeStep=s.time_step, numSolverIterations=s.solver_iterations,
+                                     deterministicOverlappingPairs=int(s.deterministic_pairs),
+                                     physicsClientId=c)
+        self.floor_uid = -1
+        if self.scene.floor:
+            plane = pb.createCollisionShape(pb.GEOM_PLANE, physicsClientId=c)
+            self.floor_uid = pb.createMultiBody(0, plane, physicsClientId=c)
+        uids, offsets, static = [], [], []
+        for i, spec in enumerate(self.scene.objects):
+            uid = self._create(i, spec)
+            uids.append(uid)
+            info = pb.getDynamicsInfo(uid, -1, physicsClientId=c)
+            offsets.append(list(info[3]) + list(info[4]))
+            static.append(spec.static)
+            pb.changeDynamics(uid, -1, activationState=pb.ACTIVATION_STATE_DISABLE_SLEEPING,
+                              physicsClientId=c)
+        self.uids: tuple[int, ...] = tuple(uids)
+        self._uid_to_index = {u: i for i, u in enumerate(uids)}
+        self.static = np.array(static, dtype=bool)
+        self.dynamic_indices = np.flatnonzero(~self.static)
+        off = np.array(offsets, dtype=float).reshape(len(uids), 7)
+        self._inertial = off  # centre-of-mass frame expressed in the link frame
+        self._has_offset = bool(np.any(np.abs(off[:, :3]) > 1e-12)
+                                or np.any(np.abs(off[:, 3:6]) > 1e-12))
+        self._inertial_inv = pose_inverse(off)
+        self._num_links = [pb.getNumJoints(u, physicsClientId=c) for u in uids]
+        self.parked_pose = np.zeros((len(uids), 7))
+        self.parked_pose[:, 0] = PARK_DISTANCE + 3.0 * np.arange(len(uids))
+        self.parked_pose[:, 1] = PARK_DISTANCE
+        self.parked_pose[:, 2] = -PARK_DISTANCE
+        self.parked_pose[:, 6] = 1.0
+        initial = self.parked_pose.copy()
+        for i, spec in enumerate(self.scene.objects):
+            if spec.position is not None:
+                initial[i, :3] = spec.position
+                initial[i, 3:] = spec.orientation
+        self.set_poses(initial)
+        self.set_velocities(np.zeros((len(uids), 6)))
+
+    def _create(self, i: int, spec: ObjectSpec) -> int:
+        c = self.client
+        pos = list(spec.position) if spec.position is not None else [0.0, 0.0, -PARK_DISTANCE]
+        orn = list(spec.orientation)
+        if spec.shape == "urdf":
+            uid = -1
+            for _attempt in range(2):  # a transient failure (file being written) gets one retry
+                try:
+                    uid = pb.loadURDF(spec.urdf, pos, orn, useFixedBase=spec.static,
+                                      globalScaling=spec.scale, physicsClientId=c)
+                    break
+                except pb.error:
+                    uid = -1
+            if uid < 0:
+                raise SceneError(f"pybullet could not load URDF {spec.urdf}", path=self.scene.source,
+                                 field=f"objects[{i}].urdf")
+            if spec.static:
+                pb.changeDynamics(uid, -1, mass=0.0, physicsClientId=c)
+            else:
+                mass = spec.mass
+                if mass is None and pb.getDynamicsInfo(uid, -1, physicsClientId=c)[0] <= 0:
+                    mass = DEFAULT_URDF_MASS
+                if mass is not None:
+                    pb.changeDynamics(uid, -1, mass=mass, physicsClientId=c)
+        else:
+            shape = self._collision_shape(spec)
+            mass = 0.0 if spec.static else (spec.mass if spec.mass is not None else DEFAULT_PRIMITIVE_MASS)
+            uid = pb.createMultiBody(mass, shape, -1, pos, orn, physicsClientId=c)
+        self._apply_dynamics(uid, spec.friction, spec.rolling_friction, spec.spinning_friction,
+                             spec.restitution)
+        return uid
+
+    def _collision_shape(self, spec: ObjectSpec) -> int:
+        c = self.client
+        if spec.shape == "box":
+            return pb.createCollisionShape(pb.GEOM_BOX, halfExtents=[0.5 * v for v in spec.size],
+                                           physicsClientId=c)
+        if spec.shape == "sphere":
+            return pb.createCollisionShape(pb.GEOM_SPHERE, radius=spec.radius, physicsClientId=c)
+        if spec.shape == "cylinder":
+            return pb.createCollisionShape(pb.GEOM_CYLINDER, radius=spec.radius, height=spec.height,
+                                           physicsClientId=c)
+        # open-top container: floor + four walls, frame at the centre of the outer box
+        sx, sy, sz = spec.size
+        w = spec.wall
+        half = [[sx / 2, sy / 2, w / 2],
+                [w / 2, sy / 2, sz / 2], [w / 2, sy / 2, sz / 2],
+                [sx / 2 - w, w / 2, sz / 2], [sx / 2 - w, w / 2, sz / 2]]
+        centres = [[0, 0, -sz / 2 + w / 2],
+                   [sx / 2 - w / 2, 0, 0], [-sx / 2 + w / 2, 0, 0],
+                   [0, sy / 2 - w / 2, 0], [0, -sy / 2 + w / 2, 0]]
+        return pb.createCollisionShapeArray([pb.GEOM_BOX] * 5, halfExtents=half,
+                                            collisionFramePositions=centres, physicsClientId=c)
+
+    def _apply_dynamics(self, uid, friction, rolling, spinning, restitution) -> None:
+        kw = {}
+        if friction is not None:
+            kw["lateralFriction"] = float(friction)
+        if rolling is not None:
+            kw["rollingFriction"] = float(rolling)
+        if spinning is not None:
+            kw["spinningFriction"] = float(spinning)
+        if restitution is not None:
+            kw["restitution"] = float(restitution)
+        if kw:
+            pb.changeDynamics(uid, -1, physicsClientId=self.client, **kw)
+
+    # -- named access -------------------------------------------------------------------------------
+    @property
+    def num_objects(self) -> int:
+        return len(self.uids)
+
+    def index(self, object_id: str) -> int:
+        """Index of ``object_id`` in the arrays of this world. ``KeyError`` if unknown."""
+        return self._index[object_id]
+
+    def index_of_uid(self, uid: int) -> int:
+        """Object index of a pybullet body id; :data:`FLOOR` for the floor, -1 for anything else."""
+        if uid == self.floor_uid and uid >= 0:
+            return FLOOR
+        return self._uid_to_index.get(uid, -1)
+
+    # -- poses and velocities -----------------------------------------------------------------------
+    def _indices(self, indices) -> list[int]:
+        if indices is None:
+            return list(range(len(self.uids)))
+        return [int(i) for i in np.atleast_1d(indices)]
+
+    def get_poses(self, indices=None) -> np.ndarray:
+        """Link-frame poses ``(n, 7)`` of the objects ``indices`` (default: all, in scene order)."""
+        idx = self._indices(indices)
+        c = self.client
+        flat: list[float] = []
+        get = pb.getBasePositionAndOrientation
+        for i in idx:
+            p, q = get(self.uids[i], physicsClientId=c)
+            flat.extend(p)
+            flat.extend(q)
+        poses = np.array(flat, dtype=float).reshape(len(idx), 7)
+        if self._has_offset:
+            poses = pose_compose(poses, self._inertial_inv[idx])
+        return poses
+
+    def set_poses(self, poses: np.ndarray, indices=None) -> None:
+        """Teleport objects ``indices`` to link-frame ``poses`` ``(n, 7)``. Velocities are kept."""
+        idx = self._indices(indices)
+        poses = np.asarray(poses, dtype=float).reshape(len(idx), 7)
+        if self._has_offset:
+            poses = pose_compose(poses, self._inertial[idx])
+        c = self.client
+        reset = pb.resetBasePositionAndOrientation
+        rows = poses.tolist()
+        for i, row in zip(idx, rows):
+            reset(self.uids[i], row[:3], row[3:], physicsClientId=c)
+
+    def get_velocities(self, indices=None) -> np.ndarray:
+        """Velocities ``(n, 6)``: linear velocity of the link-frame origin and angular velocity."""
+        idx = self._indices(indices)
+        c = self.client
+        flat: list[float] = []
+        for i in idx:
+            v, w = pb.getBaseVelocity(self.uids[i], physicsClientId=c)
+            flat.extend(v)
+            flat.extend(w)
+        vel = np.array(flat, dtype=float).reshape(len(idx), 6)
+        if self._has_offset:
+            poses = self.get_poses(idx)
+            com_to_link = -quat_rotate(poses[:, 3:], self._inertial[idx, :3])
+            vel[:, :3] += np.cross(vel[:, 3:], com_to_link)
+        return vel
+
+    def set_velocities(self, velocities: np.ndarray, indices=None) -> None:
+        """Set velocities ``(n, 6)`` (linear of the link-frame origin, angular), world frame."""
+        idx = self._indices(indices)
+        vel = np.array(velocities, dtype=float).reshape(len(idx), 6)
+        if self._has_offset:
+            poses = self.get_poses(idx)
+            link_to_com = quat_rotate(poses[:, 3:], self._inertial[idx, :3])
+            vel[:, :3] += np.cross(vel[:, 3:], link_to_com)
+        c = self.client
+        rows = vel.tolist()
+        for i, row in zip(idx, rows):
+            pb.resetBaseVelocity(self.uids[i], row[:3], row[3:], physicsClientId=c)
+
+    def step(self, n: int = 1) -> None:
+        """Advance the simulation by ``n`` fixed steps of :attr:`PhysicsSettings.time_step` seconds."""
+        c = self.client
+        for _ in range(int(n)):
+            pb.stepSimulation(physicsClientId=c)
+
+    # -- physical parameters ------------------------------------------------------------------------
+    def set_dynamics(self, index: int, *, lateral_friction: float | None = None,
+                     rolling_friction: float | None = None, spinning_friction: float | None = None,
+                     restitution: float | None = None, mass: float | None = None) -> None:
+        """Change physical parameters of object ``index``; ``None`` leaves a parameter unchanged."""
+        uid = self.uids[index]
+        self._apply_dynamics(uid, lateral_friction, rolling_friction, spinning_friction, restitution)
+        if mass is not None and not self.static[index]:
+            pb.changeDynamics(uid, -1, mass=float(mass), physicsClientId=self.client)
+
+    def get_dynamics(self, index: int) -> dict[str, float]:
+        """Mass (kg), lateral / rolling / spinning friction and restitution of object ``index``."""
+        info = pb.getDynamicsInfo(self.uids[index], -1, physicsClientId=self.client)
+        return {"mass": info[0], "lateral_friction": info[1], "restitution": info[5],
+                "rolling_friction": info[6], "spinning_friction": info[7]}
+
+    # -- queries ------------------------------------------------------------------------------------
+    def aabbs(self, indices=None) -> np.ndarray:
+        """World-frame axis-aligned bounding boxes ``(n, 2, 3)`` (all links of each body)."""
+        idx = self._indices(indices)
+        c = self.client
+        out = np.empty((len(idx), 2, 3))
+        for k, i in enumerate(idx):
+            uid = self.uids[i]
+            lo, hi = pb.getAABB(uid, -1, physicsClientId=c)
+            lo, hi = np.array(lo), np.array(hi)
+            for link in range(self._num_links[i]):
+                a, b = pb.getAABB(uid, link, physicsClientId=c)
+                lo = np.minimum(lo, a)
+                hi = np.maximum(hi, b)
+            out[k, 0], out[k, 1] = lo, hi
+        return out
+
+    def in_contact(self, a: int, b: int | None = None) -> bool:
+        """True when object ``a`` touches object ``b`` (or anything, if ``b`` is None; the floor is
+        :data:`FLOOR`). Uses the contacts of the last step."""
+        kw = {"bodyA": self.uids[a], "physicsClientId": self.client}
+        if b is not None:
+            kw["bodyB"] = self.floor_uid if b == FLOOR else self.uids[b]
+        return len(pb.getContactPoints(**kw)) > 0
+
+    def ray_test(self, origins: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Cast rays ``origins`` -> ``ends`` ``(N, 3)``.
+
+        Returns ``(hit_index (N,) int, hit_fraction (N,) float)``: the object index of the first hit
+        (:data:`FLOOR` for the floor, -1 for none) and the fraction of the ray's length where it hit
+        (1.0 for none).
+        """
+        origins = np.asarray(origins, dtype=float).reshape(-1, 3)
+        ends = np.asarray(ends, dtype=float).reshape(-1, 3)
+        n = len(origins)
+        hit = np.full(n, -1, dtype=int)
+        frac = np.ones(n)
+        for start in range(0, n, MAX_RAYS_PER_BATCH):
+            stop = min(n, start + MAX_RAYS_PER_BATCH)
+            res = pb.rayTestBatch(origins[start:stop].tolist(), ends[start:stop].tolist(),
+                                  physicsClientId=self.client)
+            for k, r in enumerate(res):
+                if r[0] >= 0:
+                    hit[start + k] = self.index_of_uid(r[0])
+                    frac[start + k] = r[2]
+        return hit, frac
+
+    def save_state(self) -> int:
+        """Save the full simulation state in memory (about 650 us); returns an id for restore."""
+        return pb.saveState(physicsClientId=self.client)
+
+    def restore_state(self, state_id: int) -> None:
+        """Restore a state saved by :meth:`save_state` (about 5 us)."""
+        pb.restoreState(stateId=state_id, physicsClientId=self.client)

@@ -1,0 +1,44 @@
+"""Shared builders for the tests: small scenes and synthetic frames."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from estimator.observations import Detection, Frame
+from physics.scene import scene_from_dict
+
+TABLE_TOP = 0.626  # pybullet_data table/table.urdf, at the origin
+
+
+def table_scene(*objects, camera=None, floor=True):
+    data = {"name": "test", "floor": floor, "objects": [
+        {"id": "table", "static": True, "urdf": "pybullet_data://table/table.urdf",
+         "pose": {"position": [0, 0, 0]}}, *objects]}
+    if camera is not None:
+        data["camera"] = camera
+    return scene_from_dict(data)
+
+
+def det(position, orientation=(0, 0, 0, 1)):
+    return Detection(np.asarray(position, float), None if orientation is None else np.asarray(orientation, float))
+
+
+def frames(times, objects_at):
+    """Frames at ``times``; ``objects_at(t)`` returns {id: position or (position, orientation)}."""
+    out = []
+    for t in times:
+        objs = {}
+        for oid, v in objects_at(t).items():
+            if isinstance(v, tuple):
+                objs[oid] = det(v[0], v[1])
+            else:
+                objs[oid] = det(v)
+        out.append(Frame(float(t), objs))
+    return out
+
+
+def write_jsonl(path, rows):
+    with open(path, "w") as fh:
+        for r in rows:
+            fh.write((r if isinstance(r, str) else json.dumps(r)) + "\n")

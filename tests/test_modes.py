@@ -1,0 +1,25 @@
+import numpy as np
+import pytest
+
+from actions.modes import FREE, HELD, NO_EVENT, PICK, PLACE, RELEASE, ModePriors, switch_events
+
+
+def test_switch_events_labels():
+    prev = np.array([FREE, HELD, HELD, FREE, HELD])
+    new = np.array([HELD, FREE, FREE, FREE, HELD])
+    perceived = np.array([True, True, False, True, False])
+    assert switch_events(prev, new, perceived).tolist() == [PICK, PLACE, RELEASE, NO_EVENT, NO_EVENT]
+    # batched (K, M) with perceived broadcast over particles
+    k = switch_events(np.stack([prev, prev]), np.stack([new, prev]), perceived)
+    assert k.shape == (2, 5) and k[1].tolist() == [0] * 5
+
+
+def test_priors_costs():
+    pr = ModePriors(pick=0.1, place=0.3)
+    prev = np.array([FREE, FREE, HELD, HELD, HELD])
+    new = np.array([HELD, FREE, FREE, HELD, FREE])
+    seen = np.array([True, True, True, True, False])
+    c = pr.log_prior_cost(prev, new, seen)
+    assert np.allclose(c, np.log([0.1, 0.9, 0.3, 0.7, 1.0]))
+    with pytest.raises(ValueError):
+        ModePriors(pick=1.5)

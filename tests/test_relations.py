@@ -1,0 +1,71 @@
+import numpy as np
+import pytest
+
+from estimator.relations import RelationConfig, relation_list, relation_masks
+from physics.world import World
+
+from helpers import TABLE_TOP, table_scene
+
+
+def box(lo, hi):
+    return np.array([lo, hi], dtype=float)
+
+
+def test_stack_and_container_on_hand_made_boxes():
+    aabbs = np.stack([
+        box([-0.75, -0.5, 0.57], [0.75, 0.5, 0.626]),   # 0 table
+        box([0.0, 0.0, 0.628], [0.1, 0.1, 0.728]),      # 1 block on table (2 mm gap)
+        box([0.02, 0.02, 0.73], [0.08, 0.08, 0.79]),    # 2 block on block 1
+        box([0.3, 0.0, 0.626], [0.6, 0.2, 0.746]),      # 3 open box on table
+        box([0.4, 0.05, 0.636], [0.46, 0.11, 0.696]),   # 4 ball in box 3
+        box([2.0, 2.0, 0.0], [2.1, 2.1, 0.1]),          # 5 on the floor
+    ])
+    static = np.array([True, False, False, False, False, False])
+    on, inside = relation_masks(aabbs, static=static)
+    names = ["table", "b1", "b2", "box", "ball", "crate", "floor"]
+    got_on = {(names[a], names[b]) for a, b in zip(*np.nonzero(on))}
+    got_in = {(names[a], names[b]) for a, b in zip(*np.nonzero(inside))}
+    assert got_on == {("b1", "table"), ("b2", "b1"), ("box", "table"), ("crate", "floor")}
+    assert got_in == {("ball", "box")}  # not also "on the table" through the box's floor
+    rel = relation_list(on, inside, names[:-1])
+    assert {"subject": "ball", "predicate": "isIn", "object": "box", "p": 1.0} in rel
+
+
+def test_margins_are_symmetric_and_hysteresis_holds():
+    cfg = RelationConfig(margin=0.01, hysteresis=0.01)
+    container = box([0, 0, 0], [0.3, 0.3, 0.1])
+    for dx in (-0.015, 0.015):  # the same overhang on either side gives the same answer
+        lo = np.array([0.0, 0.1, 0.01]) if dx < 0 else np.array([0.24, 0.1, 0.01])
+        item = box(lo + [dx, 0, 0], lo + [0.06 + dx, 0.06, 0.07])
+        on, inside = relation_masks(np.stack([container, item]), config=cfg, floor=False)
+        assert not inside[1, 0]
+        _, kept = relation_masks(np.stack([container, item]), config=cfg, floor=False,
+                                 previous=(np.zeros((2, 3), bool), np.array([[False, False], [True, False]])))
+        assert kept[1, 0]  # within margin + hysteresis: an existing fact is kept
+    # batched over particles: (K, M, 2, 3)
+    k = np.stack([np.stack([container, box([0.1, 0.1, 0.01], [0.2, 0.2, 0.05])])] * 3)
+    on, inside = relation_masks(k, floor=False)
+    assert inside.shape == (3, 2, 2) and inside[:, 1, 0].all() and on.shape == (3, 2, 3)
+    with pytest.raises(ValueError):
+        relation_masks(np.zeros((3, 3)))
+
+
+def test_relations_on_pybullet_data_tray_and_mug():
+    scene = table_scene(
+        {"id": "tray", "urdf": "pybullet_data://tray/traybox.urdf", "mass": 1.0,
+         "pose": {"position": [0, 0, TABLE_TOP + 0.012]}},
+        {"id": "mug", "urdf": "pybullet_data://objects/mug.urdf", "mass": 0.3,
+         "pose": {"position": [0.12, 0.1, TABLE_TOP + 0.05]}},
+        {"id": "ball", "sphere": {"radius": 0.012}, "mass": 0.01,
+         "pose": {"position": [0.12, 0.1, TABLE_TOP + 0.09]}},
+        {"id": "b1", "box": {"size": [0.05, 0.05, 0.05]}, "pose": {"position": [0.5, 0.3, 0.66]}},
+        {"id": "b2", "box": {"size": [0.04, 0.04, 0.04]}, "pose": {"position": [0.5, 0.3, 0.72]}})
+    with World(scene) as w:
+        w.step(480)
+        on, inside = relation_masks(w.aabbs(), static=w.static)
+    names = list(scene.object_ids) + ["floor"]
+    got_on = {(names[a], names[b]) for a, b in zip(*np.nonzero(on))}
+    got_in = {(names[a], names[b]) for a, b in zip(*np.nonzero(inside))}
+    assert ("ball", "mug") in got_in and ("mug", "tray") in got_in and ("ball", "tray") in got_in
+    assert ("tray", "table") in got_on and ("b1", "table") in got_on and ("b2", "b1") in got_on
+    assert ("mug", "table") not in got_on and ("ball", "table") not in got_on
