@@ -131,6 +131,8 @@ class EstimatorConfig:
     * ``event_threshold``: an event enters the timeline when its probability exceeds this.
     * ``negative_evidence``: particles that put an unperceived object in plain view of the camera
       lose weight (needs a camera in the scene).
+    * ``follow_hands``: a held object that is not detected follows the tracked hand nearest to it
+      when last detected (the paper's reasoner ignores hands: off in paper mode).
     * ``visibility_threshold``: fraction of an object's sample points in view for it to count as
       visible to the camera.
     """
@@ -145,6 +147,7 @@ class EstimatorConfig:
     resample_threshold: float = 0.5
     event_threshold: float = 0.5
     negative_evidence: bool = True
+    follow_hands: bool = True
     visibility_threshold: float = 0.3
     hypothesis_min_p: float = 0.02
 
@@ -168,4 +171,4 @@ class EstimatorConfig:
     def paper(cls, reasoner: ReasonerConfig | None = None) -> "EstimatorConfig":
         """The single-world, noise-free physics reasoner of Sallami et al. (2019)."""
         return cls(particles=1, noise=NoiseConfig.off(), reasoner=reasoner or ReasonerConfig(),
-                   priors=ModePriors(release_on_loss=1.0), negative_evidence=False)
+                   priors=ModePriors(release_on_loss=1.0), negative_evidence=False, follow_hands=False)

@@ -5,7 +5,8 @@ advanced by the configured horizon, and returns a :class:`~estimator.belief.Beli
 frames that only update the perception memory). With one particle and :meth:`NoiseConfig.off` it *is*
 the physics reasoner of Sallami et al. (IROS 2019), its "paper mode".
 
-One update (time t, previous update at t0, ``n = round((t - t0) / time_step)`` simulation steps):
+One update (time t, previous update at t0, ``n = round((t - t0) / time_step)`` simulation steps; the
+first update simulates nothing, so that simulated time is the stream's time):
 
 1. perception memory: last perceived pose, time and velocity (finite differences) of each object;
    perceived = seen within ``t_perceived``;
@@ -131,7 +132,7 @@ class SceneEstimator:
         self.perceived_prev = np.zeros(M, dtype=bool)
         self.ever_seen = np.zeros(M, dtype=bool)
         self.hold_hand: list[str | None] = [None] * M
-        self.hold_offset = np.zeros((K, M, 3))
+        self.hold_offset = np.zeros((M, 3))
         self.t_frame: float | None = None
         self.t_tick: float | None = None
         self._detected_since_tick = np.zeros(M, dtype=bool)
@@ -179,7 +180,21 @@ class SceneEstimator:
             self.last_has_orientation[m] = det.orientation is not None
             self.last_std[m] = det.position_std if det.position_std is not None else np.nan
             self.last_seen[m] = frame.t
+            self._nearest_hand(frame, m)
         return detected
+
+    def _nearest_hand(self, frame: Frame, m: int) -> None:
+        """Remember the tracked hand nearest to object m (within 0.3 m) and the offset to it."""
+        self.hold_hand[m] = None
+        if not frame.hands:
+            return
+        names = list(frame.hands)
+        hp = np.array([frame.hands[n] for n in names])
+        d = np.linalg.norm(hp - self.last_pose[m, :3], axis=1)
+        best = int(np.argmin(d))
+        if d[best] < 0.3:
+            self.hold_hand[m] = names[best]
+            self.hold_offset[m] = self.last_pose[m, :3] - hp[best]
 
     def update(self, frame: Frame) -> Belief | None:
         """Process one perception frame; returns the belief if a reasoning step ran, else None."""
@@ -202,9 +217,10 @@ class SceneEstimator:
         rng = self.rng
         K, M = self.K, self.M
         t = frame.t
-        dt = hr.horizon if self.t_tick is None else t - self.t_tick
+        # the first update only places the objects: simulated time follows the stream's time
+        dt = 0.0 if self.t_tick is None else t - self.t_tick
         step = cfg.physics.time_step
-        n_steps = max(1, int(round(dt / step)))
+        n_steps = int(round(dt / step))
         perceived = self.dynamic & (t - self.last_seen <= hr.t_perceived + 1e-9)
         poses = self.poses.copy()
         vel = self.velocities.copy()
@@ -228,8 +244,6 @@ class SceneEstimator:
         p_rel = np.where(lost[None, :], cfg.priors.release_on_loss, cfg.priors.release)
         released = held_unseen & (u < p_rel)
         modes[released] = FREE
-        if np.any(lost):
-            self._remember_hands(frame, np.flatnonzero(lost), poses)
 
         # targets of held objects
         target = poses.copy()
@@ -243,9 +257,9 @@ class SceneEstimator:
             has_q = self.last_has_orientation[pidx]
             target[:, pidx[has_q], 3:] = self.last_pose[pidx[has_q], 3:]
             target_vel[:, pidx, :3] = self.perc_vel[pidx, :3]
-        held_unseen = (modes == HELD) & ~perceived[None, :]
-        if np.any(held_unseen):
-            self._held_targets(frame, target, held_unseen, dt)
+        held_undetected = (modes == HELD) & ~detected[None, :]
+        if np.any(held_undetected):
+            self._held_targets(frame, target, held_undetected, perceived, dt)
 
         # 4. process noise on unperceived free objects
         free_unseen = (modes == FREE) & (~perceived & self.dynamic & self.known)[None, :]
@@ -347,29 +361,18 @@ class SceneEstimator:
         vel[:, idx] = 0.0
         vel[:, idx, :3] = self.perc_vel[idx, :3]
 
-    def _remember_hands(self, frame: Frame, lost: np.ndarray, poses: np.ndarray) -> None:
-        """When held objects stop being perceived, remember which hand holds them, and the offset."""
-        for m in lost:
-            self.hold_hand[m] = None
-            if not frame.hands:
-                continue
-            names = list(frame.hands)
-            hp = np.array([frame.hands[n] for n in names])
-            d = np.linalg.norm(hp - self.last_pose[m, :3], axis=1)
-            best = int(np.argmin(d))
-            if d[best] < 0.3:
-                self.hold_hand[m] = names[best]
-                self.hold_offset[:, m] = self.last_pose[m, :3] - hp[best]
-
-    def _held_targets(self, frame: Frame, target: np.ndarray, held_unseen: np.ndarray, dt: float) -> None:
-        """Targets of held, unperceived objects: the remembered hand, or stay put with drift."""
+    def _held_targets(self, frame: Frame, target: np.ndarray, held: np.ndarray, perceived: np.ndarray,
+                      dt: float) -> None:
+        """Targets of held objects not detected in this update: the hand that held them when last
+        detected, if it is tracked; else where they were last perceived (while perceived) or where
+        the particle has them, with a drift that grows the uncertainty."""
         nz = self.config.noise
-        for m in np.flatnonzero(held_unseen.any(axis=0)):
-            rows = held_unseen[:, m]
+        for m in np.flatnonzero(held.any(axis=0)):
+            rows = held[:, m]
             hand = self.hold_hand[m]
-            if hand is not None and hand in frame.hands:
-                target[rows, m, :3] = np.asarray(frame.hands[hand]) + self.hold_offset[rows, m]
-            elif nz.held_drift_std > 0:
+            if hand is not None and hand in frame.hands and self.config.follow_hands:
+                target[rows, m, :3] = np.asarray(frame.hands[hand]) + self.hold_offset[m]
+            elif not perceived[m] and nz.held_drift_std > 0:
                 target[rows, m, :3] += self.rng.normal(0.0, nz.held_drift_std * math.sqrt(dt),
                                                        (int(rows.sum()), 3))
 
@@ -412,7 +415,7 @@ class SceneEstimator:
 
     def _resample(self, weights: np.ndarray) -> None:
         anc = systematic_resample(weights, self.rng)
-        for name in ("poses", "velocities", "params", "modes", "on_top", "is_in", "hold_offset"):
+        for name in ("poses", "velocities", "params", "modes", "on_top", "is_in"):
             setattr(self, name, getattr(self, name)[anc].copy())
         self.log_weights = np.zeros(self.K)
         self._jitter_params(weights[anc] / weights[anc].sum())

@@ -31,7 +31,8 @@ def build_config(args) -> EstimatorConfig:
     if not noisy:
         paper = EstimatorConfig.paper(reasoner)
         return EstimatorConfig(particles=args.particles, workers=args.workers, reasoner=reasoner,
-                               noise=NoiseConfig.off(), priors=paper.priors, negative_evidence=False)
+                               noise=NoiseConfig.off(), priors=paper.priors, negative_evidence=False,
+                               follow_hands=False)
     return EstimatorConfig(particles=args.particles, workers=args.workers, reasoner=reasoner,
                            noise=NoiseConfig())
 
@@ -107,8 +108,9 @@ def _add_estimator_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--d-perc-prev", type=float, default=d.d_perc_prev, help="perception jump in m (0.032)")
 
 
-def print_summary(summary: dict, stream=sys.stdout) -> None:
+def print_summary(summary: dict, stream=None) -> None:
     """A readable timeline and the final poses."""
+    stream = stream or sys.stdout
     tl = summary["timeline"]
     print(f"{summary['frames']} frames read, {summary['skipped']} skipped, {summary['estimates']} "
           f"reasoning steps in {summary['seconds']:.2f} s", file=stream)

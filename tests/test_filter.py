@@ -1,4 +1,6 @@
 """The estimator in paper mode (one world, no noise): the behaviours of the IROS 2019 reasoner."""
+import json
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -130,3 +132,135 @@ def test_time_must_increase_and_unknown_ids_are_rejected():
             est.update(Frame(0.0, {}))
         with pytest.raises(ValueError, match="unknown object"):
             est.update(Frame(0.1, {"mug": det([0, 0, 0.7])}))
+
+
+# ---------------------------------------------------------------------------------------------------
+# The particle filter: statistics against independent answers, determinism, degenerate cases
+
+from estimator.config import NoiseConfig  # noqa: E402
+from physics.scene import scene_from_dict  # noqa: E402
+from physics.world import World  # noqa: E402
+
+STILL = NoiseConfig(process_position_std=0.0, process_orientation_std=0.0)
+
+
+def test_unseen_free_fall_mean_matches_the_analytic_solution():
+    z0, k = 3.0, 64
+    scene = scene_from_dict({"objects": [{"id": "ball", "sphere": {"radius": 0.03}, "pose": {"position": [0, 0, z0]}}]})
+    cfg = EstimatorConfig(particles=k, noise=NoiseConfig(position_std=0.01))
+    with SceneEstimator(scene, cfg, np.random.default_rng(11)) as est:
+        b = est.run([Frame(i / 30, {}) for i in range(16)])[-1]
+        z = est.poses[:, 0, 2]
+    n, dt = round(b.t * 240), 1 / 240
+    exact = z0 - 9.81 * dt * dt * n * (n + 1) / 2  # Bullet's semi-implicit Euler, solved exactly
+    assert abs(b.t * 240 - n) < 1e-9 and n == 120
+    se = z.std(ddof=1) / np.sqrt(k)
+    assert abs(b.objects["ball"].position[2] - exact) < 3 * se
+    # the spread is the prior's (0.01 m) plus the process noise random walk
+    assert 0.006 < np.sqrt(b.objects["ball"].position_cov[2, 2]) < 0.015
+    assert b.ess == pytest.approx(k)  # nothing was perceived: the weights stay uniform
+
+
+def test_ball_over_a_ridge_lands_left_or_right_as_brute_force_monte_carlo_says():
+    ridge = {"id": "ridge", "static": True, "box": {"size": [0.4, 0.2, 0.2]},
+             "pose": {"position": [0, 0, 0], "orientation": [0.3826834, 0, 0, 0.9238795]}}
+    start = [0.0, 0.004, 0.4]
+    scene = scene_from_dict({"objects": [ridge, {"id": "ball", "sphere": {"radius": 0.03}, "mass": 0.05,
+                                                 "pose": {"position": start}}]})
+    k, n_mc, duration = 64, 256, 1.0
+    noise = STILL
+    with SceneEstimator(scene, EstimatorConfig(particles=k, noise=noise), np.random.default_rng(5)) as est:
+        b = est.run([Frame(i / 30, {}) for i in range(int(duration * 30) + 1)])[-1]
+        right_pf = float(b.weights @ (est.poses[:, 1, 1] > 0))
+        n_steps = round(b.t * 240)
+    # brute force: independent worlds, initial state and parameters drawn from the same priors
+    rng = np.random.default_rng(99)
+    right = 0
+    with World(scene) as w:
+        canonical = w.save_state()
+        base_mass = w.get_dynamics(1)["mass"]
+        for _ in range(n_mc):
+            w.restore_state(canonical)
+            pos = np.asarray(start) + rng.normal(0, noise.position_std, 3)
+            w.set_poses(np.concatenate([pos, [0, 0, 0, 1]])[None], [1])
+            w.set_velocities(np.zeros((1, 6)), [1])
+            w.set_dynamics(1, lateral_friction=rng.uniform(*noise.friction_range),
+                           rolling_friction=rng.uniform(*noise.rolling_friction_range),
+                           spinning_friction=rng.uniform(*noise.spinning_friction_range),
+                           restitution=rng.uniform(*noise.restitution_range),
+                           mass=base_mass * rng.uniform(*noise.mass_scale_range))
+            w.step(n_steps)
+            right += w.get_poses([1])[0, 1] > 0
+    p_mc = right / n_mc
+    p = (right_pf * k + right) / (k + n_mc)
+    band = 3 * np.sqrt(p * (1 - p) * (1 / k + 1 / n_mc))
+    assert 0.55 < p_mc < 0.85  # the offset makes the answer non-trivial
+    assert abs(right_pf - p_mc) < band
+
+
+def _run_json(workers):
+    scene = table_scene(dict(BOX, pose={"position": [0.1, 0, TABLE_TOP + 0.03]}),
+                        {"id": "cup", "cylinder": {"radius": 0.03, "height": 0.08},
+                         "pose": {"position": [-0.2, 0.1, TABLE_TOP + 0.2]}})
+    cfg = EstimatorConfig(particles=6, workers=workers, noise=NoiseConfig())
+    frs = frames(np.arange(0, 2.0, 1 / 30), lambda t: {"box": [0.1, 0.0, smooth(t, 0.4, 0.9, TABLE_TOP + 0.04,
+                                                                              TABLE_TOP + 0.3)]} if t < 1.4 else {})
+    with SceneEstimator(scene, cfg, np.random.default_rng(3)) as est:
+        return [json.dumps(b.to_json()) for b in est.run(frs)], est.timeline.to_json()
+
+
+def test_same_seed_same_output_whatever_the_number_of_workers():
+    a, ta = _run_json(0)
+    b, tb = _run_json(1)
+    c, tc = _run_json(2)
+    assert a == b == c and ta == tb == tc
+    assert any('"Pick"' in line for line in a)
+
+
+def test_exploded_particles_and_total_weight_collapse_never_give_nan():
+    scene = table_scene(dict(BOX, pose={"position": [0.1, 0, TABLE_TOP + 0.03]}))
+    cfg = EstimatorConfig(particles=4, noise=NoiseConfig())
+    with SceneEstimator(scene, cfg, np.random.default_rng(0)) as est:
+        real_run = est.pool.run
+        mode = {"kill": [0]}
+
+        def corrupt(batch, *a, **kw):
+            out = real_run(batch, *a, **kw)
+            for k in mode["kill"]:
+                out.poses[k] = np.nan
+                out.velocities[k] = 1e9
+                out.finite[k] = False
+            return out
+
+        est.pool.run = corrupt
+        beliefs = est.run(frames(np.arange(0, 0.5, 1 / 30), lambda t: {"box": [0.1, 0, TABLE_TOP + 0.04]}))
+        assert beliefs[-1].weights[0] < 1e-12 or est.n_updates > 1
+        mode["kill"] = [0, 1, 2, 3]
+        more = est.run(frames(np.arange(0.5, 1.0, 1 / 30), lambda t: {"box": [0.1, 0, TABLE_TOP + 0.04]}))
+        assert est.recoveries >= 1
+        mode["kill"] = []
+        more += est.run([Frame(1.0 + i / 30, {}) for i in range(6)])  # empty frames
+    for b in beliefs + more:
+        text = json.dumps(b.to_json())
+        assert "NaN" not in text and "Infinity" not in text
+        assert np.isfinite(b.ess) and b.ess >= 1.0 - 1e-9
+    assert more[-1].objects["box"].position[2] == pytest.approx(TABLE_TOP + 0.03, abs=0.02)
+
+
+def test_held_object_lost_splits_into_released_and_held_hypotheses():
+    scene = table_scene({"id": "cup", "cylinder": {"radius": 0.03, "height": 0.08}, "mass": 0.2})
+    hand = np.array([1.0, 0.0, 1.0])
+    frs = []
+    for t in np.arange(0, 3.0, 1 / 30):
+        objs = {"cup": det(hand + [0, 0, -0.05])} if t < 0.8 else {}
+        frs.append(Frame(float(t), objs, {"human/right": hand + [0.0, 0.3 * max(0.0, t - 0.8), 0.0]}))
+    cfg = EstimatorConfig(particles=32, noise=NoiseConfig())
+    with SceneEstimator(scene, cfg, np.random.default_rng(2)) as est:
+        b = est.run(frs)[-1]
+    cup = b.objects["cup"]
+    p_held = b.hypothesis_p("cup", "held", None)
+    p_floor = b.hypothesis_p("cup", "isOnTop", "floor")
+    assert cup.p_held == pytest.approx(p_held)
+    assert 0.15 < p_held < 0.85 and p_floor > 0.1 and p_held + p_floor > 0.95
+    held_pos = [h.position for h in cup.hypotheses if h.relation == "held"][0]
+    assert np.allclose(held_pos, [1.0, 0.3 * (b.t - 0.8), 0.95], atol=0.05)  # follows the tracked hand
