@@ -93,6 +93,11 @@ class _Shard:
                            np.stack([o.aabbs for o in outs]), np.array([o.finite for o in outs]),
                            np.stack(vis))
 
+    def bare_step(self, n_steps: int) -> None:
+        """Step every world ``n_steps`` times and nothing else (the benchmark's reference)."""
+        for pw in self.worlds:
+            pw.world.step(n_steps)
+
     def close(self) -> None:
         for pw in self.worlds:
             pw.world.close()
@@ -107,6 +112,10 @@ def _worker_main(conn, scene, settings, lo, hi):
             msg = conn.recv()
             if msg[0] == "close":
                 break
+            if msg[0] == "bare":
+                shard.bare_step(msg[1])
+                conn.send(("ok", None))
+                continue
             _, batch, n_steps, d, switch = msg
             try:
                 conn.send(("ok", shard.run(batch, n_steps, d, switch)))
@@ -180,6 +189,19 @@ class WorldPool:
         return BatchOutput(*(np.concatenate([getattr(p, f) for p in parts])
                              for f in ("poses", "velocities", "modes", "max_divergence", "aabbs",
                                        "finite", "visible")))
+
+    def bare_step(self, n_steps: int) -> None:
+        """Step every world ``n_steps`` times, with the same sharding and nothing else."""
+        if self._local is not None:
+            self._local.bare_step(n_steps)
+            return
+        for conn in self._conns:
+            conn.send(("bare", n_steps))
+        for conn in self._conns:
+            self._receive(conn)
+
+    def worker_pids(self) -> list[int]:
+        return [p.pid for p in self._procs]
 
     def close(self) -> None:
         if self._local is not None:

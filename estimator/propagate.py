@@ -92,36 +92,48 @@ def propagate(pw: ParticleWorld, inp: StepInput, n_steps: int, d_sim_perc: float
     w.set_poses(inp.poses[dyn], dyn)
     w.set_velocities(inp.velocities[dyn], dyn)
     modes = inp.modes.copy()
-    check = inp.check.copy()
-    check &= ~w.static
-    max_div = np.zeros(len(modes))
+    max_d2 = np.zeros(len(modes))
     target = inp.target
     tvel_rows = inp.target_vel.tolist()
     contents = inp.contents
-    uids = w.uids
+    held = [i for i in dyn if modes[i] == HELD]
+    # checked objects as plain tuples (index, body id, target of its centre of mass): the per-step
+    # test is the hot path and stays in plain Python
+    checked = [i for i in dyn if inp.check[i] and modes[i] == FREE]
+    com = w.com_positions(target[checked], checked) if checked else np.zeros((0, 3))
+    watch = [(i, w.uids[i], float(x), float(y), float(z)) for i, (x, y, z) in zip(checked, com.tolist())]
+    best = [0.0] * len(watch)
+    limit = d_sim_perc * d_sim_perc
     get = pb.getBasePositionAndOrientation
-    has_offset = w._has_offset
+    step = pb.stepSimulation
     for _ in range(int(n_steps)):
-        held = [i for i in dyn if modes[i] == HELD]
         if held:
             _override(w, held, target, tvel_rows, contents)
-        pb.stepSimulation(physicsClientId=c)
-        checked = [i for i in dyn if check[i] and modes[i] == FREE]
-        if not checked:
+        step(physicsClientId=c)
+        if not watch:
             continue
-        if has_offset:
-            pos = w.get_poses(checked)[:, :3]
-        else:
-            pos = np.array([get(uids[i], physicsClientId=c)[0] for i in checked])
-        d = np.linalg.norm(pos - target[checked, :3], axis=1)
-        idx = np.asarray(checked)
-        max_div[idx] = np.maximum(max_div[idx], d)
-        if switch_on_divergence:
-            bad = idx[d > d_sim_perc]
-            if len(bad):
-                modes[bad] = HELD
-                _override(w, [int(i) for i in bad], target, tvel_rows, contents)
-    held = [i for i in dyn if modes[i] == HELD]
+        switched = None
+        for k, (i, uid, tx, ty, tz) in enumerate(watch):
+            p = get(uid, physicsClientId=c)[0]
+            d2 = (p[0] - tx) ** 2 + (p[1] - ty) ** 2 + (p[2] - tz) ** 2
+            if d2 > best[k]:
+                best[k] = d2
+            if d2 > limit and switch_on_divergence:
+                switched = switched or []
+                switched.append(k)
+        if switched:
+            moved = [watch[k][0] for k in switched]
+            for i in moved:
+                modes[i] = HELD
+            held = held + moved
+            _override(w, moved, target, tvel_rows, contents)
+            keep = [k for k in range(len(watch)) if k not in switched]
+            for k in switched:
+                max_d2[watch[k][0]] = best[k]
+            watch = [watch[k] for k in keep]
+            best = [best[k] for k in keep]
+    for k, item in enumerate(watch):
+        max_d2[item[0]] = best[k]
     if held:  # held objects end the update exactly at their target
         _override(w, held, target, tvel_rows, contents)
     poses = inp.poses.copy()
@@ -131,7 +143,7 @@ def propagate(pw: ParticleWorld, inp: StepInput, n_steps: int, d_sim_perc: float
     finite = bool(np.all(np.isfinite(poses)) and np.all(np.isfinite(vel))
                   and np.all(np.abs(vel[:, :3]) < MAX_SPEED))
     aabbs = w.aabbs() if finite else np.full((len(modes), 2, 3), np.nan)
-    return StepOutput(poses, vel, modes, max_div, aabbs, finite)
+    return StepOutput(poses, vel, modes, np.sqrt(max_d2), aabbs, finite)
 
 
 def _override(w: World, held: list[int], target: np.ndarray, tvel_rows: list, contents: np.ndarray) -> None:

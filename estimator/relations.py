@@ -8,7 +8,8 @@ Definitions, for objects a (subject) and b (object), with AABBs ``[lo, hi]``:
 
 * ``isIn(a, b)``: a's box lies inside b's box in x and y (within ``margin`` on each side), and a's
   bottom is between b's bottom and b's top (within ``margin``) but not above b's top minus
-  ``rim``. Physics keeps solid objects from interpenetrating, so only a hollow b passes this test.
+  ``max(rim, rim_fraction * height of b)``. Physics keeps solid objects from interpenetrating, so
+  only a hollow b passes this test.
 * ``isOnTop(a, b)``: a's bottom is within ``z_margin`` of b's top, a's and b's footprints overlap by
   at least ``overlap`` in x and y, a is not in b, and a is not in a container c that is itself on b.
   ``isOnTop(a, floor)``: a's bottom is within ``z_margin`` of z = 0.
@@ -34,12 +35,14 @@ class RelationConfig:
     margin: float = 0.01
     """isIn: tolerance on every side of the container's box."""
     rim: float = 0.005
-    """isIn: a's bottom must be at least this far below b's top."""
+    """isIn: a's bottom must be at least this far below b's top ..."""
+    rim_fraction: float = 0.25
+    """... and at least this fraction of b's height below it."""
     hysteresis: float = 0.01
     """Extra tolerance for a relation that already holds to keep holding."""
 
     def __post_init__(self):
-        for name in ("z_margin", "overlap", "margin", "rim", "hysteresis"):
+        for name in ("z_margin", "overlap", "margin", "rim", "rim_fraction", "hysteresis"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"RelationConfig.{name} must be >= 0")
 
@@ -54,7 +57,10 @@ def _masks(aabbs: np.ndarray, valid: np.ndarray, floor: bool, cfg: RelationConfi
     inside_xy = np.all((a_lo[..., :2] >= b_lo[..., :2] - m) & (a_hi[..., :2] <= b_hi[..., :2] + m),
                        axis=-1)
     bottom = a_lo[..., 2]
-    inside_z = (bottom >= b_lo[..., 2] - m) & (bottom <= b_hi[..., 2] - cfg.rim + widen)
+    # a's bottom must be well below b's rim: a quarter of b's height, so that an object sunk a few
+    # millimetres into a solid table top is not "in" it
+    rim = np.maximum(cfg.rim, cfg.rim_fraction * (b_hi[..., 2] - b_lo[..., 2]))
+    inside_z = (bottom >= b_lo[..., 2] - m) & (bottom <= b_hi[..., 2] - rim + widen)
     # an object cannot contain one with a bigger footprint (guards against overlapping equal boxes)
     smaller = np.all(a_hi[..., :2] - a_lo[..., :2] <= b_hi[..., :2] - b_lo[..., :2] + 1e-9, axis=-1)
     is_in = inside_xy & inside_z & smaller

@@ -133,6 +133,8 @@ def print_summary(summary: dict, stream=None) -> None:
             pos = ", ".join(f"{v:+.3f}" for v in ob.position)
             where = ", ".join(f"{h.relation} {h.support or ''}".strip() + f" {h.p:.2f}" for h in ob.hypotheses)
             seen = "perceived" if ob.perceived else "hidden   "
+            if not ob.hypotheses and ob.p_held == 0 and not ob.perceived:
+                seen = "static   "
             print(f"  {oid:<14} [{pos}]  {seen}  {where}", file=stream)
 
 

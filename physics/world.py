@@ -244,6 +244,15 @@ class World:
             poses = pose_compose(poses, self._inertial_inv[idx])
         return poses
 
+    def com_positions(self, poses: np.ndarray, indices) -> np.ndarray:
+        """Centre-of-mass positions ``(n, 3)`` of objects ``indices`` placed at link-frame ``poses``
+        ``(n, 7)`` (pybullet reports and integrates the centre of mass)."""
+        idx = self._indices(indices)
+        poses = np.asarray(poses, dtype=float).reshape(len(idx), 7)
+        if not self._has_offset:
+            return poses[:, :3].copy()
+        return pose_compose(poses, self._inertial[idx])[:, :3]
+
     def set_poses(self, poses: np.ndarray, indices=None) -> None:
         """Teleport objects ``indices`` to link-frame ``poses`` ``(n, 7)``. Velocities are kept."""
         idx = self._indices(indices)

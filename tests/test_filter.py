@@ -141,8 +141,6 @@ from estimator.config import NoiseConfig  # noqa: E402
 from physics.scene import scene_from_dict  # noqa: E402
 from physics.world import World  # noqa: E402
 
-STILL = NoiseConfig(process_position_std=0.0, process_orientation_std=0.0)
-
 
 def test_unseen_free_fall_mean_matches_the_analytic_solution():
     z0, k = 3.0, 64
@@ -168,7 +166,8 @@ def test_ball_over_a_ridge_lands_left_or_right_as_brute_force_monte_carlo_says()
     scene = scene_from_dict({"objects": [ridge, {"id": "ball", "sphere": {"radius": 0.03}, "mass": 0.05,
                                                  "pose": {"position": start}}]})
     k, n_mc, duration = 64, 256, 1.0
-    noise = STILL
+    noise = NoiseConfig(process_position_std=0.0, process_orientation_std=0.0,
+                        rolling_friction_range=(0.0, 0.005), spinning_friction_range=(0.0, 0.005))
     with SceneEstimator(scene, EstimatorConfig(particles=k, noise=noise), np.random.default_rng(5)) as est:
         b = est.run([Frame(i / 30, {}) for i in range(int(duration * 30) + 1)])[-1]
         right_pf = float(b.weights @ (est.poses[:, 1, 1] > 0))

@@ -1,0 +1,113 @@
+"""``scene-estimator bench``: update time of the estimator against bare pybullet stepping.
+
+For each particle count K and number of dynamic objects N (5 cm boxes resting on a table, perceived
+floating 1 cm with 3 mm noise), it times estimator updates of one reasoning horizon (0.08 s, 19
+steps) and, in the same run and the same worker processes, bare ``stepSimulation`` of the same worlds
+for the same number of steps. It reports the median and 95th percentile update time, the bare time,
+their ratio, updates per second and the peak memory of the process and its workers.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+
+import numpy as np
+
+from estimator.config import EstimatorConfig, NoiseConfig
+from estimator.filter import SceneEstimator
+from estimator.observations import Detection, Frame
+from physics.scene import Scene, scene_from_dict
+
+TABLE_TOP = 0.626
+
+
+def bench_scene(n_objects: int) -> Scene:
+    """A table with ``n_objects`` 5 cm boxes resting on it in a grid."""
+    objs = [{"id": "table", "static": True, "urdf": "pybullet_data://table/table.urdf",
+             "pose": {"position": [0, 0, 0]}}]
+    for i in range(n_objects):
+        x = -0.45 + 0.15 * (i % 7)
+        y = -0.3 + 0.15 * (i // 7)
+        objs.append({"id": f"box{i}", "box": {"size": [0.05, 0.05, 0.05]}, "mass": 0.1,
+                     "pose": {"position": [x, y, TABLE_TOP + 0.025]}})
+    return scene_from_dict({"name": f"bench_{n_objects}", "objects": objs})
+
+
+def _frames(scene: Scene, n: int, horizon: float, rng: np.random.Generator):
+    rest = {o.id: np.array(o.position) + [0, 0, 0.01] for o in scene.objects if not o.static}
+    for k in range(n):
+        yield Frame(k * horizon, {oid: Detection(p + rng.normal(0, 0.003, 3), np.array([0, 0, 0, 1.0]))
+                                  for oid, p in rest.items()})
+
+
+def _rss_mb(pids) -> float:
+    try:
+        import psutil
+    except ImportError:  # pragma: no cover
+        import resource
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    total = 0.0
+    for pid in pids:
+        try:
+            total += psutil.Process(pid).memory_info().rss
+        except psutil.Error:
+            pass
+    return total / 2**20
+
+
+def bench_one(k: int, n_objects: int, workers: int, updates: int = 20, warmup: int = 3,
+              seed: int = 0) -> dict:
+    """Figures for one (K, N) configuration."""
+    scene = bench_scene(n_objects)
+    cfg = EstimatorConfig(particles=k, workers=workers, noise=NoiseConfig())
+    horizon = cfg.reasoner.horizon
+    n_steps = int(round(horizon / cfg.physics.time_step))
+    rng = np.random.default_rng(seed)
+    times, bare = [], []
+    peak = 0.0
+    with SceneEstimator(scene, cfg, rng) as est:
+        pids = [os.getpid()] + est.pool.worker_pids()
+        for i, frame in enumerate(_frames(scene, warmup + updates, horizon, rng)):
+            t0 = time.perf_counter()
+            est.update(frame)
+            dt = time.perf_counter() - t0
+            if i >= warmup:
+                times.append(dt)
+            peak = max(peak, _rss_mb(pids))
+        for _ in range(updates):  # the same worlds, the same steps, nothing else
+            t0 = time.perf_counter()
+            est.pool.bare_step(n_steps)
+            bare.append(time.perf_counter() - t0)
+    med, p95, bare_med = float(np.median(times)), float(np.percentile(times, 95)), float(np.median(bare))
+    return {"particles": k, "objects": n_objects, "workers": workers, "steps_per_update": n_steps,
+            "update_ms_median": 1e3 * med, "update_ms_p95": 1e3 * p95, "bare_step_ms_median": 1e3 * bare_med,
+            "ratio": med / bare_med, "updates_per_s": 1.0 / med, "peak_memory_mb": peak}
+
+
+def add_bench_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--particles", type=int, nargs="+", default=[16, 64, 256])
+    p.add_argument("--objects", type=int, nargs="+", default=[4, 8, 12])
+    p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                   help="worker processes (default: one per core)")
+    p.add_argument("--updates", type=int, default=20, help="timed updates per configuration")
+    p.add_argument("--json", action="store_true", help="print the figures as one JSON object")
+
+
+def run_bench(args) -> int:
+    rows = []
+    if not args.json:
+        print(f"{'K':>5} {'N':>3} {'median ms':>10} {'p95 ms':>8} {'bare ms':>8} {'ratio':>6} "
+              f"{'upd/s':>7} {'peak MB':>8}")
+    for k in args.particles:
+        for n in args.objects:
+            r = bench_one(k, n, args.workers, args.updates)
+            rows.append(r)
+            if not args.json:
+                print(f"{k:>5} {n:>3} {r['update_ms_median']:>10.1f} {r['update_ms_p95']:>8.1f} "
+                      f"{r['bare_step_ms_median']:>8.1f} {r['ratio']:>6.2f} {r['updates_per_s']:>7.1f} "
+                      f"{r['peak_memory_mb']:>8.0f}", flush=True)
+    if args.json:
+        print(json.dumps({"workers": args.workers, "cpu_count": os.cpu_count(), "results": rows}))
+    return 0

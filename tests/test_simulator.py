@@ -1,0 +1,204 @@
+"""Ground truth of the scenarios: the truth does what each scenario says, events at the right times,
+the hidden objects stay unperceived, latency, and byte-identical files for the same seed."""
+import dataclasses
+import filecmp
+import math
+
+import numpy as np
+import pytest
+
+from experiments.perception import PerceptionConfig
+from experiments.scenarios import load_scenario
+from experiments.simulate_cli import add_simulate_arguments, run_simulate
+from experiments.simulator import HAND_ID, sample_variant, simulate
+
+SEEDS = range(5)
+DT = 1.0 / 240.0
+
+
+def _relations(frame, subject):
+    return {(r["predicate"], r["object"]) for r in frame["relations"] if r["subject"] == subject}
+
+
+def _perceived(result, oid):
+    return sum(oid in f["objects"] for f in result.observations)
+
+
+def _check_event_frames(result):
+    """Each event sits in the first truth frame at or after its time, and only there."""
+    listed = []
+    prev_t = 0.0
+    for f in result.truth:
+        for e in f["events"]:
+            assert prev_t < e["t"] <= f["t"] + 1e-9
+            listed.append(e)
+        prev_t = f["t"]
+    assert listed == result.events
+
+
+def _held_intervals(result, oid):
+    return [f["t"] for f in result.truth if f["objects"][oid]["held"]]
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_a_cup_falls_behind_box_unseen(seed):
+    res = simulate("cup_falls_behind_box", seed)
+    first, last = res.truth[0], res.truth[-1]
+    assert ("isOnTop", "table") in _relations(first, "cup")
+    assert ("isOnTop", "floor") in _relations(last, "cup")
+    assert last["objects"]["cup"]["position"][2] < 0.1
+    assert not any(f["objects"]["cup"]["visible"] for f in res.truth)
+    assert _perceived(res, "cup") == 0
+    # the box was pulled (not grasped) towards the far edge and stays on the table
+    assert ("isOnTop", "table") in _relations(last, "box")
+    assert last["objects"]["box"]["position"][0] < first["objects"]["box"]["position"][0] - 0.2
+    assert _perceived(res, "box") > 0.9 * len(res.observations)
+    assert res.events == [] and not any(o["held"] for f in res.truth for o in f["objects"].values())
+
+
+def test_b_ball_released_lands_in_box_out_of_sight():
+    res = simulate("ball_dropped_into_box", 0)
+    variant = sample_variant(load_scenario("ball_dropped_into_box"), 0)
+    t_release = next(w.t for w in variant.script if w.release == "ball")
+    assert [(e["action"], e["subject"]) for e in res.events] == [("Release", "ball")]
+    assert abs(res.events[0]["t"] - t_release) <= DT + 1e-9
+    _check_event_frames(res)
+    before = [f for f in res.observations if f["t"] < t_release]
+    assert sum("ball" in f["objects"] for f in before) > 0.8 * len(before)  # seen in the hand
+    held = _held_intervals(res, "ball")
+    assert held and max(held) < t_release
+    late = [f for f in res.truth if f["t"] > t_release + 0.5]
+    assert late and not any(f["objects"]["ball"]["visible"] for f in late)
+    assert ("isIn", "box") in _relations(res.truth[-1], "ball")
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_c_ball_poured_into_blue_box_never_seen(seed):
+    res = simulate("box_emptied_into_box", seed)
+    variant = sample_variant(load_scenario("box_emptied_into_box"), seed)
+    assert ("isIn", "green_box") in _relations(res.truth[0], "ball")
+    assert ("isIn", "blue_box") in _relations(res.truth[-1], "ball")
+    assert _perceived(res, "ball") == 0
+    assert [(e["action"], e["subject"]) for e in res.events] == [("Pick", "green_box"), ("Place", "green_box")]
+    grasp_t = next(w.t for w in variant.script if w.grasp == "green_box")
+    release_t = next(w.t for w in variant.script if w.release == "green_box")
+    assert abs(res.events[0]["t"] - grasp_t) <= DT + 1e-9
+    assert abs(res.events[1]["t"] - release_t) <= DT + 1e-9
+    _check_event_frames(res)
+    held = _held_intervals(res, "green_box")
+    assert min(held) >= res.events[0]["t"] and max(held) < res.events[1]["t"]
+    assert not any(f["objects"]["ball"]["held"] for f in res.truth)  # carried by the box, not the hand
+    # the blue box was not knocked about
+    b0, b1 = (np.array(f["objects"]["blue_box"]["position"]) for f in (res.truth[0], res.truth[-1]))
+    assert np.linalg.norm(b1 - b0) < 0.02
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_d_ball_stays_in_moving_box(seed):
+    res = simulate("ball_in_moving_box", seed)
+    assert all(("isIn", "box") in _relations(f, "ball") for f in res.truth)
+    p0 = np.array(res.truth[0]["objects"]["box"]["position"])
+    path = max(np.linalg.norm(np.array(f["objects"]["box"]["position"]) - p0) for f in res.truth)
+    assert path > 0.2
+    assert _perceived(res, "ball") == 0
+    assert [e["action"] for e in res.events] == ["Pick", "Place"]
+    _check_event_frames(res)
+    # the hand is tracked in every frame, near the box while holding it
+    assert all(HAND_ID in f["hands"] for f in res.observations)
+    for f in res.truth:
+        if f["objects"]["box"]["held"]:
+            d = np.subtract(f["hands"][HAND_ID], f["objects"]["box"]["position"])
+            assert np.linalg.norm(d) < 0.2
+
+
+def test_e_cup_held_behind_back_is_hidden_but_held():
+    res = simulate("cup_hidden_behind_back", 0)
+    hidden_held = [f for f in res.truth if f["objects"]["cup"]["held"] and not f["objects"]["cup"]["visible"]]
+    assert len(hidden_held) > 30  # more than a second behind the torso
+    for f in hidden_held:
+        assert f["objects"]["cup"]["position"][2] > 0.7  # held up, not fallen
+    assert all(HAND_ID in f["hands"] for f in res.observations)
+    assert [e["action"] for e in res.events] == ["Pick", "Place"]
+    assert ("isOnTop", "table") in _relations(res.truth[-1], "cup")
+    _check_event_frames(res)
+
+
+def test_latency_delays_observations():
+    sc = load_scenario("ball_in_moving_box")
+    cfg = PerceptionConfig(latency_s=0.1)
+    res = simulate(dataclasses.replace(sc, perception=cfg), seed=0, duration=3.0)
+    lag = 3  # 0.1 s at 30 Hz
+    assert len(res.observations) == len(res.truth) - lag + 1  # frames before the latency have no data
+    by_t = {f["t"]: f for f in res.truth}
+    truth_list = res.truth
+    moving = 0
+    for obs in res.observations:
+        j = next(i for i, f in enumerate(truth_list) if f["t"] == obs["t"])
+        past = truth_list[j - lag]["objects"]["box"]["position"] if j >= lag else None
+        if "box" in obs["objects"] and past is not None:
+            assert np.allclose(obs["objects"]["box"]["position"], past, atol=2e-6)
+            now = by_t[obs["t"]]["objects"]["box"]["position"]
+            moving += not np.allclose(now, past, atol=1e-3)
+    assert moving > 10
+
+
+def test_frame_rate_is_configurable():
+    sc = load_scenario("static_floating")
+    res = simulate(dataclasses.replace(sc, perception=PerceptionConfig(rate_hz=10)), seed=0, duration=1.0)
+    assert [f["t"] for f in res.observations] == [round(0.1 * k, 6) for k in range(1, 11)]
+
+
+@pytest.mark.parametrize("name", ["cup_falls_behind_box", "ball_in_moving_box"])
+def test_same_seed_gives_byte_identical_files(tmp_path, name):
+    import argparse
+
+    parser = argparse.ArgumentParser()
+    add_simulate_arguments(parser)
+    outs = []
+    for k in range(2):
+        out = tmp_path / f"run{k}"
+        assert run_simulate(parser.parse_args([name, "--seed", "2", "--out", str(out), "--quiet",
+                                               "--duration", "2.5"])) == 0
+        outs.append(out)
+    names = ["scene.yaml", "observations.jsonl", "truth.jsonl", "meta.json"]
+    match, mismatch, errors = filecmp.cmpfiles(outs[0], outs[1], names, shallow=False)
+    assert match == names and not mismatch and not errors
+    other = tmp_path / "other"
+    assert run_simulate(parser.parse_args([name, "--seed", "3", "--out", str(other), "--quiet",
+                                           "--duration", "2.5"])) == 0
+    assert (other / "truth.jsonl").read_bytes() != (outs[0] / "truth.jsonl").read_bytes()
+
+
+def test_cli_list_and_errors(capsys):
+    import argparse
+
+    parser = argparse.ArgumentParser()
+    add_simulate_arguments(parser)
+    assert run_simulate(parser.parse_args(["--list"])) == 0
+    out = capsys.readouterr().out
+    assert "cup_falls_behind_box" in out and "(a)" in out
+    assert run_simulate(parser.parse_args([])) == 2
+    assert run_simulate(parser.parse_args(["nope"])) == 2
+    assert "available" in capsys.readouterr().err
+
+
+def test_demo_files_are_shipped_and_consistent():
+    from pathlib import Path
+
+    from physics.scene import load_scene
+
+    data = Path(__file__).resolve().parents[1] / "experiments" / "data"
+    scene = load_scene(data / "demo_scene.yaml")
+    assert {"table", "box", "cup"} == set(scene.object_ids)
+    sizes = sum((data / n).stat().st_size for n in ("demo_scene.yaml", "demo_observations.jsonl",
+                                                     "demo_truth.jsonl"))
+    assert sizes < 250_000
+    res = simulate("cup_falls_behind_box", 0)
+    import json
+
+    lines = (data / "demo_observations.jsonl").read_text().splitlines()
+    assert [json.loads(x) for x in lines] == res.observations, (
+        "demo files are stale: regenerate with `python -m experiments.simulate_cli cup_falls_behind_box "
+        "--seed 0 --out /tmp/demo` and copy scene.yaml / observations.jsonl / truth.jsonl / meta.json "
+        "to experiments/data/demo_*")
+    assert math.isclose(json.loads(lines[-1])["t"], res.observations[-1]["t"])
