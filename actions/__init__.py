@@ -1,7 +1,7 @@
 """Actions layer: the FREE / HELD mode model, mode-switch priors and Pick / Place / Release events."""
 from .modes import (EVENT_NAMES, FREE, HELD, NO_EVENT, PICK, PLACE, RELEASE, ModePriors,
-                    switch_events)
+                    merge_events, switch_events)
 from .events import EventRecord, events_from_switches
 
 __all__ = ["EVENT_NAMES", "FREE", "HELD", "NO_EVENT", "PICK", "PLACE", "RELEASE", "ModePriors",
-           "switch_events", "EventRecord", "events_from_switches"]
+           "merge_events", "switch_events", "EventRecord", "events_from_switches"]

@@ -2,13 +2,13 @@
 
 Mode switches are the human actions the system infers:
 
-====================  ==============================  ========
-previous -> new       condition                       event
-====================  ==============================  ========
-FREE -> HELD          (perceived or not)              Pick
-HELD -> FREE          object perceived (put down)     Place
-HELD -> FREE          object not perceived (let go)   Release
-====================  ==============================  ========
+====================  ==================================  ========
+previous -> new       condition                           event
+====================  ==================================  ========
+FREE -> HELD          (perceived or not)                  Pick
+HELD -> FREE          let go resting on a support         Place
+HELD -> FREE          let go in the air (drop, throw)     Release
+====================  ==================================  ========
 
 The functions work on arrays of any shape (one scene ``(M,)`` or particles ``(K, M)``).
 """
@@ -28,20 +28,28 @@ RELEASE = 3
 EVENT_NAMES = {PICK: "Pick", PLACE: "Place", RELEASE: "Release"}
 
 
-def switch_events(previous: np.ndarray, new: np.ndarray, perceived: np.ndarray) -> np.ndarray:
+def switch_events(previous: np.ndarray, new: np.ndarray, supported: np.ndarray) -> np.ndarray:
     """Event codes (``int8``, same shape) for the mode switches ``previous -> new``.
 
-    ``perceived`` says whether the object is perceived at the time of the switch; it broadcasts
+    ``supported`` says whether the object rests on or in something when it is let go; it broadcasts
     against the modes. Codes: :data:`NO_EVENT`, :data:`PICK`, :data:`PLACE`, :data:`RELEASE`.
     """
     previous = np.asarray(previous)
     new = np.asarray(new)
-    perceived = np.broadcast_to(np.asarray(perceived, dtype=bool), new.shape)
+    supported = np.broadcast_to(np.asarray(supported, dtype=bool), new.shape)
     out = np.zeros(new.shape, dtype=np.int8)
     out[(previous == FREE) & (new == HELD)] = PICK
     released = (previous == HELD) & (new == FREE)
-    out[released & perceived] = PLACE
-    out[released & ~perceived] = RELEASE
+    out[released & supported] = PLACE
+    out[released & ~supported] = RELEASE
+    return out
+
+
+def merge_events(*codes: np.ndarray) -> np.ndarray:
+    """Combine event-code arrays of successive switches in one update (the first non-zero wins)."""
+    out = np.zeros_like(codes[0])
+    for c in codes:
+        out = np.where(out == NO_EVENT, c, out)
     return out
 
 

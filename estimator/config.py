@@ -44,6 +44,8 @@ class ReasonerConfig:
     * ``place_speed`` (m/s) and ``place_gap`` (m): a held object that is perceived slower than
       ``place_speed`` with its bottom within ``place_gap`` of a support's top (or inside a container)
       is put down (Place). The paper leaves this rule implicit (see README).
+    * ``release_speed`` (m/s): a held object perceived moving down faster than this with nothing
+      under it was let go (Release, in view). Velocities are measured over the reasoning period.
     """
 
     t_perceived: float = 0.7
@@ -52,9 +54,11 @@ class ReasonerConfig:
     horizon: float = 0.08
     place_speed: float = 0.15
     place_gap: float = 0.03
+    release_speed: float = 1.0
 
     def __post_init__(self):
-        _check_positive(self, "t_perceived", "d_sim_perc", "d_perc_prev", "place_speed", "place_gap")
+        _check_positive(self, "t_perceived", "d_sim_perc", "d_perc_prev", "place_speed", "place_gap",
+                        "release_speed")
         _check_nonneg(self, "horizon")
 
 
@@ -135,6 +139,9 @@ class EstimatorConfig:
       lose weight (needs a camera in the scene).
     * ``follow_hands``: a held object that is not detected follows the tracked hand nearest to it
       when last detected (the paper's reasoner ignores hands: off in paper mode).
+    * ``lazy_checks``: test an object's divergence only when it could have crossed the threshold
+      since the last test (see :func:`~estimator.propagate.propagate`); off in paper mode, which
+      tests after every step. Reading poses back is most of the estimator's cost over bare stepping.
     * ``visibility_threshold``: fraction of an object's sample points in view for it to count as
       visible to the camera.
     """
@@ -150,6 +157,7 @@ class EstimatorConfig:
     event_threshold: float = 0.5
     negative_evidence: bool = True
     follow_hands: bool = True
+    lazy_checks: bool = True
     visibility_threshold: float = 0.3
     hypothesis_min_p: float = 0.02
 
@@ -173,4 +181,5 @@ class EstimatorConfig:
     def paper(cls, reasoner: ReasonerConfig | None = None) -> "EstimatorConfig":
         """The single-world, noise-free physics reasoner of Sallami et al. (2019)."""
         return cls(particles=1, noise=NoiseConfig.off(), reasoner=reasoner or ReasonerConfig(),
-                   priors=ModePriors(release_on_loss=1.0), negative_evidence=False, follow_hands=False)
+                   priors=ModePriors(release_on_loss=1.0), negative_evidence=False, follow_hands=False,
+                   lazy_checks=False)

@@ -34,7 +34,7 @@ import math
 import numpy as np
 
 from actions.events import events_from_switches
-from actions.modes import FREE, HELD, switch_events
+from actions.modes import FREE, HELD, merge_events, switch_events
 from physics.scene import Scene
 from physics.transforms import carry_pose, quat_angle, quat_from_rotvec, quat_multiply, quat_normalize
 
@@ -117,9 +117,11 @@ class SceneEstimator:
             lo, hi = nz.mass_scale_range
             self.params[:, dyn, 4] = base[dyn, 4] * rng.uniform(lo, hi, size=(K, len(dyn)))
         self._param_bounds = self._bounds(base)
+        self._just_initialised = np.zeros(M, dtype=bool)
         if nz.position_std > 0:
             known_dyn = np.flatnonzero(self.dynamic & self.known)
             self.poses[:, known_dyn, :3] += rng.normal(0, nz.position_std, (K, len(known_dyn), 3))
+            self._just_initialised[known_dyn] = True
         self.on_top = np.zeros((K, M, M + 1), dtype=bool)
         self.is_in = np.zeros((K, M, M), dtype=bool)
         # perception memory (shared by all particles)
@@ -136,6 +138,10 @@ class SceneEstimator:
         self.t_frame: float | None = None
         self.t_tick: float | None = None
         self._detected_since_tick = np.zeros(M, dtype=bool)
+        self._world_poses: np.ndarray | None = None
+        self._supported = np.zeros((K, M), dtype=bool)
+        self._t_seen_at_tick = np.full(M, -np.inf)
+        self._world_vel: np.ndarray | None = None
 
     def _bounds(self, base: np.ndarray) -> np.ndarray:
         nz = self.config.noise
@@ -232,6 +238,7 @@ class SceneEstimator:
         newly_known = perceived & ~self.known
         jump = np.linalg.norm(self.last_pose[:, :3] - self.pose_at_tick[:, :3], axis=1) > hr.d_perc_prev
         tele = perceived & (~self.perceived_prev | jump | newly_known)
+        self.perc_vel[tele] = 0.0  # a finite difference across a jump or a gap is no velocity
         if np.any(tele):
             self._teleport(poses, vel, np.flatnonzero(tele), newly_known)
         self.known |= perceived
@@ -244,6 +251,8 @@ class SceneEstimator:
         p_rel = np.where(lost[None, :], cfg.priors.release_on_loss, cfg.priors.release)
         released = held_unseen & (u < p_rel)
         modes[released] = FREE
+        codes_release = switch_events(prev_modes, modes, self._supported)
+        modes_before_physics = modes.copy()
 
         # targets of held objects
         target = poses.copy()
@@ -277,8 +286,18 @@ class SceneEstimator:
         if not (cfg.negative_evidence and self.scene.camera is not None):
             vis_query = np.zeros(M, dtype=bool)
         check = np.broadcast_to(perceived, (K, M)).copy()
-        batch = BatchInput(poses, vel, self.params, modes, check, target, target_vel, self.is_in, vis_query)
-        out = self.pool.run(batch, n_steps, hr.d_sim_perc, True)
+        placed = tele | self._just_initialised
+        self._just_initialised = np.zeros(M, dtype=bool)
+        depen = np.broadcast_to(placed & (nz.position_std > 0), (K, M)) & (modes == FREE)
+        # only entries changed since the worlds last wrote them need loading back (a slot's world
+        # always holds the state it produced, so this does not depend on the number of workers)
+        if self._world_poses is None:
+            reset = np.ones((K, M), dtype=bool)
+        else:
+            reset = (np.any(poses != self._world_poses, axis=-1) | np.any(vel != self._world_vel, axis=-1))
+        batch = BatchInput(poses, vel, self.params, modes, check, target, target_vel, self.is_in, depen,
+                           reset, vis_query)
+        out = self.pool.run(batch, n_steps, hr.d_sim_perc, True, cfg.lazy_checks)
         new_poses, new_vel, new_modes = out.poses, out.velocities, out.modes
         aabbs = out.aabbs
         bad = ~out.finite
@@ -288,24 +307,33 @@ class SceneEstimator:
             new_vel[bad] = 0.0
             new_modes[bad] = modes[bad]
 
-        # 6. relations, and Place: a held object perceived at rest on a support is put down
+        # 6. relations; Place: a held object perceived at rest on a support is put down; Release in
+        # view: a held object perceived falling, with nothing under it, was let go
         valid = np.broadcast_to(self.known, (K, M))
         on_top, is_in = relation_masks(aabbs, valid, static=self.static, floor=self.scene.floor,
                                        config=cfg.relations, previous=(self.on_top, self.is_in))
         loose = dataclasses.replace(cfg.relations, z_margin=hr.place_gap)
         sup_on, sup_in = relation_masks(aabbs, valid, static=self.static, floor=self.scene.floor, config=loose)
         supported = sup_on.any(axis=-1) | sup_in.any(axis=-1)
-        slow = np.linalg.norm(self.perc_vel[:, :3], axis=1) < hr.place_speed
-        place = (new_modes == HELD) & (perceived & slow)[None, :] & supported
-        new_modes[place] = FREE
+        tick_vel = self._tick_velocity(t)
+        slow = np.linalg.norm(tick_vel, axis=1) < hr.place_speed
+        falling = tick_vel[:, 2] < -hr.release_speed
+        held_seen = (new_modes == HELD) & perceived[None, :]
+        after_physics = new_modes.copy()
+        new_modes[held_seen & ((slow[None, :] & supported) | (falling[None, :] & ~supported))] = FREE
 
         # 7. weights
-        codes = switch_events(prev_modes, new_modes, perceived[None, :])
+        codes = merge_events(codes_release,
+                             switch_events(modes_before_physics, after_physics, supported),
+                             switch_events(after_physics, new_modes, supported))
         logw = self.log_weights.copy()
         if K > 1:
             logw += self._log_likelihood(new_poses, predicted, detected, tele)
             if np.any(vis_query):
-                seen = out.visible >= cfg.visibility_threshold
+                # an object in a tracked hand may be hidden by the hand or the person, whom the
+                # particle worlds do not contain: no negative evidence for it
+                in_hand = (new_modes == HELD) & self._following_hand(frame)[None, :]
+                seen = (out.visible >= cfg.visibility_threshold) & ~in_hand
                 logw += math.log(nz.miss_prob) * seen[:, vis_query].sum(axis=1)
             logw += cfg.priors.log_prior_cost(prev_modes, new_modes, perceived[None, :]).sum(axis=1)
         logw[bad] = -np.inf
@@ -317,16 +345,21 @@ class SceneEstimator:
         ess = effective_sample_size(weights)
 
         # commit the state
+        self._supported = supported
+        self._world_poses, self._world_vel = new_poses.copy(), new_vel.copy()
+        if np.any(bad):  # exploded worlds must be reloaded from the arrays
+            self._world_poses[bad] = np.nan
         self.poses, self.velocities, self.modes = new_poses, new_vel, new_modes
         self.on_top, self.is_in = on_top, is_in
         self.log_weights = logw - np.max(logw[np.isfinite(logw)])
         self.perceived_prev = perceived
         self.pose_at_tick = self.last_pose.copy()
+        self._t_seen_at_tick = self.last_seen.copy()
         self.t_tick = t
         self.n_updates += 1
 
         # 8. belief and timeline
-        step_events = events_from_switches(codes, t, self.object_ids, weights, threshold=0.0)
+        step_events = events_from_switches(codes, t, self.object_ids, weights, threshold=cfg.hypothesis_min_p)
         belief = compute_belief(t, self.object_ids, self.known, perceived, new_poses, weights, new_modes,
                                 on_top, is_in, step_events, ess, self.static, cfg.hypothesis_min_p)
         self._update_timeline(t, belief)
@@ -335,6 +368,22 @@ class SceneEstimator:
         return belief
 
     # -- pieces of the update -------------------------------------------------------------------------
+    def _tick_velocity(self, t: float) -> np.ndarray:
+        """Perceived velocity ``(M, 3)`` over the last reasoning period (smoother than frame-to-frame
+        differences): displacement between the detections used at the previous update and now."""
+        ok = np.isfinite(self.last_seen) & np.isfinite(self._t_seen_at_tick)
+        gap = np.where(ok, self.last_seen - np.where(ok, self._t_seen_at_tick, 0.0), 0.0)
+        ok &= gap > 1e-6
+        vel = np.zeros((self.M, 3))
+        vel[ok] = (self.last_pose[ok, :3] - self.pose_at_tick[ok, :3]) / gap[ok, None]
+        return vel
+
+    def _following_hand(self, frame: Frame) -> np.ndarray:
+        """Objects ``(M,)`` whose hand (when last detected) is tracked in this frame."""
+        if not self.config.follow_hands:
+            return np.zeros(self.M, dtype=bool)
+        return np.array([h is not None and h in frame.hands for h in self.hold_hand])
+
     def _teleport(self, poses: np.ndarray, vel: np.ndarray, idx: np.ndarray, newly_known: np.ndarray) -> None:
         nz = self.config.noise
         K = self.K

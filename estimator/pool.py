@@ -34,13 +34,16 @@ class BatchInput:
     target: np.ndarray
     target_vel: np.ndarray
     contents: np.ndarray
+    depenetrate: np.ndarray
+    reset: np.ndarray
     vis_query: np.ndarray
 
     def shard(self, lo: int, hi: int) -> "BatchInput":
         return BatchInput(*(getattr(self, f)[lo:hi] for f in _PER_PARTICLE), self.vis_query)
 
 
-_PER_PARTICLE = ("poses", "velocities", "params", "modes", "check", "target", "target_vel", "contents")
+_PER_PARTICLE = ("poses", "velocities", "params", "modes", "check", "target", "target_vel", "contents",
+                 "depenetrate", "reset")
 
 
 @dataclass
@@ -77,12 +80,13 @@ class _Shard:
                       d["restitution"], d["mass"]]
         return out
 
-    def run(self, batch: BatchInput, n_steps: int, d_sim_perc: float, switch: bool) -> BatchOutput:
+    def run(self, batch: BatchInput, n_steps: int, d_sim_perc: float, switch: bool,
+            lazy: bool = False) -> BatchOutput:
         outs, vis = [], []
         q = np.flatnonzero(batch.vis_query)
         for k, pw in enumerate(self.worlds):
             inp = StepInput(*(getattr(batch, f)[k] for f in _PER_PARTICLE))
-            out = propagate(pw, inp, n_steps, d_sim_perc, switch)
+            out = propagate(pw, inp, n_steps, d_sim_perc, switch, lazy)
             outs.append(out)
             v = np.zeros(len(out.modes))
             if self.camera is not None and len(q) and out.finite:
@@ -116,9 +120,9 @@ def _worker_main(conn, scene, settings, lo, hi):
                 shard.bare_step(msg[1])
                 conn.send(("ok", None))
                 continue
-            _, batch, n_steps, d, switch = msg
+            _, batch, n_steps, d, switch, every = msg
             try:
-                conn.send(("ok", shard.run(batch, n_steps, d, switch)))
+                conn.send(("ok", shard.run(batch, n_steps, d, switch, every)))
             except Exception:  # report, keep serving
                 conn.send(("error", traceback.format_exc()))
     except (EOFError, KeyboardInterrupt):
@@ -179,12 +183,13 @@ class WorldPool:
             raise RuntimeError(f"particle worker failed:\n{payload}")
         return payload
 
-    def run(self, batch: BatchInput, n_steps: int, d_sim_perc: float, switch: bool = True) -> BatchOutput:
+    def run(self, batch: BatchInput, n_steps: int, d_sim_perc: float, switch: bool = True,
+            lazy: bool = False) -> BatchOutput:
         """Propagate all K particles by ``n_steps`` steps (see :func:`~estimator.propagate.propagate`)."""
         if self._local is not None:
-            return self._local.run(batch, n_steps, d_sim_perc, switch)
+            return self._local.run(batch, n_steps, d_sim_perc, switch, lazy)
         for conn, (lo, hi) in zip(self._conns, self._bounds):
-            conn.send(("run", batch.shard(lo, hi), n_steps, d_sim_perc, switch))
+            conn.send(("run", batch.shard(lo, hi), n_steps, d_sim_perc, switch, lazy))
         parts = [self._receive(conn) for conn in self._conns]
         return BatchOutput(*(np.concatenate([getattr(p, f) for p in parts])
                              for f in ("poses", "velocities", "modes", "max_divergence", "aabbs",

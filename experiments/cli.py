@@ -32,7 +32,7 @@ def build_config(args) -> EstimatorConfig:
         paper = EstimatorConfig.paper(reasoner)
         return EstimatorConfig(particles=args.particles, workers=args.workers, reasoner=reasoner,
                                noise=NoiseConfig.off(), priors=paper.priors, negative_evidence=False,
-                               follow_hands=False)
+                               follow_hands=False, lazy_checks=False)
     return EstimatorConfig(particles=args.particles, workers=args.workers, reasoner=reasoner,
                            noise=NoiseConfig())
 

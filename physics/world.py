@@ -321,16 +321,21 @@ class World:
         """World-frame axis-aligned bounding boxes ``(n, 2, 3)`` (all links of each body)."""
         idx = self._indices(indices)
         c = self.client
-        out = np.empty((len(idx), 2, 3))
+        flat: list[float] = []
+        get = pb.getAABB
+        multi = []
         for k, i in enumerate(idx):
-            uid = self.uids[i]
-            lo, hi = pb.getAABB(uid, -1, physicsClientId=c)
-            lo, hi = np.array(lo), np.array(hi)
+            lo, hi = get(self.uids[i], -1, physicsClientId=c)
+            flat.extend(lo)
+            flat.extend(hi)
+            if self._num_links[i]:
+                multi.append((k, i))
+        out = np.array(flat, dtype=float).reshape(len(idx), 2, 3)
+        for k, i in multi:  # articulated bodies: the union over their links
             for link in range(self._num_links[i]):
-                a, b = pb.getAABB(uid, link, physicsClientId=c)
-                lo = np.minimum(lo, a)
-                hi = np.maximum(hi, b)
-            out[k, 0], out[k, 1] = lo, hi
+                a, b = get(self.uids[i], link, physicsClientId=c)
+                out[k, 0] = np.minimum(out[k, 0], a)
+                out[k, 1] = np.maximum(out[k, 1], b)
         return out
 
     def in_contact(self, a: int, b: int | None = None) -> bool:

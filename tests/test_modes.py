@@ -1,17 +1,19 @@
 import numpy as np
 import pytest
 
-from actions.modes import FREE, HELD, NO_EVENT, PICK, PLACE, RELEASE, ModePriors, switch_events
+from actions.modes import FREE, HELD, NO_EVENT, PICK, PLACE, RELEASE, ModePriors, merge_events, switch_events
 
 
 def test_switch_events_labels():
     prev = np.array([FREE, HELD, HELD, FREE, HELD])
     new = np.array([HELD, FREE, FREE, FREE, HELD])
-    perceived = np.array([True, True, False, True, False])
-    assert switch_events(prev, new, perceived).tolist() == [PICK, PLACE, RELEASE, NO_EVENT, NO_EVENT]
-    # batched (K, M) with perceived broadcast over particles
-    k = switch_events(np.stack([prev, prev]), np.stack([new, prev]), perceived)
+    supported = np.array([True, True, False, True, False])
+    assert switch_events(prev, new, supported).tolist() == [PICK, PLACE, RELEASE, NO_EVENT, NO_EVENT]
+    # batched (K, M) with the support mask broadcast over particles
+    k = switch_events(np.stack([prev, prev]), np.stack([new, prev]), supported)
     assert k.shape == (2, 5) and k[1].tolist() == [0] * 5
+    merged = merge_events(np.array([0, PICK, 0]), np.array([RELEASE, PLACE, 0]))
+    assert merged.tolist() == [RELEASE, PICK, 0]
 
 
 def test_priors_costs():
