@@ -23,32 +23,41 @@ class EventRecord:
                 "p": round(float(self.p), 4)}
 
 
-def events_from_switches(codes: np.ndarray, t: float, object_ids, weights: np.ndarray | None = None,
-                         threshold: float = 0.0) -> list[EventRecord]:
-    """Event records for one update.
+def record_event_times(event_t: np.ndarray, codes: np.ndarray, t: float) -> None:
+    """Remember, in place, the time ``t`` of the switches ``codes`` ``(..., M)``.
+
+    ``event_t`` ``(..., M, 3)`` holds, per particle and object, the time of the latest Pick, Place
+    and Release (columns in :data:`~actions.modes.EVENT_NAMES` order; -inf when none). Being part of
+    the particle state, it is resampled with the particles, so that evidence arriving after a switch
+    raises the probability of the event itself.
+    """
+    for code in EVENT_NAMES:
+        event_t[..., code - 1][codes == code] = t
+
+
+def recent_events(event_t: np.ndarray, weights: np.ndarray, t: float, window: float, object_ids,
+                  threshold: float = 0.0) -> list[EventRecord]:
+    """Events that happened within ``window`` seconds before ``t``, with their probabilities.
 
     Args:
-        codes: ``(M,)`` or ``(K, M)`` event codes from :func:`~actions.modes.switch_events`.
-        t: time of the update (s).
+        event_t: ``(K, M, 3)`` latest event times per particle (see :func:`record_event_times`).
+        weights: ``(K,)`` normalised particle weights.
+        t: now (s); window: how far back (s).
         object_ids: the M object ids.
-        weights: ``(K,)`` normalised particle weights (required for ``(K, M)`` codes).
         threshold: only events with probability above it are returned.
 
     Returns:
-        One record per (object, action) whose probability (the weight of the particles that made that
-        switch) exceeds ``threshold``, in object order then action order.
+        Per object and action with probability p (the weight of the particles that made that switch
+        within the window) above ``threshold``: the p-weighted mean time of the switch and p.
     """
-    codes = np.asarray(codes)
-    if codes.ndim == 1:
-        codes = codes[None, :]
-        weights = np.ones(1)
-    if weights is None or len(weights) != codes.shape[0]:
-        raise ValueError("weights of shape (K,) are required for (K, M) event codes")
+    recent = event_t >= t - window - 1e-9  # (K, M, 3); -inf never counts
+    p = np.tensordot(weights, recent.astype(float), axes=1)  # (M, 3)
     out = []
     for m, oid in enumerate(object_ids):
-        col = codes[:, m]
         for code, name in EVENT_NAMES.items():
-            p = float(np.sum(weights[col == code]))
-            if p > threshold:
-                out.append(EventRecord(float(t), name, oid, min(p, 1.0)))
+            pm = float(p[m, code - 1])
+            if pm > threshold:
+                sel = recent[:, m, code - 1]
+                t_mean = float(weights[sel] @ event_t[sel, m, code - 1]) / pm
+                out.append(EventRecord(t_mean, name, oid, min(pm, 1.0)))
     return out

@@ -41,9 +41,11 @@ class ReasonerConfig:
     * ``horizon`` (s): the reasoning period: an update runs when the stream's time has advanced by
       at least ``horizon`` since the last one, and simulates exactly the elapsed time. 0 reasons at
       every frame.
-    * ``place_speed`` (m/s) and ``place_gap`` (m): a held object that is perceived slower than
-      ``place_speed`` with its bottom within ``place_gap`` of a support's top (or inside a container)
-      is put down (Place). The paper leaves this rule implicit (see README).
+    * ``place_speed`` (m/s), ``place_spin`` (rad/s), ``place_dwell`` (s) and ``place_gap`` (m): a
+      held object whose detections over the last ``place_dwell`` moved slower than ``place_speed``
+      and turned slower than ``place_spin`` on average, with its bottom within ``place_gap`` of a
+      support's top (or inside a container), is put down (Place). The paper leaves this rule
+      implicit (see README).
     * ``release_speed`` (m/s): a held object perceived moving down faster than this with nothing
       under it was let go (Release, in view). Velocities are measured over the reasoning period.
     """
@@ -53,12 +55,15 @@ class ReasonerConfig:
     d_perc_prev: float = 0.032
     horizon: float = 0.08
     place_speed: float = 0.15
+    place_spin: float = 1.0
+    place_dwell: float = 0.3
     place_gap: float = 0.03
     release_speed: float = 1.0
 
     def __post_init__(self):
         _check_positive(self, "t_perceived", "d_sim_perc", "d_perc_prev", "place_speed", "place_gap",
-                        "release_speed")
+                        "release_speed", "place_spin")
+        _check_nonneg(self, "place_dwell")
         _check_nonneg(self, "horizon")
 
 
@@ -135,6 +140,8 @@ class EstimatorConfig:
       not depend on it).
     * ``resample_threshold``: resample when the effective sample size falls below this fraction of K.
     * ``event_threshold``: an event enters the timeline when its probability exceeds this.
+    * ``event_window`` (s): an event's probability is the weight of the particles that made that
+      switch within this window (particles carry their event times through resampling).
     * ``negative_evidence``: particles that put an unperceived object in plain view of the camera
       lose weight (needs a camera in the scene).
     * ``follow_hands``: a held object that is not detected follows the tracked hand nearest to it
@@ -142,6 +149,9 @@ class EstimatorConfig:
     * ``lazy_checks``: test an object's divergence only when it could have crossed the threshold
       since the last test (see :func:`~estimator.propagate.propagate`); off in paper mode, which
       tests after every step. Reading poses back is most of the estimator's cost over bare stepping.
+    * ``fresh_checks``: only objects detected since the previous update are tested for divergence
+      (a released object is not pulled back to where it was last seen); the paper tests every object
+      seen within ``t_perceived`` (off in paper mode).
     * ``visibility_threshold``: fraction of an object's sample points in view for it to count as
       visible to the camera.
     """
@@ -155,9 +165,11 @@ class EstimatorConfig:
     physics: PhysicsSettings = field(default_factory=PhysicsSettings)
     resample_threshold: float = 0.5
     event_threshold: float = 0.5
+    event_window: float = 1.0
     negative_evidence: bool = True
     follow_hands: bool = True
     lazy_checks: bool = True
+    fresh_checks: bool = True
     visibility_threshold: float = 0.3
     hypothesis_min_p: float = 0.02
 
@@ -166,6 +178,8 @@ class EstimatorConfig:
             raise ValueError(f"EstimatorConfig.particles must be an integer >= 1, got {self.particles!r}")
         if not isinstance(self.workers, int) or self.workers < 0:
             raise ValueError(f"EstimatorConfig.workers must be an integer >= 0, got {self.workers!r}")
+        if not self.event_window > 0:
+            raise ValueError(f"EstimatorConfig.event_window must be > 0, got {self.event_window!r}")
         for n in ("resample_threshold", "event_threshold", "visibility_threshold",
                   "hypothesis_min_p"):
             v = getattr(self, n)
@@ -182,4 +196,4 @@ class EstimatorConfig:
         """The single-world, noise-free physics reasoner of Sallami et al. (2019)."""
         return cls(particles=1, noise=NoiseConfig.off(), reasoner=reasoner or ReasonerConfig(),
                    priors=ModePriors(release_on_loss=1.0), negative_evidence=False, follow_hands=False,
-                   lazy_checks=False)
+                   lazy_checks=False, fresh_checks=False)

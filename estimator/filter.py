@@ -30,10 +30,11 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+from collections import deque
 
 import numpy as np
 
-from actions.events import events_from_switches
+from actions.events import recent_events, record_event_times
 from actions.modes import FREE, HELD, merge_events, switch_events
 from physics.scene import Scene
 from physics.transforms import carry_pose, quat_angle, quat_from_rotvec, quat_multiply, quat_normalize
@@ -122,6 +123,7 @@ class SceneEstimator:
             known_dyn = np.flatnonzero(self.dynamic & self.known)
             self.poses[:, known_dyn, :3] += rng.normal(0, nz.position_std, (K, len(known_dyn), 3))
             self._just_initialised[known_dyn] = True
+        self.event_t = np.full((K, M, 3), -np.inf)
         self.on_top = np.zeros((K, M, M + 1), dtype=bool)
         self.is_in = np.zeros((K, M, M), dtype=bool)
         # perception memory (shared by all particles)
@@ -141,6 +143,7 @@ class SceneEstimator:
         self._world_poses: np.ndarray | None = None
         self._supported = np.zeros((K, M), dtype=bool)
         self._t_seen_at_tick = np.full(M, -np.inf)
+        self._history: list[deque] = [deque() for _ in range(M)]
         self._world_vel: np.ndarray | None = None
 
     def _bounds(self, base: np.ndarray) -> np.ndarray:
@@ -186,6 +189,10 @@ class SceneEstimator:
             self.last_has_orientation[m] = det.orientation is not None
             self.last_std[m] = det.position_std if det.position_std is not None else np.nan
             self.last_seen[m] = frame.t
+            hist = self._history[m]
+            hist.append((frame.t, det.position.copy(), None if det.orientation is None else det.orientation.copy()))
+            while hist and hist[0][0] < frame.t - 2.0 * self.config.reasoner.place_dwell - 0.1:
+                hist.popleft()
             self._nearest_hand(frame, m)
         return detected
 
@@ -285,7 +292,8 @@ class SceneEstimator:
         vis_query = self.known & self.dynamic & ~detected
         if not (cfg.negative_evidence and self.scene.camera is not None):
             vis_query = np.zeros(M, dtype=bool)
-        check = np.broadcast_to(perceived, (K, M)).copy()
+        fresh = detected if cfg.fresh_checks else perceived
+        check = np.broadcast_to(perceived & fresh, (K, M)).copy()
         placed = tele | self._just_initialised
         self._just_initialised = np.zeros(M, dtype=bool)
         depen = np.broadcast_to(placed & (nz.position_std > 0), (K, M)) & (modes == FREE)
@@ -315,12 +323,11 @@ class SceneEstimator:
         loose = dataclasses.replace(cfg.relations, z_margin=hr.place_gap)
         sup_on, sup_in = relation_masks(aabbs, valid, static=self.static, floor=self.scene.floor, config=loose)
         supported = sup_on.any(axis=-1) | sup_in.any(axis=-1)
-        tick_vel = self._tick_velocity(t)
-        slow = np.linalg.norm(tick_vel, axis=1) < hr.place_speed
-        falling = tick_vel[:, 2] < -hr.release_speed
+        rested = self._at_rest(t)
+        falling = self._tick_velocity(t)[:, 2] < -hr.release_speed
         held_seen = (new_modes == HELD) & perceived[None, :]
         after_physics = new_modes.copy()
-        new_modes[held_seen & ((slow[None, :] & supported) | (falling[None, :] & ~supported))] = FREE
+        new_modes[held_seen & ((rested[None, :] & supported) | (falling[None, :] & ~supported))] = FREE
 
         # 7. weights
         codes = merge_events(codes_release,
@@ -359,7 +366,9 @@ class SceneEstimator:
         self.n_updates += 1
 
         # 8. belief and timeline
-        step_events = events_from_switches(codes, t, self.object_ids, weights, threshold=cfg.hypothesis_min_p)
+        record_event_times(self.event_t, codes, t)
+        step_events = recent_events(self.event_t, weights, t, cfg.event_window, self.object_ids,
+                                    threshold=cfg.hypothesis_min_p)
         belief = compute_belief(t, self.object_ids, self.known, perceived, new_poses, weights, new_modes,
                                 on_top, is_in, step_events, ess, self.static, cfg.hypothesis_min_p)
         self._update_timeline(t, belief)
@@ -369,14 +378,30 @@ class SceneEstimator:
 
     # -- pieces of the update -------------------------------------------------------------------------
     def _tick_velocity(self, t: float) -> np.ndarray:
-        """Perceived velocity ``(M, 3)`` over the last reasoning period (smoother than frame-to-frame
-        differences): displacement between the detections used at the previous update and now."""
+        """Perceived velocity ``(M, 3)`` (m/s) over the last reasoning period (smoother than
+        frame-to-frame differences): from the detections used at the previous update to the latest."""
         ok = np.isfinite(self.last_seen) & np.isfinite(self._t_seen_at_tick)
         gap = np.where(ok, self.last_seen - np.where(ok, self._t_seen_at_tick, 0.0), 0.0)
         ok &= gap > 1e-6
         vel = np.zeros((self.M, 3))
         vel[ok] = (self.last_pose[ok, :3] - self.pose_at_tick[ok, :3]) / gap[ok, None]
         return vel
+
+    def _at_rest(self, t: float) -> np.ndarray:
+        """Objects ``(M,)`` whose detections over the last ``place_dwell`` seconds moved less than
+        ``place_speed * place_dwell`` and turned less than ``place_spin * place_dwell``."""
+        hr = self.config.reasoner
+        out = np.zeros(self.M, dtype=bool)
+        for m, hist in enumerate(self._history):
+            old = [h for h in hist if h[0] <= t - hr.place_dwell + 1e-9]
+            if not old or t - hist[-1][0] > hr.place_dwell:
+                continue
+            t0, p0, q0 = old[-1]
+            t1, p1, q1 = hist[-1]
+            moved = np.linalg.norm(p1 - p0) < hr.place_speed * max(t1 - t0, hr.place_dwell)
+            turned = q0 is None or q1 is None or quat_angle(q0, q1) < hr.place_spin * max(t1 - t0, hr.place_dwell)
+            out[m] = moved and turned
+        return out
 
     def _following_hand(self, frame: Frame) -> np.ndarray:
         """Objects ``(M,)`` whose hand (when last detected) is tracked in this frame."""
@@ -464,7 +489,8 @@ class SceneEstimator:
 
     def _resample(self, weights: np.ndarray) -> None:
         anc = systematic_resample(weights, self.rng)
-        for name in ("poses", "velocities", "params", "modes", "on_top", "is_in"):
+        # per-particle state follows its ancestor; _world_poses stays: it is what each slot's world holds
+        for name in ("poses", "velocities", "params", "modes", "on_top", "is_in", "event_t", "_supported"):
             setattr(self, name, getattr(self, name)[anc].copy())
         self.log_weights = np.zeros(self.K)
         self._jitter_params(weights[anc] / weights[anc].sum())

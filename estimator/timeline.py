@@ -2,14 +2,13 @@
 
 In the spirit of Underworlds situations: a fact (``isOnTop(cup, table)``, ``isHeld(cup)``...) opens
 when its probability reaches ``threshold`` and closes when it falls below; its ``confidence`` is the
-mean probability while open. An action enters the timeline when the probability mass of that action
-on that object, summed over the updates of the last ``event_window`` seconds, reaches ``threshold``;
-its time is the probability-weighted mean time of those updates.
+mean probability while open. An action enters the timeline when the probability that it happened
+within the estimator's event window reaches ``threshold``; its time is the probability-weighted mean
+time of the particles' switches, and its probability the highest reached while it stays above.
 """
 from __future__ import annotations
 
 import json
-from collections import deque
 from dataclasses import dataclass
 
 from actions.events import EventRecord
@@ -27,15 +26,15 @@ class _OpenFact:
 class Timeline:
     """Accumulates facts and events over a run. ``threshold`` in (0, 1]; ``event_window`` in s."""
 
-    def __init__(self, threshold: float = 0.5, event_window: float = 1.0):
+    def __init__(self, threshold: float = 0.5, merge: float = 0.3):
         if not 0.0 < threshold <= 1.0:
             raise ValueError(f"threshold must be in (0, 1], got {threshold}")
         self.threshold = threshold
-        self.event_window = event_window
+        self.merge = merge
         self.facts: list[dict] = []
         self.events: list[EventRecord] = []
         self._open: dict[tuple, _OpenFact] = {}
-        self._pending: dict[tuple[str, str], deque] = {}
+        self._open_events: dict[tuple[str, str], int] = {}
         self.t_end: float | None = None
 
     def observe_facts(self, t: float, probabilities: dict[tuple, float]) -> None:
@@ -55,21 +54,31 @@ class Timeline:
         self.t_end = t
 
     def observe_events(self, t: float, events: list[EventRecord]) -> list[EventRecord]:
-        """Add this update's event probabilities; returns the events that entered the timeline now."""
+        """Take this update's windowed event probabilities (see :func:`actions.events.recent_events`);
+        returns the events that entered the timeline now.
+
+        An event enters when its probability reaches ``threshold``; while it stays above, later updates
+        raise its recorded probability (and refine its time) instead of adding a new event, unless
+        the switch time moved on by more than ``merge`` seconds (a new action of the same kind).
+        """
         new = []
+        seen = set()
         for e in events:
-            q = self._pending.setdefault((e.subject, e.action), deque())
-            q.append((e.t, e.p))
-        for key, q in self._pending.items():
-            while q and q[0][0] < t - self.event_window:
-                q.popleft()
-            mass = sum(p for _, p in q)
-            if q and mass >= self.threshold - 1e-12:
-                t_mean = sum(ti * p for ti, p in q) / mass
-                rec = EventRecord(t_mean, key[1], key[0], min(mass, 1.0))
-                self.events.append(rec)
-                new.append(rec)
-                q.clear()
+            key = (e.subject, e.action)
+            if e.p < self.threshold - 1e-12:
+                continue
+            seen.add(key)
+            idx = self._open_events.get(key)
+            if idx is not None and e.t - self.events[idx].t <= self.merge:
+                old = self.events[idx]
+                if e.p > old.p:
+                    self.events[idx] = EventRecord(e.t, e.action, e.subject, e.p)
+                continue
+            self.events.append(e)
+            self._open_events[key] = len(self.events) - 1
+            new.append(e)
+        for key in [k for k in self._open_events if k not in seen]:
+            del self._open_events[key]
         return new
 
     @staticmethod

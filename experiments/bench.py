@@ -93,9 +93,21 @@ def add_bench_arguments(p: argparse.ArgumentParser) -> None:
                    help="worker processes (default: one per core)")
     p.add_argument("--updates", type=int, default=20, help="timed updates per configuration")
     p.add_argument("--json", action="store_true", help="print the figures as one JSON object")
+    p.add_argument("--rerun-overhead", action="store_true",
+                   help="measure the cost of --rerun recording instead (e.g. --particles 64)")
 
 
 def run_bench(args) -> int:
+    if args.rerun_overhead:
+        from .recording import logging_overhead
+        rows = [logging_overhead(k, n, args.workers, args.updates) for k in args.particles for n in args.objects]
+        if args.json:
+            print(json.dumps({"workers": args.workers, "results": rows}))
+        else:
+            for r in rows:
+                print(f"K={r['particles']:>4} N={r['objects']:>3} update {r['update_ms_median']:.1f} ms  "
+                      f"log {r['log_ms_median']:.2f} ms  overhead {100 * r['overhead']:.1f} %")
+        return 0
     rows = []
     if not args.json:
         print(f"{'K':>5} {'N':>3} {'median ms':>10} {'p95 ms':>8} {'bare ms':>8} {'ratio':>6} "

@@ -6,6 +6,7 @@ Subcommands: ``run`` (estimate a recorded stream), ``demo`` (the built-in exampl
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import os
@@ -29,20 +30,19 @@ def build_config(args) -> EstimatorConfig:
                               d_sim_perc=args.d_sim_perc, d_perc_prev=args.d_perc_prev)
     noisy = (args.particles > 1 and not args.no_noise) or args.noise
     if not noisy:
-        paper = EstimatorConfig.paper(reasoner)
-        return EstimatorConfig(particles=args.particles, workers=args.workers, reasoner=reasoner,
-                               noise=NoiseConfig.off(), priors=paper.priors, negative_evidence=False,
-                               follow_hands=False, lazy_checks=False)
+        return dataclasses.replace(EstimatorConfig.paper(reasoner), particles=args.particles,
+                                   workers=args.workers)
     return EstimatorConfig(particles=args.particles, workers=args.workers, reasoner=reasoner,
                            noise=NoiseConfig())
 
 
 def run_stream(scene_path: str, observations_path: str, config: EstimatorConfig, seed: int,
                out_path: str | None, timeline_path: str | None, skip_bad_frames: bool = False,
-               quiet: bool = False, on_belief=None) -> dict:
+               quiet: bool = False, on_belief=None, on_frame=None) -> dict:
     """Estimate a whole observation stream, writing one estimate line per reasoning step as it goes
     (flushed, so an interrupted run keeps what it wrote) and the timeline at the end (also on
-    interruption). Returns a summary dict."""
+    interruption). ``on_frame(frame)`` and ``on_belief(belief)`` see every frame and every belief.
+    Returns a summary dict."""
     scene = load_scene(scene_path)
     warnings: list[str] = []
 
@@ -60,6 +60,8 @@ def run_stream(scene_path: str, observations_path: str, config: EstimatorConfig,
     est = SceneEstimator(scene, config, np.random.default_rng(seed))
     try:
         for frame in reader:
+            if on_frame is not None:
+                on_frame(frame)
             t0 = time.perf_counter()
             belief = est.update(frame)
             if belief is None:
@@ -90,6 +92,7 @@ def _add_run_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", help="estimate stream to write (JSON Lines)")
     p.add_argument("--timeline", help="timeline to write at the end (JSON)")
     _add_estimator_arguments(p)
+    p.add_argument("--rerun", metavar="PATH", help="also write a rerun recording (.rrd); open it with `rerun PATH`")
     p.add_argument("--skip-bad-frames", action="store_true",
                    help="drop malformed frames with a counted warning instead of stopping")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
@@ -139,8 +142,20 @@ def print_summary(summary: dict, stream=None) -> None:
 
 
 def cmd_run(args) -> int:
-    summary = run_stream(args.scene, args.observations, build_config(args), args.seed, args.out,
-                         args.timeline, args.skip_bad_frames, args.quiet)
+    recorder = None
+    if args.rerun:
+        from .recording import Recorder
+        recorder = Recorder(args.rerun, load_scene(args.scene))
+    try:
+        summary = run_stream(args.scene, args.observations, build_config(args), args.seed, args.out,
+                             args.timeline, args.skip_bad_frames, args.quiet,
+                             on_belief=recorder.log_belief if recorder else None,
+                             on_frame=recorder.log_frame if recorder else None)
+        if recorder is not None:
+            recorder.log_timeline(summary["timeline"])
+    finally:
+        if recorder is not None:
+            recorder.close()  # also on Ctrl-C: what was logged is kept
     if not args.quiet:
         print_summary(summary)
         if args.skip_bad_frames:

@@ -6,6 +6,7 @@ console script as the ``simulate`` subcommand::
     scene-estimator simulate --list
     scene-estimator simulate cup_falls_behind_box --seed 3 --out runs/cup3/
     scene-estimator simulate path/to/my_scenario.yaml --duration 2
+    scene-estimator simulate ball_dropped_into_box --rerun truth.rrd   # also a rerun recording
 """
 from __future__ import annotations
 
@@ -26,6 +27,8 @@ def add_simulate_arguments(parser: argparse.ArgumentParser) -> None:
                         help="output folder (default runs/<scenario>_seed<seed>/)")
     parser.add_argument("--duration", type=float, default=None,
                         help="seconds to simulate (default: the scenario's duration)")
+    parser.add_argument("--rerun", metavar="PATH", default=None,
+                        help="also write a rerun recording (.rrd) of the truth and the perception frames")
     parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
 
 
@@ -54,6 +57,10 @@ def run_simulate(args: argparse.Namespace) -> int:
         result = simulate(scenario, seed=args.seed, duration=args.duration)
         out = args.out or f"runs/{scenario.name}_seed{args.seed}"
         paths = write_outputs(result, out)
+        if getattr(args, "rerun", None):
+            from .recording import record_simulation
+
+            paths["rerun"] = record_simulation(args.rerun, result.scene, result.truth, result.observations)
     except InputError as exc:
         print(f"scene-estimator simulate: {exc}", file=sys.stderr)
         return 2

@@ -19,14 +19,16 @@ def test_facts_open_and_close_with_confidence(tmp_path):
     assert json.loads((tmp_path / "t.json").read_text()) == doc
 
 
-def test_events_accumulate_over_the_window():
-    tl = Timeline(threshold=0.5, event_window=1.0)
+def test_events_enter_once_and_keep_their_highest_probability():
+    tl = Timeline(threshold=0.5, merge=0.3)
     assert tl.observe_events(1.0, [EventRecord(1.0, "Release", "cup", 0.3)]) == []
-    new = tl.observe_events(1.2, [EventRecord(1.2, "Release", "cup", 0.3)])
-    assert len(new) == 1 and abs(new[0].p - 0.6) < 1e-12 and abs(new[0].t - 1.1) < 1e-12
-    # mass older than the window is forgotten
-    assert tl.observe_events(3.0, [EventRecord(3.0, "Pick", "cup", 0.3)]) == []
-    assert tl.observe_events(4.5, [EventRecord(4.5, "Pick", "cup", 0.3)]) == []
-    # certain events are all kept, even close together
-    assert len(tl.observe_events(5.0, [EventRecord(5.0, "Pick", "box", 1.0)])) == 1
-    assert len(tl.observe_events(5.1, [EventRecord(5.1, "Pick", "box", 1.0)])) == 1
+    new = tl.observe_events(1.1, [EventRecord(1.05, "Release", "cup", 0.6)])
+    assert len(new) == 1 and new[0].p == 0.6
+    assert tl.observe_events(1.2, [EventRecord(1.04, "Release", "cup", 0.9)]) == []
+    assert len(tl.events) == 1 and tl.events[0].p == 0.9 and tl.events[0].t == 1.04
+    # the same kind of action again, later: a new event
+    assert len(tl.observe_events(2.0, [EventRecord(2.0, "Release", "cup", 1.0)])) == 1
+    # below threshold: the key closes, and a later crossing is a new event
+    tl.observe_events(3.5, [])
+    assert len(tl.observe_events(3.6, [EventRecord(2.1, "Release", "cup", 0.7)])) == 1
+    assert [e["t"] for e in tl.to_json()["events"]] == [1.04, 2.0, 2.1]

@@ -1,0 +1,630 @@
+"""Rerun recordings (``.rrd``) of what the estimator perceives, believes and what was true.
+
+A :class:`Recorder` owns its own :class:`rerun.RecordingStream` (application id ``scene-estimator``,
+a fresh recording id per instance) that writes to one file; it never touches rerun's global
+recording, so two recorders in one process keep their data apart. Open the file with
+``rerun run.rrd``. Time is the stream's ``t`` (seconds), on the timeline :data:`TIMELINE`.
+
+Entity paths (object ids are escaped as entity path parts; M objects)::
+
+    world/scene/<id>                    static: geometry of the static objects (URDF visual meshes,
+                                        primitives), the floor and the camera frustum
+    world/perceived/objects             pink boxes: the detections of the last frame
+    world/perceived/hands               pink points: tracked hands
+    world/belief/consensus              green boxes: consensus poses of the dynamic objects
+    world/belief/uncertainty            green ellipsoids: n-sigma position uncertainty
+    world/belief/particles/<id>         the particle cloud of each object, dark = heavy
+    world/belief/hypotheses             orange points labelled "cup: isOnTop table 0.81"
+    world/belief/trajectories           line strips of the consensus positions so far
+    world/truth/objects, world/truth/hands   grey wireframe boxes and points: the ground truth
+    plots/ess                           effective sample size
+    plots/p_plausible/<id>, plots/p_held/<id>, plots/relations/<predicate>/<subject>/<object>
+    plots/truth/held/<id>, plots/truth/relations/<predicate>/<subject>/<object>   0 / 1
+    log/events                          per-update event probabilities (Pick / Place / Release)
+    log/timeline                        facts (begin / end) and events of the final timeline
+    log/truth                           true events
+
+Rerun 0.41 draws no dashed lines: the truth is drawn as grey wireframe boxes (the static scene is
+solid, the perceived boxes pink, the consensus green).
+"""
+from __future__ import annotations
+
+import os
+import uuid
+from collections import deque
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import pybullet as pb
+import rerun as rr
+import rerun.blueprint as rrb
+from rerun.components import FillMode
+from scipy.spatial.transform import Rotation
+
+from estimator.belief import Belief
+from estimator.observations import Frame
+from physics.scene import ObjectSpec, Scene
+from physics.transforms import quat_rotate
+from physics.world import World
+
+APPLICATION_ID = "scene-estimator"
+TIMELINE = "t"
+
+PINK = (255, 105, 180, 255)
+GREEN = (40, 200, 80, 255)
+GREEN_SHADE = (40, 200, 80, 70)
+ORANGE = (255, 150, 0, 255)
+TRUTH_GREY = (150, 150, 150, 255)
+SCENE_GREY = (205, 205, 205, 255)
+FLOOR_GREY = (120, 120, 120, 255)
+PARTICLE_LIGHT = np.array([190.0, 215.0, 255.0, 90.0])
+PARTICLE_DARK = np.array([20.0, 40.0, 170.0, 255.0])
+
+_GEOM_SPHERE, _GEOM_BOX, _GEOM_CYLINDER, _GEOM_MESH = pb.GEOM_SPHERE, pb.GEOM_BOX, pb.GEOM_CYLINDER, pb.GEOM_MESH
+
+
+@dataclass(frozen=True)
+class RecorderOptions:
+    """What a :class:`Recorder` logs per estimator update.
+
+    ``max_particles_logged``: particles drawn per object (the heaviest ones when K is larger; 0 logs no
+    particle cloud). ``trail_length``: consensus positions kept per trajectory. ``sigma``: the
+    uncertainty ellipsoids span this many standard deviations. ``particle_radius``,
+    ``box_line_radius``: drawing sizes in metres. ``floor_half_size``: half extent (m) of the floor
+    square drawn at z = 0. ``batch``: drawings and plot values are buffered and written as columns
+    every this many ``log_*`` calls; :meth:`Recorder.flush` and :meth:`Recorder.close` write the rest.
+    """
+
+    max_particles_logged: int = 256
+    trail_length: int = 200
+    sigma: float = 2.0
+    particle_radius: float = 0.003
+    box_line_radius: float = 0.001
+    floor_half_size: float = 1.5
+    batch: int = 32
+
+    def __post_init__(self):
+        if self.max_particles_logged < 0:
+            raise ValueError(f"max_particles_logged must be >= 0, got {self.max_particles_logged}")
+        if self.trail_length < 2:
+            raise ValueError(f"trail_length must be >= 2, got {self.trail_length}")
+        if self.batch < 1:
+            raise ValueError(f"batch must be >= 1, got {self.batch}")
+        if not self.sigma > 0:
+            raise ValueError(f"sigma must be > 0, got {self.sigma}")
+
+
+@dataclass(frozen=True)
+class LocalBox:
+    """An object's bounding box in its own link frame: ``center (3,)`` and ``half_size (3,)`` (m)."""
+
+    center: np.ndarray
+    half_size: np.ndarray
+
+
+def path(*parts: str) -> str:
+    """An entity path from raw parts (object ids may hold ``/`` or spaces): ``/plots/p_held/cup``."""
+    return "/" + "/".join(rr.escape_entity_path_part(p) for p in parts)
+
+
+def local_boxes(world: World) -> dict[str, LocalBox]:
+    """Link-frame bounding box of every object of ``world`` (placed at the identity pose to measure
+    it; the world's poses are changed). Units: metres."""
+    poses = np.zeros((world.num_objects, 7))
+    poses[:, 6] = 1.0
+    world.set_poses(poses)
+    boxes = world.aabbs()
+    return {oid: LocalBox(0.5 * (b[0] + b[1]), 0.5 * (b[1] - b[0])) for oid, b in zip(world.object_ids, boxes)}
+
+
+def boxes_at(boxes: list[LocalBox], positions: np.ndarray, orientations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World centres ``(n, 3)`` and half sizes ``(n, 3)`` of local ``boxes`` placed at link-frame
+    ``positions (n, 3)`` / ``orientations (n, 4)`` x,y,z,w."""
+    if not boxes:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    offsets = np.array([b.center for b in boxes])
+    centers = np.asarray(positions, float) + quat_rotate(np.asarray(orientations, float), offsets)
+    return centers, np.array([b.half_size for b in boxes])
+
+
+def covariance_ellipsoids(cov: np.ndarray, sigma: float, floor: float = 1e-4) -> tuple[np.ndarray, np.ndarray]:
+    """Half axes ``(n, 3)`` (m, ``sigma`` standard deviations, at least ``floor``) and orientation
+    quaternions ``(n, 4)`` x,y,z,w of the ellipsoids of position covariances ``(n, 3, 3)`` (m^2)."""
+    cov = np.asarray(cov, float).reshape(-1, 3, 3)
+    if not len(cov):
+        return np.zeros((0, 3)), np.zeros((0, 4))
+    vals, vecs = np.linalg.eigh(0.5 * (cov + np.swapaxes(cov, -1, -2)))
+    flip = np.linalg.det(vecs) < 0
+    vecs[flip, :, 0] *= -1.0
+    half = np.maximum(sigma * np.sqrt(np.clip(vals, 0.0, None)), floor)
+    return half, Rotation.from_matrix(vecs).as_quat()
+
+
+def weight_colors(weights: np.ndarray) -> np.ndarray:
+    """RGBA ``(K, 4)`` uint8 colours shading normalised particle ``weights (K,)``: light and
+    transparent for light particles, dark blue for the heaviest."""
+    w = np.asarray(weights, float)
+    s = w / w.max() if w.size and w.max() > 0 else np.zeros_like(w)
+    return (PARTICLE_LIGHT + s[:, None] * (PARTICLE_DARK - PARTICLE_LIGHT)).astype(np.uint8)
+
+
+class _Rows:
+    """Rows of one entity buffered for :meth:`rerun.RecordingStream.send_columns`.
+
+    Each row (one time point) has ``n`` instances; every instance component is given as an array
+    ``(n, ...)`` or a list of ``n`` items (a row with ``n = 0`` shows nothing). ``mono`` holds
+    components with one value per row (a fill mode), constant for the entity.
+    """
+
+    def __init__(self, archetype, **mono):
+        self.archetype = archetype
+        self.mono = mono
+        self.times: list[float] = []
+        self.lengths: list[int] = []
+        self.parts: dict[str, list] = {}
+
+    def add(self, t: float, n: int, **components) -> None:
+        self.times.append(t)
+        self.lengths.append(n)
+        for name, value in components.items():
+            self.parts.setdefault(name, []).append(value)
+
+    def write(self, stream: rr.RecordingStream, entity: str) -> None:
+        if not self.times:
+            return
+        comps = {name: [x for v in vs for x in v] if isinstance(vs[0], list) else np.concatenate(vs)
+                 for name, vs in self.parts.items()}
+        columns = list(self.archetype.columns(**comps).partition(self.lengths))
+        if self.mono:
+            columns += list(self.archetype.columns(**{k: [v] * len(self.times) for k, v in self.mono.items()}))
+        stream.send_columns(entity, indexes=[rr.TimeColumn(TIMELINE, duration=self.times)], columns=columns)
+        self.times, self.lengths, self.parts = [], [], {}
+
+
+def _packed(rgba) -> np.uint32:
+    r, g, b, a = (int(v) for v in rgba)
+    return np.uint32((r << 24) | (g << 16) | (b << 8) | a)
+
+
+class Recorder:
+    """Write a rerun recording of a run to ``path`` (an ``.rrd`` file, created or overwritten).
+
+    The static scene (geometry of static objects, floor, camera frustum) and a default layout (3D view,
+    plots, text log) are written at construction. Call :meth:`log_frame`, :meth:`log_belief`,
+    :meth:`log_truth` and :meth:`log_timeline` in any order; :meth:`close` (or leaving the ``with``
+    block) writes what is buffered and closes the file.
+
+    Per-update drawings and plot values are buffered and written as columns every
+    ``options.batch`` calls (one write per entity instead of one per value: the logging cost per
+    update is a few numpy operations); text entries are written at once.
+
+    Args:
+        path: the ``.rrd`` file.
+        scene: the scene the run is about (its geometry gives every box's size).
+        max_particles_logged: particles drawn per object and update (the heaviest ones; 0: none).
+        options: every other drawing option; ``max_particles_logged``, when given, overrides its own.
+    """
+
+    def __init__(self, path: str | os.PathLike, scene: Scene, *, max_particles_logged: int | None = None,
+                 options: RecorderOptions | None = None):
+        opts = options or RecorderOptions()
+        if max_particles_logged is not None and max_particles_logged != opts.max_particles_logged:
+            opts = replace(opts, max_particles_logged=max_particles_logged)
+        self.options = opts
+        self.path = Path(path)
+        self.scene = scene
+        self.recording_id = str(uuid.uuid4())
+        self._dynamic = [o.id for o in scene.objects if not o.static]
+        self._trails: dict[str, deque] = {oid: deque(maxlen=opts.trail_length) for oid in self._dynamic}
+        self._relations_seen: set[tuple[str, str, str]] = set()
+        self._truth_relations_seen: set[tuple[str, str, str]] = set()
+        self._rows: dict[str, _Rows] = {}
+        self._pending = 0
+        self._paths: dict[tuple[str, ...], str] = {}
+        self._closed = True
+        with World(scene) as world:
+            statics = _static_geometry(world, scene)
+            self._local = local_boxes(world)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.stream = rr.RecordingStream(APPLICATION_ID, recording_id=self.recording_id)
+        self._closed = False
+        try:
+            self.stream.set_log_time_enabled(False)
+            self.stream.set_log_tick_enabled(False)
+            self.stream.save(str(self.path), default_blueprint=default_blueprint())
+            self.stream.send_recording_name(self.path.stem)
+            self._log_static(statics)
+        except BaseException:
+            self.close()
+            raise
+
+    # -- life cycle ---------------------------------------------------------------------------------
+    def flush(self) -> None:
+        """Write everything buffered (the file then holds the whole run so far)."""
+        for entity, rows in self._rows.items():
+            rows.write(self.stream, entity)
+        self._pending = 0
+        self.stream.flush()
+
+    def close(self) -> None:
+        """Write what is buffered and close the file. Safe to call twice."""
+        if self._closed:
+            return
+        try:
+            self.flush()
+        finally:
+            self._closed = True
+            self.stream.disconnect()
+
+    def __enter__(self) -> "Recorder":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _start(self, t: float) -> float:
+        if self._closed:
+            raise RuntimeError(f"the recorder of {self.path} is closed")
+        return float(t)
+
+    def _done(self) -> None:
+        self._pending += 1
+        if self._pending >= self.options.batch:
+            self.flush()
+
+    def _rows_of(self, entity: str, archetype, **mono) -> _Rows:
+        rows = self._rows.get(entity)
+        if rows is None:
+            rows = self._rows[entity] = _Rows(archetype, **mono)
+        return rows
+
+    def _text(self, entity: str, t: float, text: str, level: str) -> None:
+        self.stream.set_time(TIMELINE, duration=float(t))
+        self.stream.log(entity, rr.TextLog(text, level=level))
+
+    def _path(self, *parts: str) -> str:
+        p = self._paths.get(parts)
+        if p is None:
+            p = self._paths[parts] = path(*parts)
+        return p
+
+    def _scalar(self, entity: str, t: float, value: float) -> None:
+        self._rows_of(entity, rr.Scalars).add(t, 1, scalars=[float(value)])
+
+    # -- static scene -------------------------------------------------------------------------------
+    def _log_static(self, statics: list[tuple[str, object]]) -> None:
+        log = self.stream.log
+        log("/world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        for oid, archetype in statics:
+            log(path("world", "scene", oid), archetype, static=True)
+        if self.scene.floor:
+            h = self.options.floor_half_size
+            log("/world/scene/floor", rr.Boxes3D(half_sizes=[[h, h, 0.0005]], centers=[[0, 0, -0.0005]],
+                                                 colors=[FLOOR_GREY], fill_mode=FillMode.Solid), static=True)
+        cam = self.scene.camera
+        if cam is not None:
+            forward = np.subtract(cam.target, cam.position)
+            forward = forward / np.linalg.norm(forward)
+            right = np.cross(forward, cam.up)
+            right = right / np.linalg.norm(right)
+            down = np.cross(forward, right)
+            log("/world/scene/camera", rr.Transform3D(translation=cam.position,
+                                                      mat3x3=np.column_stack([right, down, forward])), static=True)
+            log("/world/scene/camera", rr.Pinhole(fov_y=np.radians(cam.fov_deg), aspect_ratio=cam.aspect,
+                                                  camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=0.2),
+                static=True)
+
+    # -- shared drawings ----------------------------------------------------------------------------
+    def _boxes(self, entity: str, t: float, ids: list[str], positions, orientations, color, fill_mode,
+               labels: list[str] | None = None) -> None:
+        n = len(ids)
+        centers, half = boxes_at([self._local[o] for o in ids], positions, orientations)
+        self._rows_of(entity, rr.Boxes3D, fill_mode=fill_mode).add(
+            t, n, half_sizes=half, centers=centers, quaternions=np.asarray(orientations, float).reshape(-1, 4),
+            colors=np.full(n, _packed(color)), radii=np.full(n, self.options.box_line_radius),
+            labels=list(labels if labels is not None else ids))
+
+    def _hands(self, entity: str, t: float, hands: dict, color) -> None:
+        n = len(hands)
+        pos = np.array([np.asarray(v, float) for v in hands.values()]).reshape(-1, 3)
+        self._rows_of(entity, rr.Points3D).add(t, n, positions=pos, radii=np.full(n, 0.02),
+                                               colors=np.full(n, _packed(color)), labels=list(hands))
+
+    def _relations(self, root: tuple[str, ...], t: float, relations: list[dict], seen: set) -> None:
+        """One series per relation ever listed; a relation that stops being listed is logged as 0."""
+        now = {(r["predicate"], r["subject"], r["object"]): float(r.get("p", 1.0)) for r in relations}
+        seen.update(now)
+        for key in seen:
+            self._scalar(self._path(*root, "relations", *key), t, now.get(key, 0.0))
+
+    # -- perception ---------------------------------------------------------------------------------
+    def log_frame(self, frame: Frame) -> None:
+        """Log a perception frame at ``frame.t``: detections as pink boxes (identity orientation when
+        not measured), tracked hands as pink points. An empty frame shows none."""
+        t = self._start(frame.t)
+        ids = [oid for oid in frame.objects if oid in self._local]
+        pos = np.array([frame.objects[o].position for o in ids]).reshape(-1, 3)
+        orn = np.array([frame.objects[o].orientation if frame.objects[o].orientation is not None
+                        else (0.0, 0.0, 0.0, 1.0) for o in ids]).reshape(-1, 4)
+        self._boxes("/world/perceived/objects", t, ids, pos, orn, PINK, FillMode.MajorWireframe)
+        self._hands("/world/perceived/hands", t, frame.hands, PINK)
+        self._done()
+
+    # -- belief -------------------------------------------------------------------------------------
+    def log_belief(self, belief: Belief) -> None:
+        """Log a belief at ``belief.t``: consensus boxes, uncertainty ellipsoids, particle clouds,
+        hypotheses, trajectories, plots (ESS, P(plausible), P(held), relation probabilities) and the
+        update's events. Static objects are left out (they are in the static scene)."""
+        t = self._start(belief.t)
+        opts = self.options
+        ids = [oid for oid in self._dynamic if oid in belief.objects]
+        obs = [belief.objects[o] for o in ids]
+        n = len(ids)
+        pos = np.array([b.position for b in obs], float).reshape(-1, 3)
+        orn = np.array([b.orientation for b in obs], float).reshape(-1, 4)
+        self._boxes("/world/belief/consensus", t, ids, pos, orn, GREEN, FillMode.MajorWireframe)
+        half, quat = covariance_ellipsoids(np.array([b.position_cov for b in obs], float).reshape(-1, 3, 3),
+                                           opts.sigma)
+        self._rows_of("/world/belief/uncertainty", rr.Ellipsoids3D,
+                      fill_mode=FillMode.TransparentFillMajorWireframe).add(
+            t, n, half_sizes=half, quaternions=quat, centers=pos, colors=np.full(n, _packed(GREEN_SHADE)))
+        self._particles(belief, t, ids)
+        hyps = [(oid, h) for oid, b in zip(ids, obs) for h in b.hypotheses]
+        self._rows_of("/world/belief/hypotheses", rr.Points3D).add(
+            t, len(hyps), positions=np.array([h.position for _, h in hyps], float).reshape(-1, 3),
+            radii=np.array([0.004 + 0.012 * float(h.p) for _, h in hyps]),
+            colors=np.full(len(hyps), _packed(ORANGE)),
+            labels=[f"{oid}: {h.relation if h.support is None else f'{h.relation} {h.support}'} {h.p:.2f}"
+                    for oid, h in hyps])
+        for oid, p in zip(ids, pos):
+            self._trails[oid].append(p)
+        strips = [np.array(self._trails[o]) for o in ids if len(self._trails[o]) >= 2]
+        self._rows_of("/world/belief/trajectories", rr.LineStrips3D).add(
+            t, len(strips), strips=strips, colors=np.full(len(strips), _packed(GREEN)),
+            radii=np.full(len(strips), 0.0015))
+        self._scalar("/plots/ess", t, belief.ess)
+        for oid, b in zip(ids, obs):
+            self._scalar(self._path("plots", "p_plausible", oid), t, b.p_plausible)
+            self._scalar(self._path("plots", "p_held", oid), t, b.p_held)
+        self._relations(("plots",), t, belief.relations, self._relations_seen)
+        if belief.events:
+            self._text("/log/events", t, "; ".join(f"{e.action} {e.subject} p={e.p:.2f}" for e in belief.events),
+                       "INFO")
+        self._done()
+
+    def _particles(self, belief: Belief, t: float, ids: list[str]) -> None:
+        """Each object's particle positions, the ``max_particles_logged`` heaviest, shaded by weight."""
+        n = self.options.max_particles_logged
+        if n == 0 or belief.particles is None or belief.weights is None:
+            return
+        w = np.asarray(belief.weights, float)
+        sel = np.argsort(-w, kind="stable")[:n] if len(w) > n else np.arange(len(w))
+        rgba = weight_colors(w[sel]).astype(np.uint32)
+        colors = (rgba[:, 0] << 24) | (rgba[:, 1] << 16) | (rgba[:, 2] << 8) | rgba[:, 3]
+        radii = np.full(len(sel), self.options.particle_radius)
+        columns = {oid: m for m, oid in enumerate(belief.object_ids)}
+        for oid in self._dynamic:
+            m = columns.get(oid)
+            rows = self._rows_of(self._path("world", "belief", "particles", oid), rr.Points3D)
+            if oid in ids and m is not None:
+                rows.add(t, len(sel), positions=belief.particles[sel, m, :3], colors=colors, radii=radii)
+            else:
+                rows.add(t, 0, positions=np.zeros((0, 3)), colors=colors[:0], radii=radii[:0])
+
+    # -- ground truth and timeline ------------------------------------------------------------------
+    def log_truth(self, row: dict) -> None:
+        """Log one ground-truth row of the simulator (``truth.jsonl``) at ``row["t"]``: true poses of
+        the dynamic objects (grey wireframe boxes, labelled ``(hidden)`` / ``(held)``), true hands,
+        true held flags and relations as 0 / 1 plots, and true events in ``log/truth``."""
+        t = self._start(row["t"])
+        objects = row.get("objects", {})
+        ids = [oid for oid in self._dynamic if oid in objects]
+        pos = np.array([objects[o]["position"] for o in ids], float).reshape(-1, 3)
+        orn = np.array([objects[o]["orientation"] for o in ids], float).reshape(-1, 4)
+        labels = [oid + ("" if objects[oid].get("visible", True) else " (hidden)")
+                  + (" (held)" if objects[oid].get("held") else "") for oid in ids]
+        self._boxes("/world/truth/objects", t, ids, pos, orn, TRUTH_GREY, FillMode.DenseWireframe, labels)
+        self._hands("/world/truth/hands", t, row.get("hands") or {}, TRUTH_GREY)
+        for oid in ids:
+            self._scalar(self._path("plots", "truth", "held", oid), t, float(bool(objects[oid].get("held"))))
+        self._relations(("plots", "truth"), t, row.get("relations", []), self._truth_relations_seen)
+        for e in row.get("events", []):
+            self._text("/log/truth", e["t"], f"true {e['action']} {e['subject']}", "INFO")
+        self._done()
+
+    def log_timeline(self, timeline_json: dict) -> None:
+        """Log a timeline document (``Timeline.to_json()``) into ``log/timeline``: each fact as a
+        "begins" entry at its start and an "ends" entry at its end, each event at its time."""
+        self._start(timeline_json.get("t_end") or 0.0)
+        for f in timeline_json.get("facts", []):
+            name = f"{f['predicate']}({f['subject']}" + (f", {f['object']})" if f.get("object") else ")")
+            self._text("/log/timeline", f["start"], f"{name} begins (confidence {f['confidence']:.2f})", "DEBUG")
+            if f.get("end") is not None:
+                self._text("/log/timeline", f["end"], f"{name} ends", "DEBUG")
+        for e in timeline_json.get("events", []):
+            self._text("/log/timeline", e["t"], f"{e['action']} {e['subject']} p={e['p']:.2f}", "INFO")
+
+
+def default_blueprint() -> rrb.Blueprint:
+    """The default layout: the 3D scene on the left; ESS, probabilities (tabs) and the text log on the
+    right."""
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(name="Scene", origin="/world"),
+            rrb.Vertical(
+                rrb.TimeSeriesView(name="ESS", origin="/plots/ess"),
+                rrb.Tabs(
+                    rrb.TimeSeriesView(name="P(plausible)", origin="/plots/p_plausible"),
+                    rrb.TimeSeriesView(name="P(held)", origin="/plots",
+                                       contents=["$origin/p_held/**", "$origin/truth/held/**"]),
+                    rrb.TimeSeriesView(name="Relations", origin="/plots",
+                                       contents=["$origin/relations/**", "$origin/truth/relations/**"]),
+                ),
+                rrb.TextLogView(name="Facts and events", origin="/log"),
+                row_shares=[1, 2, 2],
+            ),
+            column_shares=[3, 2],
+        ),
+        collapse_panels=True,
+    )
+
+
+# --------------------------------------------------------------------------------------------------
+# static geometry
+
+
+def _static_geometry(world: World, scene: Scene) -> list[tuple[str, object]]:
+    """(object id, archetype) drawing each static object at its scene pose: URDF visual meshes (or
+    their primitives) read back from pybullet, primitives from the scene file."""
+    out = []
+    poses = world.get_poses()
+    for i, spec in enumerate(scene.objects):
+        if not spec.static:
+            continue
+        if spec.shape == "urdf":
+            mesh = _urdf_visual_mesh(world, i)
+            if mesh is not None:
+                out.append((spec.id, mesh))
+                continue
+        out.append((spec.id, _primitive(spec, poses[i])))
+    return out
+
+
+def _primitive(spec: ObjectSpec, pose: np.ndarray):
+    p, q = pose[:3], pose[3:]
+    color = [tuple(int(255 * c) for c in spec.color)] if spec.color is not None else [SCENE_GREY]
+    if spec.shape == "sphere":
+        return rr.Ellipsoids3D(half_sizes=[[spec.radius] * 3], centers=[p], colors=color, fill_mode=FillMode.Solid)
+    if spec.shape == "cylinder":
+        return rr.Cylinders3D(lengths=[spec.height], radii=[spec.radius], centers=[p], quaternions=[q],
+                              colors=color, fill_mode=FillMode.Solid)
+    if spec.shape == "container":
+        sx, sy, sz = (0.5 * v for v in spec.size)
+        w = 0.5 * spec.wall
+        local_c = np.array([[0, 0, -sz + w], [sx - w, 0, 0], [-sx + w, 0, 0], [0, sy - w, 0], [0, -sy + w, 0]])
+        half = np.array([[sx, sy, w], [w, sy, sz], [w, sy, sz], [sx, w, sz], [sx, w, sz]])
+        centers = p + quat_rotate(np.broadcast_to(q, (5, 4)), local_c)
+        return rr.Boxes3D(half_sizes=half, centers=centers, quaternions=[q] * 5, colors=color, fill_mode=FillMode.Solid)
+    if spec.shape == "box":
+        return rr.Boxes3D(half_sizes=[[0.5 * v for v in spec.size]], centers=[p], quaternions=[q], colors=color,
+                          fill_mode=FillMode.Solid)
+    raise ValueError(f"no drawing for shape {spec.shape!r}")
+
+
+def _urdf_visual_mesh(world: World, index: int):
+    """One :class:`rerun.Mesh3D` with every visual shape of a URDF object in world coordinates, or
+    ``None`` when it has none that can be read (then its bounding box is drawn instead)."""
+    import trimesh
+
+    c = world.client
+    uid = world.uids[index]
+    parts, colors = [], []
+    for v in pb.getVisualShapeData(uid, physicsClientId=c):
+        link, geom, dims, fname, lpos, lorn, rgba = v[1], v[2], v[3], v[4], v[5], v[6], v[7]
+        if geom == _GEOM_MESH:
+            try:
+                m = trimesh.load(fname.decode() if isinstance(fname, bytes) else fname, force="mesh")
+            except (OSError, ValueError):
+                continue
+            m = m.copy()
+            m.apply_scale(dims)
+        elif geom == _GEOM_BOX:
+            m = trimesh.creation.box(extents=dims)
+        elif geom == _GEOM_SPHERE:
+            m = trimesh.creation.icosphere(subdivisions=2, radius=dims[0])
+        elif geom == _GEOM_CYLINDER:
+            m = trimesh.creation.cylinder(radius=dims[1], height=dims[0])
+        else:
+            continue
+        if link < 0:  # pybullet reports visual frames relative to the centre-of-mass frame
+            wpos, worn = pb.getBasePositionAndOrientation(uid, physicsClientId=c)
+        else:
+            state = pb.getLinkState(uid, link, physicsClientId=c)
+            wpos, worn = state[0], state[1]
+        ppos, porn = pb.multiplyTransforms(wpos, worn, lpos, lorn)
+        rot = np.broadcast_to(porn, (len(m.vertices), 4))
+        verts = np.asarray(ppos) + quat_rotate(rot, m.vertices)
+        parts.append((verts, np.asarray(m.faces), quat_rotate(rot, m.vertex_normals)))
+        colors.append(np.broadcast_to((np.asarray(rgba) * 255).astype(np.uint8), (len(verts), 4)))
+    if not parts:
+        return None
+    offsets = np.cumsum([0] + [len(p[0]) for p in parts[:-1]])
+    verts = np.concatenate([p[0] for p in parts])
+    faces = np.concatenate([p[1] + o for p, o in zip(parts, offsets)])
+    return rr.Mesh3D(vertex_positions=verts, triangle_indices=faces,
+                     vertex_normals=np.concatenate([p[2] for p in parts]), vertex_colors=np.concatenate(colors))
+
+
+def record_simulation(path: str | os.PathLike, scene: Scene, truth: list[dict], observations: list[dict],
+                      options: RecorderOptions | None = None) -> Path:
+    """Write a recording of a simulated run: the ``truth`` rows and the ``observations`` frames (dicts
+    as in ``truth.jsonl`` / ``observations.jsonl``) over ``scene``. Returns the file's path."""
+    from estimator.observations import parse_frame
+
+    with Recorder(path, scene, options=options) as rec:
+        for row in truth:
+            rec.log_truth(row)
+        for obs in observations:
+            rec.log_frame(parse_frame(obs, known_ids=scene.object_ids))
+    return rec.path
+
+
+# --------------------------------------------------------------------------------------------------
+# cost of recording
+
+
+def logging_overhead(k: int = 64, n_objects: int = 8, workers: int = 0, updates: int = 20, warmup: int = 3,
+                     seed: int = 0, path: str | os.PathLike | None = None) -> dict:
+    """Cost of recording on the ``bench`` scene (K particles, ``n_objects`` boxes on a table, one
+    frame per reasoning step): two estimators with the same seed and frames, updated alternately (so
+    that load on the machine affects both alike), one bare, one followed by ``log_frame`` and
+    ``log_belief`` of a :class:`Recorder`.
+
+    Returns medians in ms over the ``updates`` timed updates: ``update_ms_median`` (bare),
+    ``recorded_update_ms_median`` (update + logging), ``log_ms_median`` (the logging calls alone), and
+    ``overhead`` = total logging time / total bare update time (buffer writes included), and
+    ``cpu_overhead`` = extra CPU time of this process (all its threads, rerun's encoder and file
+    writer included; worker processes excluded) per update / bare update wall time.
+    ``path``: the ``.rrd`` to write (default: a temporary file, deleted).
+    """
+    import tempfile
+    import time
+
+    from estimator.config import EstimatorConfig, NoiseConfig
+    from estimator.filter import SceneEstimator
+
+    from .bench import _frames, bench_scene
+
+    scene = bench_scene(n_objects)
+    cfg = EstimatorConfig(particles=k, workers=workers, noise=NoiseConfig())
+    frames = list(_frames(scene, warmup + updates, cfg.reasoner.horizon, np.random.default_rng([seed, 1])))
+    bare, upd, logt, cpu_bare, cpu_rec = [], [], [], [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        target = path if path is not None else os.path.join(tmp, "bench.rrd")
+        with SceneEstimator(scene, cfg, np.random.default_rng(seed)) as est_a, \
+                SceneEstimator(scene, cfg, np.random.default_rng(seed)) as est_b, Recorder(target, scene) as rec:
+            for i, frame in enumerate(frames):
+                c0, t0 = time.process_time(), time.perf_counter()
+                est_a.update(frame)
+                c1, t1 = time.process_time(), time.perf_counter()
+                belief = est_b.update(frame)
+                t2 = time.perf_counter()
+                rec.log_frame(frame)
+                if belief is not None:
+                    rec.log_belief(belief)
+                c3, t3 = time.process_time(), time.perf_counter()
+                if i >= warmup:
+                    bare.append(t1 - t0)
+                    upd.append(t2 - t1)
+                    logt.append(t3 - t2)
+                    cpu_bare.append(c1 - c0)
+                    cpu_rec.append(c3 - c1)
+        size = os.path.getsize(target)
+    return {"particles": k, "objects": n_objects, "workers": workers, "updates": updates,
+            "update_ms_median": 1e3 * float(np.median(bare)),
+            "recorded_update_ms_median": 1e3 * float(np.median(np.add(upd, logt))),
+            "log_ms_median": 1e3 * float(np.median(logt)),
+            "overhead": sum(logt) / sum(bare),
+            "cpu_overhead": (sum(cpu_rec) - sum(cpu_bare)) / sum(bare),
+            "rrd_bytes": size}
