@@ -146,12 +146,13 @@ def weighted_pose_stats(poses: np.ndarray, w: np.ndarray):
 def compute_belief(t: float, object_ids, known: np.ndarray, perceived: np.ndarray, poses: np.ndarray,
                    weights: np.ndarray, modes: np.ndarray, on_top: np.ndarray, is_in: np.ndarray,
                    events: list[EventRecord], ess: float, static: np.ndarray, min_p: float = 0.02,
-                   keep_particles: bool = True) -> Belief:
+                   keep_particles: bool = True, cov_floor: float = 0.0) -> Belief:
     """Assemble a :class:`Belief` from particle arrays (K particles, M objects).
 
     ``poses (K, M, 7)``, ``weights (K,)`` normalised, ``modes (K, M)``, ``on_top (K, M, M+1)``,
     ``is_in (K, M, M)``; ``known``, ``perceived``, ``static`` ``(M,)`` bool. Unknown objects are left
-    out; static objects get their fixed pose and no hypotheses.
+    out; static objects get their fixed pose and no hypotheses. ``cov_floor`` (m^2) is added to the
+    diagonal of the position covariance of dynamic objects.
     """
     object_ids = tuple(object_ids)
     labels = support_labels(modes, on_top, is_in)
@@ -161,6 +162,8 @@ def compute_belief(t: float, object_ids, known: np.ndarray, perceived: np.ndarra
         if not known[m]:
             continue
         mean, cov, q, ang = weighted_pose_stats(poses[:, m], weights)
+        if not static[m] and cov_floor > 0:
+            cov = cov + cov_floor * np.eye(3)
         p_held = float(weights @ held[:, m])
         p_plausible = 1.0 - p_held if perceived[m] else 1.0
         hyps = []

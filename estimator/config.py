@@ -46,8 +46,10 @@ class ReasonerConfig:
       and turned slower than ``place_spin`` on average, with its bottom within ``place_gap`` of a
       support's top (or inside a container), is put down (Place). The paper leaves this rule
       implicit (see README).
-    * ``release_speed`` (m/s): a held object perceived moving down faster than this with nothing
-      under it was let go (Release, in view). Velocities are measured over the reasoning period.
+    * ``release_speed`` (m/s) and ``release_accel`` (m/s^2): a held object perceived moving down
+      faster than ``release_speed``, or accelerating down faster than ``release_accel`` (while moving
+      down at 0.3 m/s or more) with nothing under it, was let go (Release, in view). Velocities are
+      measured over the reasoning period.
     """
 
     t_perceived: float = 0.7
@@ -59,10 +61,11 @@ class ReasonerConfig:
     place_dwell: float = 0.3
     place_gap: float = 0.03
     release_speed: float = 1.0
+    release_accel: float = 4.0
 
     def __post_init__(self):
         _check_positive(self, "t_perceived", "d_sim_perc", "d_perc_prev", "place_speed", "place_gap",
-                        "release_speed", "place_spin")
+                        "release_speed", "place_spin", "release_accel")
         _check_nonneg(self, "place_dwell")
         _check_nonneg(self, "horizon")
 
@@ -75,6 +78,11 @@ class NoiseConfig:
       initialising or overriding a particle's pose from perception and in the likelihood.
     * ``process_position_std`` (m per sqrt(s)) / ``process_orientation_std`` (rad per sqrt(s)):
       random-walk noise added to unperceived free objects at each update.
+    * ``motion_noise``: unperceived free objects resting on or in something also get position noise
+      with a standard deviation of this fraction of the distance they moved in the last update
+      (rolling and sliding are chaotic: the model error grows with motion; flight is not noised).
+    * ``covariance_floor_std`` (m): added as ``std**2 * I`` to every reported position covariance,
+      for what no particle represents (contact resolution, perception bias).
     * ``held_drift_std`` (m per sqrt(s)): growth of the uncertainty of a held, unperceived object
       that has no tracked hand to follow.
     * ``friction_range``, ``rolling_friction_range``, ``spinning_friction_range``,
@@ -84,6 +92,10 @@ class NoiseConfig:
       for resting boxes (measured with ``scene-estimator bench``).
     * ``param_jitter``: after resampling, parameters are shrunk toward their weighted mean by
       ``a = sqrt(1 - jitter**2)`` and jittered so that their spread is kept (Liu & West); 0 disables.
+    * ``regularisation``: after resampling, hidden free objects are jittered with a Gaussian kernel
+      of this bandwidth times their weighted covariance (a regularised particle filter); 0 disables.
+    * ``max_jitter_std`` (m): cap of the motion noise and of the regularisation kernel per update,
+      so that a jittered object does not jump through a container's wall.
     * ``outlier_prob``: weight of the uniform-outlier component of the pose likelihood (heavy tails).
     * ``miss_prob``: probability that the camera misses an object in plain view (negative evidence:
       a particle that puts an undetected object in view is weighted by it).
@@ -93,6 +105,8 @@ class NoiseConfig:
     orientation_std: float = 0.2
     process_position_std: float = 0.003
     process_orientation_std: float = 0.01
+    motion_noise: float = 0.3
+    covariance_floor_std: float = 0.005
     held_drift_std: float = 0.05
     friction_range: tuple[float, float] | None = (0.3, 1.0)
     rolling_friction_range: tuple[float, float] | None = None
@@ -100,12 +114,15 @@ class NoiseConfig:
     restitution_range: tuple[float, float] | None = (0.0, 0.3)
     mass_scale_range: tuple[float, float] | None = (0.8, 1.25)
     param_jitter: float = 0.1
+    regularisation: float = 0.5
+    max_jitter_std: float = 0.01
     outlier_prob: float = 0.05
     miss_prob: float = 0.1
 
     def __post_init__(self):
         _check_nonneg(self, "position_std", "orientation_std", "process_position_std",
-                      "process_orientation_std", "held_drift_std", "param_jitter", "outlier_prob", "miss_prob")
+                      "process_orientation_std", "held_drift_std", "param_jitter", "outlier_prob", "miss_prob",
+                      "motion_noise", "covariance_floor_std", "regularisation", "max_jitter_std")
         if self.param_jitter >= 1:
             raise ValueError("NoiseConfig.param_jitter must be < 1")
         if self.outlier_prob >= 1 or not 0 < self.miss_prob <= 1:
@@ -122,9 +139,11 @@ class NoiseConfig:
     def off(cls) -> "NoiseConfig":
         """No perturbation at all: the paper's deterministic reasoner."""
         return cls(position_std=0.0, orientation_std=0.0, process_position_std=0.0,
-                   process_orientation_std=0.0, held_drift_std=0.0, friction_range=None,
+                   process_orientation_std=0.0, motion_noise=0.0, covariance_floor_std=0.0,
+                   held_drift_std=0.0, friction_range=None,
                    rolling_friction_range=None, spinning_friction_range=None, restitution_range=None,
-                   mass_scale_range=None, param_jitter=0.0, outlier_prob=0.0, miss_prob=0.1)
+                   mass_scale_range=None, param_jitter=0.0, regularisation=0.0, outlier_prob=0.0,
+                   miss_prob=0.1)
 
     @property
     def is_off(self) -> bool:

@@ -39,7 +39,7 @@ from actions.modes import FREE, HELD, merge_events, switch_events
 from physics.scene import Scene
 from physics.transforms import carry_pose, quat_angle, quat_from_rotvec, quat_multiply, quat_normalize
 
-from .belief import Belief, compute_belief
+from .belief import Belief, compute_belief, weighted_pose_stats
 from .config import EstimatorConfig
 from .observations import Frame
 from .pool import BatchInput, WorldPool
@@ -142,6 +142,9 @@ class SceneEstimator:
         self._detected_since_tick = np.zeros(M, dtype=bool)
         self._world_poses: np.ndarray | None = None
         self._supported = np.zeros((K, M), dtype=bool)
+        self._last_motion = np.zeros((K, M))
+        self._jolted = np.zeros((K, M), dtype=bool)
+        self._prev_tick_vel = np.zeros((M, 3))
         self._t_seen_at_tick = np.full(M, -np.inf)
         self._history: list[deque] = [deque() for _ in range(M)]
         self._world_vel: np.ndarray | None = None
@@ -278,10 +281,16 @@ class SceneEstimator:
             self._held_targets(frame, target, held_undetected, perceived, dt)
 
         # 4. process noise on unperceived free objects
+        # (a random walk, plus model error in proportion to how far the object moved on or in its
+        # support in the last update: rolling and sliding are chaotic)
         free_unseen = (modes == FREE) & (~perceived & self.dynamic & self.known)[None, :]
-        if nz.process_position_std > 0 and np.any(free_unseen):
-            s = nz.process_position_std * math.sqrt(dt)
-            poses[..., :3] += np.where(free_unseen[..., None], rng.normal(0.0, s, (K, M, 3)), 0.0)
+        jolted = np.zeros((K, M), dtype=bool)
+        if (nz.process_position_std > 0 or nz.motion_noise > 0) and np.any(free_unseen):
+            rolling = np.where(self._supported, self._last_motion, 0.0)  # flight is predictable
+            s = np.sqrt(nz.process_position_std ** 2 * dt + (nz.motion_noise * rolling) ** 2)
+            s = np.minimum(s, nz.max_jitter_std)  # never through a wall
+            poses[..., :3] += np.where(free_unseen[..., None], rng.normal(0.0, 1.0, (K, M, 3)) * s[..., None], 0.0)
+            jolted = free_unseen & (s > 0.002)
         if nz.process_orientation_std > 0 and np.any(free_unseen):
             s = nz.process_orientation_std * math.sqrt(dt)
             dq = quat_from_rotvec(rng.normal(0.0, s, (K, M, 3)))
@@ -296,7 +305,8 @@ class SceneEstimator:
         check = np.broadcast_to(perceived & fresh, (K, M)).copy()
         placed = tele | self._just_initialised
         self._just_initialised = np.zeros(M, dtype=bool)
-        depen = np.broadcast_to(placed & (nz.position_std > 0), (K, M)) & (modes == FREE)
+        depen = (np.broadcast_to(placed & (nz.position_std > 0), (K, M)) | jolted | self._jolted) & (modes == FREE)
+        self._jolted = np.zeros((K, M), dtype=bool)
         # only entries changed since the worlds last wrote them need loading back (a slot's world
         # always holds the state it produced, so this does not depend on the number of workers)
         if self._world_poses is None:
@@ -324,10 +334,15 @@ class SceneEstimator:
         sup_on, sup_in = relation_masks(aabbs, valid, static=self.static, floor=self.scene.floor, config=loose)
         supported = sup_on.any(axis=-1) | sup_in.any(axis=-1)
         rested = self._at_rest(t)
-        falling = self._tick_velocity(t)[:, 2] < -hr.release_speed
+        vel = self._tick_velocity(t)
+        accel = (vel[:, 2] - self._prev_tick_vel[:, 2]) / max(dt, 1e-9)
+        # fast enough, it is let go whatever is under it; accelerating down, only if nothing is
+        falling = (vel[:, 2] < -hr.release_speed)[None, :] | (
+            ((accel < -hr.release_accel) & (vel[:, 2] < -0.3))[None, :] & ~supported)
+        self._prev_tick_vel = np.where(detected[:, None], vel, 0.0)
         held_seen = (new_modes == HELD) & perceived[None, :]
         after_physics = new_modes.copy()
-        new_modes[held_seen & ((rested[None, :] & supported) | (falling[None, :] & ~supported))] = FREE
+        new_modes[held_seen & ((rested[None, :] & supported) | falling)] = FREE
 
         # 7. weights
         codes = merge_events(codes_release,
@@ -352,6 +367,7 @@ class SceneEstimator:
         ess = effective_sample_size(weights)
 
         # commit the state
+        self._last_motion = np.linalg.norm(new_poses[..., :3] - poses[..., :3], axis=-1)
         self._supported = supported
         self._world_poses, self._world_vel = new_poses.copy(), new_vel.copy()
         if np.any(bad):  # exploded worlds must be reloaded from the arrays
@@ -370,10 +386,11 @@ class SceneEstimator:
         step_events = recent_events(self.event_t, weights, t, cfg.event_window, self.object_ids,
                                     threshold=cfg.hypothesis_min_p)
         belief = compute_belief(t, self.object_ids, self.known, perceived, new_poses, weights, new_modes,
-                                on_top, is_in, step_events, ess, self.static, cfg.hypothesis_min_p)
+                                on_top, is_in, step_events, ess, self.static, cfg.hypothesis_min_p,
+                                cov_floor=nz.covariance_floor_std ** 2)
         self._update_timeline(t, belief)
         if K > 1 and ess < cfg.resample_threshold * K:
-            self._resample(weights)
+            self._resample(weights, self.known & self.dynamic & ~perceived)
         return belief
 
     # -- pieces of the update -------------------------------------------------------------------------
@@ -487,12 +504,32 @@ class SceneEstimator:
                                                      (self.K, len(idx), 3))
             vel[:, idx] = 0.0
 
-    def _resample(self, weights: np.ndarray) -> None:
+    def _resample(self, weights: np.ndarray, hidden: np.ndarray) -> None:
+        """Systematic resampling; then the positions of hidden free objects (``hidden (M,)``) are
+        jittered with a Gaussian kernel of bandwidth ``h`` times their weighted covariance (a
+        regularised particle filter: copies of one particle must not leave a hidden object with no
+        spread), and the physical parameters with Liu-West shrinkage."""
         anc = systematic_resample(weights, self.rng)
+        K = self.K
+        h = self.config.noise.regularisation
+        kernels = {}
+        if h > 0:
+            for m in np.flatnonzero(hidden):
+                _, cov, _, _ = weighted_pose_stats(self.poses[:, m], weights)
+                if np.trace(cov) > 1e-10:
+                    chol = np.linalg.cholesky(cov * h * h + 1e-12 * np.eye(3))
+                    largest = np.sqrt(np.max(np.linalg.eigvalsh(cov)) * h * h)
+                    kernels[m] = chol * min(1.0, self.config.noise.max_jitter_std / largest)
         # per-particle state follows its ancestor; _world_poses stays: it is what each slot's world holds
-        for name in ("poses", "velocities", "params", "modes", "on_top", "is_in", "event_t", "_supported"):
+        for name in ("poses", "velocities", "params", "modes", "on_top", "is_in", "event_t", "_supported",
+                     "_last_motion"):
             setattr(self, name, getattr(self, name)[anc].copy())
         self.log_weights = np.zeros(self.K)
+        for m, chol in kernels.items():
+            free = self.modes[:, m] == FREE
+            noise = self.rng.standard_normal((K, 3)) @ chol.T
+            self.poses[free, m, :3] += noise[free]
+            self._jolted[free, m] = True
         self._jitter_params(weights[anc] / weights[anc].sum())
 
     def _jitter_params(self, w: np.ndarray) -> None:

@@ -268,3 +268,72 @@ def test_held_object_lost_splits_into_released_and_held_hypotheses():
     assert 0.15 < p_held < 0.85 and p_floor > 0.1 and p_held + p_floor > 0.95
     held_pos = [h.position for h in cup.hypotheses if h.relation == "held"][0]
     assert np.allclose(held_pos, [1.0, 0.3 * (b.t - 0.8), 0.95], atol=0.05)  # follows the tracked hand
+
+
+# ---------------------------------------------------------------------------------------------------
+# The five situations of the paper's Fig. 6, on the scenario simulator's streams
+
+from scipy.stats import chi2  # noqa: E402
+
+from estimator.observations import parse_frame  # noqa: E402
+from experiments.simulator import simulate  # noqa: E402
+
+
+def _estimate(name, seed, k=32):
+    res = simulate(name, seed)
+    scene = res.scene
+    frs = [parse_frame(o, known_ids=scene.object_ids) for o in res.observations]
+    with SceneEstimator(scene, EstimatorConfig(particles=k, noise=NoiseConfig()), np.random.default_rng(seed)) as est:
+        beliefs = est.run(frs)
+    truth = {round(r["t"], 6): r for r in res.truth}
+    return beliefs, [truth[round(b.t, 6)] for b in beliefs]
+
+
+@pytest.mark.parametrize("name, obj, relation, support", [
+    ("cup_falls_behind_box", "cup", "isOnTop", "floor"),      # (a) pushed off the table, unseen
+    ("ball_dropped_into_box", "ball", "isIn", "box"),         # (b) released, lands out of sight
+    ("box_emptied_into_box", "ball", "isIn", "blue_box"),     # (c) poured, never seen
+    ("ball_in_moving_box", "ball", "isIn", "box"),            # (d) carried inside a moved box
+])
+def test_paper_situations_hidden_object_ends_where_it_is(name, obj, relation, support):
+    beliefs, truth = _estimate(name, 0)
+    end = beliefs[-1]
+    assert not end.objects[obj].perceived and not truth[-1]["objects"][obj]["visible"]
+    assert end.hypothesis_p(obj, relation, support) > 0.8
+    assert {"subject": obj, "predicate": relation, "object": support} in [
+        {k: r[k] for k in ("subject", "predicate", "object")} for r in truth[-1]["relations"]]
+    if name == "ball_in_moving_box":  # the ball is believed in the box all along, while it moves
+        assert all(b.relation_p("ball", "isIn", "box") > 0.8 for b in beliefs)
+        start = beliefs[0].objects["ball"].position
+        assert max(np.linalg.norm(b.objects["ball"].position - start) for b in beliefs) > 0.2
+        err = np.linalg.norm(end.objects["ball"].position - truth[-1]["objects"]["ball"]["position"])
+        assert err < 0.15  # inside the same box
+
+
+def test_paper_situation_e_hidden_while_held_with_tracked_hands():
+    beliefs, truth = _estimate("cup_hidden_behind_back", 0)
+    hidden_held = [b for b, tr in zip(beliefs, truth)
+                   if tr["objects"]["cup"]["held"] and not tr["objects"]["cup"]["visible"] and not b.objects["cup"].perceived]
+    assert len(hidden_held) >= 10
+    assert all(b.objects["cup"].p_held > 0.5 for b in hidden_held)  # the paper's reasoner says fallen
+
+
+def test_paper_mode_fails_situation_e_as_the_paper_reports():
+    res = simulate("cup_hidden_behind_back", 0)
+    frs = [parse_frame(o, known_ids=res.scene.object_ids) for o in res.observations]
+    with SceneEstimator(res.scene, EstimatorConfig.paper()) as est:
+        beliefs = est.run(frs)
+    hidden = [b for b in beliefs if not b.objects["cup"].perceived]
+    assert hidden and hidden[-1].objects["cup"].p_held == 0.0  # released, it falls (Fig. 6e)
+
+
+def test_calibration_of_a_hidden_objects_90_percent_region():
+    n, hits = 20, 0
+    for seed in range(n):
+        beliefs, truth = _estimate("ball_dropped_into_box", seed, k=16)
+        ob = beliefs[-1].objects["ball"]
+        assert not ob.perceived
+        e = np.asarray(truth[-1]["objects"]["ball"]["position"]) - ob.position
+        hits += e @ np.linalg.solve(ob.position_cov, e) <= chi2.ppf(0.9, 3)
+    band = 3 * np.sqrt(0.9 * 0.1 / n)
+    assert 0.9 - band <= hits / n <= 1.0
