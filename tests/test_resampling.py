@@ -1,0 +1,46 @@
+import numpy as np
+import pytest
+
+from estimator.resampling import (effective_sample_size, multinomial_resample, normalise_log_weights,
+                                  systematic_resample)
+
+
+def test_normalise_handles_infinities_and_collapse():
+    w, logz = normalise_log_weights(np.array([0.0, np.log(3.0), -np.inf, np.nan]))
+    assert np.allclose(w, [0.25, 0.75, 0, 0]) and np.isclose(logz, np.log(4 / 4))
+    w, logz = normalise_log_weights(np.array([-1e308, -np.inf]))
+    assert np.allclose(w, [1, 0])
+    w, logz = normalise_log_weights(np.full(3, -np.inf))
+    assert np.allclose(w, 1 / 3) and logz == -np.inf
+    w, _ = normalise_log_weights(np.array([-1000.0, -1001.0]))  # no underflow
+    assert np.isclose(w[0] / w[1], np.e)
+
+
+def test_ess():
+    assert effective_sample_size(np.full(10, 0.1)) == pytest.approx(10)
+    assert effective_sample_size(np.eye(1, 10)[0]) == pytest.approx(1)
+
+
+@pytest.mark.parametrize("scheme", [systematic_resample, multinomial_resample])
+def test_resampling_counts_match_weights(scheme):
+    rng = np.random.default_rng(7)
+    w = np.array([0.5, 0.3, 0.15, 0.05])
+    k, reps = len(w), 4000
+    counts = np.zeros(k)
+    for _ in range(reps):
+        counts += np.bincount(scheme(w, rng), minlength=k)
+    freq = counts / (reps * k)
+    se = np.sqrt(w * (1 - w) / (reps * k))  # multinomial bound; systematic is tighter
+    assert np.all(np.abs(freq - w) < 4 * se + 1e-12)
+
+
+def test_systematic_never_returns_k_despite_round_off():
+    rng = np.random.default_rng(0)
+    w = np.full(7, 1 / 7)
+    w[-1] -= 1e-16  # a cumulative sum that ends just under 1
+    for _ in range(200):
+        idx = systematic_resample(w, rng)
+        assert idx.min() >= 0 and idx.max() < 7
+    # systematic resampling keeps each particle floor(K w) or ceil(K w) times
+    counts = np.bincount(systematic_resample(np.array([0.55, 0.45]), rng), minlength=2)
+    assert counts.tolist() in ([1, 1],)
