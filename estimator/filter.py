@@ -37,7 +37,7 @@ import numpy as np
 from actions.events import recent_events, record_event_times
 from actions.modes import FREE, HELD, merge_events, switch_events
 from physics.scene import Scene
-from physics.transforms import carry_pose, quat_angle, quat_from_rotvec, quat_multiply, quat_normalize
+from physics.transforms import carry_pose, quat_angle, quat_from_rotvec, quat_multiply
 
 from .belief import Belief, compute_belief, weighted_pose_stats
 from .config import EstimatorConfig
@@ -134,7 +134,6 @@ class SceneEstimator:
         self.perc_vel = np.zeros((M, 6))
         self.pose_at_tick = poses.copy()
         self.perceived_prev = np.zeros(M, dtype=bool)
-        self.ever_seen = np.zeros(M, dtype=bool)
         self.hold_hand: list[str | None] = [None] * M
         self.hold_offset = np.zeros((M, 3))
         self.t_frame: float | None = None
@@ -252,7 +251,6 @@ class SceneEstimator:
         if np.any(tele):
             self._teleport(poses, vel, np.flatnonzero(tele), newly_known)
         self.known |= perceived
-        self.ever_seen |= perceived
 
         # 3. releases of held objects that are not perceived
         lost = self.perceived_prev & ~perceived
@@ -269,10 +267,8 @@ class SceneEstimator:
         target_vel = np.zeros((K, M, 6))
         pidx = np.flatnonzero(perceived)
         if len(pidx):
-            tpos = np.repeat(self.last_pose[None, pidx, :3], K, axis=0)
-            if nz.position_std > 0:
-                tpos = tpos + rng.normal(0.0, nz.position_std, tpos.shape)
-            target[:, pidx, :3] = tpos
+            # a held object follows the perception itself: noise here would shake what it carries
+            target[:, pidx, :3] = self.last_pose[pidx, :3]
             has_q = self.last_has_orientation[pidx]
             target[:, pidx[has_q], 3:] = self.last_pose[pidx[has_q], 3:]
             target_vel[:, pidx, :3] = self.perc_vel[pidx, :3]
