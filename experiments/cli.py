@@ -28,6 +28,10 @@ def build_config(args) -> EstimatorConfig:
     ``--noise`` is given; more particles use the default noise unless ``--no-noise``."""
     reasoner = ReasonerConfig(horizon=args.horizon, t_perceived=args.t_perceived,
                               d_sim_perc=args.d_sim_perc, d_perc_prev=args.d_perc_prev)
+    workers = args.workers
+    if workers is None:
+        workers = (os.cpu_count() or 1) if args.particles > 1 else 0
+    args.workers = workers
     noisy = (args.particles > 1 and not args.no_noise) or args.noise
     if not noisy:
         return dataclasses.replace(EstimatorConfig.paper(reasoner), particles=args.particles,
@@ -101,7 +105,9 @@ def _add_run_arguments(p: argparse.ArgumentParser) -> None:
 def _add_estimator_arguments(p: argparse.ArgumentParser) -> None:
     d = ReasonerConfig()
     p.add_argument("--particles", type=int, default=1, help="particle worlds K (1: the paper's reasoner)")
-    p.add_argument("--workers", type=int, default=0, help="worker processes (0: in this process)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="worker processes holding the particle worlds (0: in this process; "
+                        "default: one per core when there is more than one particle)")
     p.add_argument("--seed", type=int, default=0, help="random seed")
     p.add_argument("--noise", action="store_true", help="perturb even with one particle")
     p.add_argument("--no-noise", action="store_true", help="no perturbation even with many particles")

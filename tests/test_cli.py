@@ -104,3 +104,20 @@ def test_demo_runs_without_arguments(tmp_path):
     cup = last["objects"]["cup"]
     assert not cup["perceived"] and cup["position"][2] < 0.2  # the hidden cup is on the floor
     assert cup["hypotheses"][0]["support"] == "floor"
+
+
+def test_one_particle_without_noise_is_exactly_the_papers_reasoner():
+    import argparse
+    from estimator.config import EstimatorConfig
+    from experiments.cli import build_config
+
+    def args(**kw):
+        base = dict(particles=1, workers=None, noise=False, no_noise=False, horizon=0.08, t_perceived=0.7,
+                    d_sim_perc=0.045, d_perc_prev=0.032)
+        base.update(kw)
+        return argparse.Namespace(**base)
+
+    assert build_config(args()) == EstimatorConfig.paper()
+    assert build_config(args(particles=8, no_noise=True)).noise.is_off
+    many = build_config(args(particles=8))
+    assert not many.noise.is_off and many.workers >= 1 and not many.paper_mode
