@@ -1,7 +1,8 @@
 """The ``scene-estimator`` command line.
 
 Subcommands: ``run`` (estimate a recorded stream), ``demo`` (the built-in example), ``simulate``
-(scenario simulator), ``bench`` (speed against bare pybullet stepping).
+(scenario simulator), ``evaluate`` (statistics over scenarios, seeds and methods), ``bench`` (speed
+against bare pybullet stepping).
 """
 from __future__ import annotations
 
@@ -214,6 +215,14 @@ def main(argv: list[str] | None = None) -> int:
         p_sim = sub.add_parser("simulate", help="simulate a scenario with ground truth")
         add_simulate_arguments(p_sim)
         p_sim.set_defaults(func=run_simulate)
+    try:
+        from .evaluate_cli import add_evaluate_arguments, run_evaluate
+    except ImportError:
+        pass
+    else:
+        p_eval = sub.add_parser("evaluate", help="statistical evaluation over scenarios, seeds and methods")
+        add_evaluate_arguments(p_eval)
+        p_eval.set_defaults(func=run_evaluate)
     try:
         from .bench import add_bench_arguments, run_bench
     except ImportError:

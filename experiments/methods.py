@@ -1,0 +1,298 @@
+"""The methods an evaluation compares, by name, and one common way to run them on a stream.
+
+=========================  ===================================================================
+name                       what it is
+=========================  ===================================================================
+``last-seen``              no physics: an unperceived object stays where it was last seen
+                           (a baseline, implemented here; not estimator logic)
+``paper``                  the paper's reasoner: one world, no noise (:meth:`EstimatorConfig.paper`)
+``particles``              the particle estimator with the default noise and priors
+``particles-no-params``    ablation: no perturbation of the physical parameters
+``particles-no-held``      ablation: a held object that vanishes is always released (as the paper
+                           does) and held objects do not follow the tracked hands
+``particles-no-negative``  ablation: no negative evidence from the camera
+=========================  ===================================================================
+
+:func:`run_method` runs any of them on a scene and a list of perception frames and returns a
+:class:`MethodRun`: one :class:`StepEstimate` per reasoning step (every method reasons on the same
+schedule, one step per ``ReasonerConfig.horizon`` of stream time, so that all methods are scored at
+the same instants), the events of the run, and the wall-clock time of every step.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from actions.modes import ModePriors
+from estimator.belief import Belief
+from estimator.config import EstimatorConfig, NoiseConfig, ReasonerConfig
+from estimator.filter import SceneEstimator
+from estimator.observations import Frame
+from estimator.relations import relation_list, relation_masks
+from physics.scene import Scene
+from physics.world import World
+
+
+# --------------------------------------------------------------------------------------------------
+# the registry
+
+
+def _particles_config(particles: int) -> EstimatorConfig:
+    return EstimatorConfig(particles=particles, noise=NoiseConfig())
+
+
+def _no_params(particles: int) -> EstimatorConfig:
+    base = _particles_config(particles)
+    noise = dataclasses.replace(base.noise, friction_range=None, rolling_friction_range=None,
+                                spinning_friction_range=None, restitution_range=None,
+                                mass_scale_range=None, param_jitter=0.0)
+    return dataclasses.replace(base, noise=noise)
+
+
+def _no_held(particles: int) -> EstimatorConfig:
+    base = _particles_config(particles)
+    return dataclasses.replace(base, priors=dataclasses.replace(ModePriors(), release_on_loss=1.0),
+                               follow_hands=False)
+
+
+def _no_negative(particles: int) -> EstimatorConfig:
+    return dataclasses.replace(_particles_config(particles), negative_evidence=False)
+
+
+@dataclass(frozen=True)
+class MethodSpec:
+    """A named method. ``config(K)`` builds its estimator configuration for K particles (``None``
+    for the last-seen baseline); ``uses_particles`` says whether the sweep's K applies (otherwise
+    the method always runs with one world)."""
+
+    name: str
+    description: str
+    uses_particles: bool
+    config: Callable[[int], EstimatorConfig] | None
+
+
+METHODS: dict[str, MethodSpec] = {m.name: m for m in [
+    MethodSpec("last-seen", "no physics: an unperceived object stays where it was last seen", False, None),
+    MethodSpec("paper", "the paper's reasoner: one world, no noise", False, lambda k: EstimatorConfig.paper()),
+    MethodSpec("particles", "particle estimator, default noise and priors", True, _particles_config),
+    MethodSpec("particles-no-params", "ablation: no physical-parameter perturbation", True, _no_params),
+    MethodSpec("particles-no-held", "ablation: no held mode for vanished objects (always released)", True,
+               _no_held),
+    MethodSpec("particles-no-negative", "ablation: no negative evidence", True, _no_negative),
+]}
+
+
+def get_method(name: str) -> MethodSpec:
+    """The :class:`MethodSpec` called ``name``; ``ValueError`` naming the known ones otherwise."""
+    try:
+        return METHODS[name]
+    except KeyError:
+        raise ValueError(f"unknown method {name!r} (known: {', '.join(METHODS)})") from None
+
+
+def effective_particles(name: str, particles: int) -> int:
+    """Number of worlds method ``name`` runs with when the sweep asks for ``particles``."""
+    spec = get_method(name)
+    if spec.config is None:
+        return 0
+    return int(particles) if spec.uses_particles else spec.config(1).particles
+
+
+def method_config(name: str, particles: int) -> EstimatorConfig | None:
+    """Estimator configuration of method ``name`` with ``particles`` worlds (``None`` for
+    last-seen). Every method runs its worlds in the trial's own process (``workers = 0``): trials
+    are the unit of parallelism, and results never depend on the number of processes."""
+    spec = get_method(name)
+    if spec.config is None:
+        return None
+    cfg = spec.config(effective_particles(name, particles))
+    return dataclasses.replace(cfg, workers=0)
+
+
+# --------------------------------------------------------------------------------------------------
+# what a method outputs
+
+
+@dataclass
+class StepEstimate:
+    """What a method says at one reasoning step, for the M objects of the scene (scene order).
+
+    * ``t`` (s); ``positions (M, 3)`` m, NaN for objects the method does not know yet;
+    * ``covariances (M, 3, 3)`` m^2 (zeros for point estimates);
+    * ``p_plausible (M,)``, ``p_held (M,)`` probabilities;
+    * ``top (M,)`` the most probable ``(relation, support)`` of each object (``relation`` in isIn,
+      isOnTop, held, none; ``support`` an object id, ``"floor"`` or ``None``);
+    * ``relations``: ``{(subject, predicate, object): p}`` for every listed relation;
+    * ``particles (K, M, 3)`` and ``weights (K,)``: the particle cloud, kept only when asked for.
+    """
+
+    t: float
+    positions: np.ndarray
+    covariances: np.ndarray
+    p_plausible: np.ndarray
+    p_held: np.ndarray
+    top: list[tuple[str, str | None]]
+    relations: dict[tuple[str, str, str], float]
+    particles: np.ndarray | None = None
+    weights: np.ndarray | None = None
+
+
+@dataclass
+class MethodRun:
+    """A method's whole run: its steps, its events (``[{"t", "action", "subject", "p"}]``, the
+    timeline's for the estimator, none for last-seen), the wall-clock duration (s) of every step, and
+    the number of particle worlds."""
+
+    steps: list[StepEstimate]
+    events: list[dict]
+    step_seconds: list[float] = field(default_factory=list)
+    particles: int = 0
+
+
+def step_from_belief(belief: Belief, object_ids, keep_particles: bool = False) -> StepEstimate:
+    """A :class:`StepEstimate` from an estimator :class:`~estimator.belief.Belief`."""
+    m = len(object_ids)
+    pos = np.full((m, 3), np.nan)
+    cov = np.zeros((m, 3, 3))
+    p_pl = np.ones(m)
+    p_held = np.zeros(m)
+    top: list[tuple[str, str | None]] = []
+    for i, oid in enumerate(object_ids):
+        ob = belief.objects.get(oid)
+        if ob is None:
+            top.append(("none", None))
+            continue
+        pos[i] = ob.position
+        cov[i] = ob.position_cov
+        p_pl[i] = ob.p_plausible
+        p_held[i] = ob.p_held
+        top.append((ob.hypotheses[0].relation, ob.hypotheses[0].support) if ob.hypotheses else ("none", None))
+    rel = {(r["subject"], r["predicate"], r["object"]): float(r["p"]) for r in belief.relations}
+    parts = weights = None
+    if keep_particles and belief.particles is not None:
+        parts = np.asarray(belief.particles)[..., :3].copy()
+        weights = np.asarray(belief.weights).copy()
+    return StepEstimate(float(belief.t), pos, cov, p_pl, p_held, top, rel, parts, weights)
+
+
+# --------------------------------------------------------------------------------------------------
+# the last-seen baseline
+
+
+def top_from_relations(relations: dict[tuple[str, str, str], float], subject: str,
+                       held: bool = False) -> tuple[str, str | None]:
+    """The support of ``subject`` from a relation dict: isIn X, else isOnTop X, else held, else none
+    (the first listed at the winning level, relations with p > 0.5 only)."""
+    for predicate in ("isIn", "isOnTop"):
+        for (s, p, o), prob in relations.items():
+            if s == subject and p == predicate and prob > 0.5:
+                return predicate, o
+    return ("held", None) if held else ("none", None)
+
+
+class LastSeenBaseline:
+    """No physics: every object is where it was last perceived (its scene pose until then), with a
+    zero covariance, plausible and never held. Relations come from the bounding boxes of those poses
+    (the same tests as the ground truth), which is what a perception-only system would report.
+
+    Reasons on the estimator's schedule: at the first frame, then whenever ``horizon`` seconds of
+    stream time have passed since the last step.
+    """
+
+    def __init__(self, scene: Scene, horizon: float = ReasonerConfig().horizon):
+        self.scene = scene
+        self.ids = scene.object_ids
+        self.horizon = horizon
+        self.static = np.array([o.static for o in scene.objects], dtype=bool)
+        self.known = np.array([o.position is not None for o in scene.objects], dtype=bool)
+        self.world = World(scene)
+        self.poses = self.world.get_poses()
+        self.t_step: float | None = None
+        self.previous = None
+
+    def close(self) -> None:
+        self.world.close()
+
+    def __enter__(self) -> "LastSeenBaseline":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def update(self, frame: Frame) -> StepEstimate | None:
+        for oid, det in frame.objects.items():
+            i = self.scene.index(oid)
+            if self.static[i]:
+                continue
+            self.poses[i, :3] = det.position
+            if det.orientation is not None:
+                self.poses[i, 3:] = det.orientation
+            self.known[i] = True
+        if self.t_step is not None and frame.t < self.t_step + self.horizon - 1e-9:
+            return None
+        self.t_step = frame.t
+        dyn = np.flatnonzero(~self.static)
+        self.world.set_poses(self.poses[dyn], dyn)
+        aabbs = self.world.aabbs()
+        self.previous = relation_masks(aabbs, self.known, static=self.static, floor=self.scene.floor,
+                                       previous=self.previous)
+        rels = {(r["subject"], r["predicate"], r["object"]): float(r["p"])
+                for r in relation_list(self.previous[0], self.previous[1], self.ids)}
+        m = len(self.ids)
+        pos = np.where(self.known[:, None], self.poses[:, :3], np.nan)
+        top = [top_from_relations(rels, oid) for oid in self.ids]
+        return StepEstimate(frame.t, pos, np.zeros((m, 3, 3)), np.ones(m), np.zeros(m), top, rels)
+
+
+# --------------------------------------------------------------------------------------------------
+# running a method
+
+
+def run_method(name: str, scene: Scene, frames: list[Frame], particles: int, rng: np.random.Generator,
+               keep_particles: bool = False, on_step: Callable[[StepEstimate, Belief | None], None] | None = None
+               ) -> MethodRun:
+    """Run method ``name`` on ``frames`` of ``scene``.
+
+    Args:
+        particles: K for the particle methods (ignored by last-seen and paper).
+        rng: the only source of randomness of the run.
+        keep_particles: keep the particle cloud of the *last* step (for plots).
+        on_step: called with every step and the estimator's belief (``None`` for last-seen), e.g. to
+            record it.
+    """
+    cfg = method_config(name, particles)
+    steps: list[StepEstimate] = []
+    seconds: list[float] = []
+    if cfg is None:
+        with LastSeenBaseline(scene) as base:
+            for frame in frames:
+                t0 = time.perf_counter()
+                step = base.update(frame)
+                if step is None:
+                    continue
+                seconds.append(time.perf_counter() - t0)
+                steps.append(step)
+                if on_step is not None:
+                    on_step(step, None)
+        return MethodRun(steps, [], seconds, 0)
+    ids = scene.object_ids
+    last: Belief | None = None
+    with SceneEstimator(scene, cfg, rng) as est:
+        for frame in frames:
+            t0 = time.perf_counter()
+            belief = est.update(frame)
+            if belief is None:
+                continue
+            seconds.append(time.perf_counter() - t0)
+            steps.append(step_from_belief(belief, ids))
+            last = belief
+            if on_step is not None:
+                on_step(steps[-1], belief)
+        events = est.timeline.to_json()["events"]
+    if keep_particles and last is not None and steps:
+        steps[-1] = step_from_belief(last, ids, keep_particles=True)
+    return MethodRun(steps, events, seconds, cfg.particles)
