@@ -143,6 +143,16 @@ def weighted_pose_stats(poses: np.ndarray, w: np.ndarray):
     return mean, cov, q, float(np.sqrt(w @ (ang * ang)))
 
 
+def weighted_quat_means(quats: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Weighted chordal L2 mean orientations ``(M, 4)`` of particle orientations ``(K, M, 4)``
+    (x, y, z, w) with normalised weights ``(K,)``: for each object the principal eigenvector of
+    ``sum_k w_k q_k q_k^T`` (sign-invariant; the same as scipy's ``Rotation.mean``), w >= 0."""
+    a = np.einsum("k,kmi,kmj->mij", w, quats, quats)
+    _, vecs = np.linalg.eigh(a)
+    q = vecs[..., -1]
+    return np.where(q[:, 3:4] < 0, -q, q)
+
+
 def compute_belief(t: float, object_ids, known: np.ndarray, perceived: np.ndarray, poses: np.ndarray,
                    weights: np.ndarray, modes: np.ndarray, on_top: np.ndarray, is_in: np.ndarray,
                    events: list[EventRecord], ess: float, static: np.ndarray, min_p: float = 0.02,
@@ -158,10 +168,21 @@ def compute_belief(t: float, object_ids, known: np.ndarray, perceived: np.ndarra
     labels = support_labels(modes, on_top, is_in)
     held = modes == HELD
     objects = {}
+    single = len(weights) == 1 or np.max(weights) >= 1.0
+    if not single:  # all objects at once
+        means = weights @ poses[..., :3].reshape(len(weights), -1)
+        means = means.reshape(-1, 3)
+        dev = poses[..., :3] - means[None]
+        covs = np.einsum("k,kmi,kmj->mij", weights, dev, dev)
+        quats = weighted_quat_means(poses[..., 3:], weights)
+        angs = np.sqrt(weights @ quat_angle(poses[..., 3:], quats[None]) ** 2)
     for m, oid in enumerate(object_ids):
         if not known[m]:
             continue
-        mean, cov, q, ang = weighted_pose_stats(poses[:, m], weights)
+        if single:
+            mean, cov, q, ang = weighted_pose_stats(poses[:, m], weights)
+        else:
+            mean, cov, q, ang = means[m], covs[m], quats[m], float(angs[m])
         if not static[m] and cov_floor > 0:
             cov = cov + cov_floor * np.eye(3)
         p_held = float(weights @ held[:, m])

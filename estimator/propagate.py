@@ -127,14 +127,23 @@ def propagate(pw: ParticleWorld, inp: StepInput, n_steps: int, d_sim_perc: float
     # largest divergence seen]: the per-step test is the hot path and stays in plain Python
     checked = [i for i in dyn if inp.check[i] and modes[i] == FREE]
     com = w.com_positions(target[checked], checked) if checked else np.zeros((0, 3))
-    watch = [[i, w.uids[i], x, y, z, 0, 0.0] for i, (x, y, z) in zip(checked, com.tolist())]
+    watch = [[i, w.uids[i], x, y, z, 1, 0.0] for i, (x, y, z) in zip(checked, com.tolist())]
+    if lazy and watch:  # the first test is due when the starting state could have diverged
+        d0 = np.linalg.norm(w.com_positions(inp.poses[checked], checked) - com, axis=1)
+        v0 = np.linalg.norm(inp.velocities[checked, :3], axis=1)
+        for item, d, v in zip(watch, d0.tolist(), v0.tolist()):
+            if d < d_sim_perc:
+                tau = (-v + math.sqrt(v * v + 2.0 * A_MAX * (d_sim_perc - d))) / A_MAX
+                item[5] = max(1, int(tau / dt))
     get = pb.getBasePositionAndOrientation
     get_vel = pb.getBaseVelocity
     step = pb.stepSimulation
+    next_due = min((item[5] for item in watch), default=n_steps)
     for s in range(1, n_steps + 1):
-        held.apply(s)
+        if held.items:
+            held.apply(s)
         step(physicsClientId=c)
-        if not watch:
+        if not watch or (s < next_due and s < n_steps):
             continue
         switched = None
         for item in watch:
@@ -163,16 +172,14 @@ def propagate(pw: ParticleWorld, inp: StepInput, n_steps: int, d_sim_perc: float
             for item in switched:
                 max_d[item[0]] = item[6]
             watch = [item for item in watch if item not in switched]
+        next_due = min((item[5] for item in watch), default=n_steps)
     for item in watch:
         max_d[item[0]] = item[6]
     held.apply(n_steps + 1)  # held objects end the update exactly at their target
-    poses = inp.poses.copy()
-    vel = inp.velocities.copy()
-    poses[dyn] = w.get_poses(dyn)
-    vel[dyn] = w.get_velocities(dyn)
-    finite = bool(np.all(np.isfinite(poses)) and np.all(np.isfinite(vel))
-                  and np.all(np.abs(vel[:, :3]) < MAX_SPEED))
-    aabbs = w.aabbs() if finite else np.full((len(modes), 2, 3), np.nan)
+    poses, vel, aabbs = w.read_state()
+    finite = bool(np.isfinite(poses).all() and np.isfinite(vel).all() and (np.abs(vel[:, :3]) < MAX_SPEED).all())
+    if not finite:
+        aabbs = np.full((len(modes), 2, 3), np.nan)
     return StepOutput(poses, vel, modes, max_d, aabbs, finite)
 
 

@@ -294,6 +294,37 @@ class World:
         for i, row in zip(idx, rows):
             pb.resetBaseVelocity(self.uids[i], row[:3], row[3:], physicsClientId=c)
 
+    def read_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Poses ``(M, 7)``, velocities ``(M, 6)`` and AABBs ``(M, 2, 3)`` of all objects, read in one
+        pass (the per-update read-back of the estimator)."""
+        c = self.client
+        get, get_vel, get_box = pb.getBasePositionAndOrientation, pb.getBaseVelocity, pb.getAABB
+        flat_p: list[float] = []
+        flat_v: list[float] = []
+        flat_b: list[float] = []
+        for uid in self.uids:
+            p, q = get(uid, physicsClientId=c)
+            v, a = get_vel(uid, physicsClientId=c)
+            lo, hi = get_box(uid, -1, physicsClientId=c)
+            flat_p += p
+            flat_p += q
+            flat_v += v
+            flat_v += a
+            flat_b += lo
+            flat_b += hi
+        m = len(self.uids)
+        poses = np.array(flat_p).reshape(m, 7)
+        vel = np.array(flat_v).reshape(m, 6)
+        boxes = np.array(flat_b).reshape(m, 2, 3)
+        if self._has_offset:  # from centre-of-mass to link frames
+            com_to_link = -quat_rotate(poses[:, 3:], self._inertial[:, :3])
+            vel[:, :3] += np.cross(vel[:, 3:], com_to_link)
+            poses = pose_compose(poses, self._inertial_inv)
+        for i, n in enumerate(self._num_links):
+            if n:
+                boxes[i] = self.aabbs([i])[0]
+        return poses, vel, boxes
+
     def step(self, n: int = 1) -> None:
         """Advance the simulation by ``n`` fixed steps of :attr:`PhysicsSettings.time_step` seconds."""
         c = self.client
