@@ -45,7 +45,7 @@ from scipy.spatial.transform import Rotation
 from estimator.belief import Belief
 from estimator.observations import Frame
 from physics.scene import ObjectSpec, Scene
-from physics.transforms import quat_rotate
+from physics.transforms import pose_compose, quat_rotate
 from physics.world import World
 
 APPLICATION_ID = "scene-estimator"
@@ -542,7 +542,8 @@ def _urdf_visual_mesh(world: World, index: int):
         else:
             state = pb.getLinkState(uid, link, physicsClientId=c)
             wpos, worn = state[0], state[1]
-        ppos, porn = pb.multiplyTransforms(wpos, worn, lpos, lorn)
+        placed = pose_compose(np.array([*wpos, *worn]), np.array([*lpos, *lorn]))
+        ppos, porn = placed[:3], placed[3:]
         rot = np.broadcast_to(porn, (len(m.vertices), 4))
         verts = np.asarray(ppos) + quat_rotate(rot, m.vertices)
         parts.append((verts, np.asarray(m.faces), quat_rotate(rot, m.vertex_normals)))

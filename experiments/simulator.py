@@ -41,13 +41,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 import pybullet as pb
 import yaml
 
 from estimator.relations import relation_list, relation_masks
 from physics.errors import InputError
 from physics.scene import Scene, scene_to_dict
-from physics.transforms import quat_from_axis_angle, quat_multiply, quat_normalize
+from physics.transforms import pose_compose, pose_inverse, quat_from_axis_angle, quat_multiply, quat_normalize
 from physics.world import DEFAULT_PRIMITIVE_MASS, PhysicsSettings, World
 
 from .camera import SyntheticCamera
@@ -176,7 +177,8 @@ def sample_variant(scenario: Scenario, seed: int) -> Variant:
 
 
 def _quat_from_rpy(rpy_deg) -> np.ndarray:
-    return np.array(pb.getQuaternionFromEuler([math.radians(v) for v in rpy_deg]), dtype=float)
+    """Quaternion (x, y, z, w) of roll, pitch, yaw in degrees (fixed axes x, y, z)."""
+    return Rotation.from_euler("xyz", rpy_deg, degrees=True).as_quat()
 
 
 def _slerp(a: np.ndarray, b: np.ndarray, s: float) -> np.ndarray:
@@ -315,8 +317,8 @@ class GroundTruth:
                              f"when grasping it (at t = {step * self.dt:.3f} s)",
                              path=self.scenario.source, field=where)
         op, oq = pb.getBasePositionAndOrientation(uid, physicsClientId=c)  # centre-of-mass frames
-        inv_p, inv_q = pb.invertTransform(hp, hq)
-        rel_p, rel_q = pb.multiplyTransforms(inv_p, inv_q, op, oq)
+        rel = pose_compose(pose_inverse(np.array([*hp, *hq])), np.array([*op, *oq]))
+        rel_p, rel_q = rel[:3].tolist(), rel[3:].tolist()
         cid = pb.createConstraint(self.hand_uid, -1, uid, -1, pb.JOINT_FIXED, [0, 0, 0], rel_p, [0, 0, 0],
                                   parentFrameOrientation=rel_q, childFrameOrientation=[0, 0, 0, 1],
                                   physicsClientId=c)
