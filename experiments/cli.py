@@ -207,30 +207,18 @@ def main(argv: list[str] | None = None) -> int:
     p_demo.add_argument("--workers", type=int, default=0)
     p_demo.add_argument("--seed", type=int, default=0)
     p_demo.set_defaults(func=cmd_demo)
-    try:
-        from .simulate_cli import add_simulate_arguments, run_simulate
-    except ImportError:
-        pass
-    else:
-        p_sim = sub.add_parser("simulate", help="simulate a scenario with ground truth")
-        add_simulate_arguments(p_sim)
-        p_sim.set_defaults(func=run_simulate)
-    try:
-        from .evaluate_cli import add_evaluate_arguments, run_evaluate
-    except ImportError:
-        pass
-    else:
-        p_eval = sub.add_parser("evaluate", help="statistical evaluation over scenarios, seeds and methods")
-        add_evaluate_arguments(p_eval)
-        p_eval.set_defaults(func=run_evaluate)
-    try:
-        from .bench import add_bench_arguments, run_bench
-    except ImportError:
-        pass
-    else:
-        p_bench = sub.add_parser("bench", help="update time against bare pybullet stepping")
-        add_bench_arguments(p_bench)
-        p_bench.set_defaults(func=run_bench)
+    from .bench import add_bench_arguments, run_bench
+    from .evaluate_cli import add_evaluate_arguments, run_evaluate
+    from .simulate_cli import add_simulate_arguments, run_simulate
+
+    for name, text, add, run in [
+            ("simulate", "simulate a scenario with ground truth", add_simulate_arguments, run_simulate),
+            ("evaluate", "statistical evaluation over scenarios, seeds and methods", add_evaluate_arguments,
+             run_evaluate),
+            ("bench", "update time against bare pybullet stepping", add_bench_arguments, run_bench)]:
+        p_sub = sub.add_parser(name, help=text)
+        add(p_sub)
+        p_sub.set_defaults(func=run)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s: %(message)s")
     try:
