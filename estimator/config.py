@@ -171,6 +171,8 @@ class EstimatorConfig:
     * ``fresh_checks``: only objects detected since the previous update are tested for divergence
       (a released object is not pulled back to where it was last seen); the paper tests every object
       seen within ``t_perceived`` (off in paper mode).
+    * ``physics``: the particle worlds' engine settings; the solver stops at a residual of 1e-4
+      (the ground-truth simulator keeps pybullet's 1e-7): resting scenes step about 30 % faster.
     * ``visibility_threshold``: fraction of an object's sample points in view for it to count as
       visible to the camera.
     """
@@ -181,7 +183,7 @@ class EstimatorConfig:
     noise: NoiseConfig = field(default_factory=NoiseConfig.off)
     priors: ModePriors = field(default_factory=ModePriors)
     relations: RelationConfig = field(default_factory=RelationConfig)
-    physics: PhysicsSettings = field(default_factory=PhysicsSettings)
+    physics: PhysicsSettings = field(default_factory=lambda: PhysicsSettings(solver_residual_threshold=1e-4))
     resample_threshold: float = 0.5
     event_threshold: float = 0.5
     event_window: float = 1.0

@@ -27,7 +27,6 @@ first update simulates nothing, so that simulated time is the stream's time):
 """
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 from collections import deque
@@ -43,7 +42,7 @@ from .belief import Belief, compute_belief, weighted_pose_stats
 from .config import EstimatorConfig
 from .observations import Frame
 from .pool import BatchInput, WorldPool
-from .relations import relation_masks
+from .relations import relation_masks, supported_mask
 from .resampling import effective_sample_size, normalise_log_weights, systematic_resample
 from .timeline import Timeline
 
@@ -326,9 +325,8 @@ class SceneEstimator:
         valid = np.broadcast_to(self.known, (K, M))
         on_top, is_in = relation_masks(aabbs, valid, static=self.static, floor=self.scene.floor,
                                        config=cfg.relations, previous=(self.on_top, self.is_in))
-        loose = dataclasses.replace(cfg.relations, z_margin=hr.place_gap)
-        sup_on, sup_in = relation_masks(aabbs, valid, static=self.static, floor=self.scene.floor, config=loose)
-        supported = sup_on.any(axis=-1) | sup_in.any(axis=-1)
+        supported = supported_mask(aabbs, is_in, valid, static=self.static, floor=self.scene.floor,
+                                   z_gap=hr.place_gap, config=cfg.relations)
         rested = self._at_rest(t)
         vel = self._tick_velocity(t)
         accel = (vel[:, 2] - self._prev_tick_vel[:, 2]) / max(dt, 1e-9)

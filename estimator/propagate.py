@@ -139,15 +139,17 @@ def propagate(pw: ParticleWorld, inp: StepInput, n_steps: int, d_sim_perc: float
     get_vel = pb.getBaseVelocity
     step = pb.stepSimulation
     next_due = min((item[5] for item in watch), default=n_steps)
+    # lazily, the test after the last step uses the state read back at the end (no extra calls)
+    last_in_loop = n_steps if not lazy else n_steps + 1
     for s in range(1, n_steps + 1):
         if held.items:
             held.apply(s)
         step(physicsClientId=c)
-        if not watch or (s < next_due and s < n_steps):
+        if not watch or (s < next_due and s < last_in_loop):
             continue
         switched = None
         for item in watch:
-            if item[5] > s and s < n_steps:
+            if item[5] > s and s < last_in_loop:
                 continue
             p = get(item[1], physicsClientId=c)[0]
             d = math.sqrt((p[0] - item[2]) ** 2 + (p[1] - item[3]) ** 2 + (p[2] - item[4]) ** 2)
@@ -173,10 +175,21 @@ def propagate(pw: ParticleWorld, inp: StepInput, n_steps: int, d_sim_perc: float
                 max_d[item[0]] = item[6]
             watch = [item for item in watch if item not in switched]
         next_due = min((item[5] for item in watch), default=n_steps)
-    for item in watch:
-        max_d[item[0]] = item[6]
     held.apply(n_steps + 1)  # held objects end the update exactly at their target
     poses, vel, aabbs = w.read_state()
+    if lazy and watch and n_steps > 0:
+        idx = [item[0] for item in watch]
+        d_end = np.linalg.norm(w.com_positions(poses[idx], idx) - np.array([item[2:5] for item in watch]), axis=1)
+        for item, d in zip(watch, d_end.tolist()):
+            item[6] = max(item[6], d)
+        late = [item[0] for item, d in zip(watch, d_end.tolist()) if d > d_sim_perc and switch_on_divergence]
+        if late:  # diverged during the last steps: held, at the perception, as in the loop
+            for i in late:
+                modes[i] = HELD
+            held.jump(late)
+            poses, vel, aabbs = w.read_state()
+    for item in watch:
+        max_d[item[0]] = item[6]
     finite = bool(np.isfinite(poses).all() and np.isfinite(vel).all() and (np.abs(vel[:, :3]) < MAX_SPEED).all())
     if not finite:
         aabbs = np.full((len(modes), 2, 3), np.nan)

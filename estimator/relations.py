@@ -121,6 +121,32 @@ def relation_masks(aabbs: np.ndarray, valid: np.ndarray | None = None, *, static
     return on_top, is_in
 
 
+def supported_mask(aabbs: np.ndarray, is_in: np.ndarray, valid: np.ndarray | None = None, *,
+                   static: np.ndarray | None = None, floor: bool = True, z_gap: float = 0.03,
+                   config: RelationConfig = RelationConfig()) -> np.ndarray:
+    """Objects ``(..., M)`` that rest on something (bottom within ``z_gap`` of a support's top, with
+    overlapping footprints, or on the floor) or are in something (``is_in`` from
+    :func:`relation_masks`); a looser isOnTop, computed in one pass, for deciding that a held object
+    was put down."""
+    aabbs = np.asarray(aabbs, dtype=float)
+    lo, hi = aabbs[..., 0, :], aabbs[..., 1, :]
+    if valid is None:
+        valid = np.ones(aabbs.shape[:-2], dtype=bool)
+    valid = np.broadcast_to(np.asarray(valid, dtype=bool), aabbs.shape[:-2])
+    bottom = lo[..., :, None, 2]
+    ov = (np.minimum(hi[..., :, None, :2], hi[..., None, :, :2])
+          - np.maximum(lo[..., :, None, :2], lo[..., None, :, :2]))
+    on = np.all(ov >= config.overlap, axis=-1) & (np.abs(bottom - hi[..., None, :, 2]) <= z_gap)
+    n = aabbs.shape[-3]
+    on &= valid[..., :, None] & valid[..., None, :] & ~np.eye(n, dtype=bool)
+    out = on.any(axis=-1) | np.asarray(is_in).any(axis=-1)
+    if floor:
+        out |= (np.abs(lo[..., 2]) <= z_gap) & valid
+    if static is not None:
+        out &= ~np.asarray(static, dtype=bool)
+    return out
+
+
 def is_in_pad(is_in: np.ndarray) -> np.ndarray:
     """``is_in (..., M, M)`` padded with a False floor column to ``(..., M, M + 1)``."""
     pad = np.zeros(is_in.shape[:-1] + (1,), dtype=bool)

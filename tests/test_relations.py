@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from estimator.relations import RelationConfig, relation_list, relation_masks
+from estimator.relations import RelationConfig, relation_list, relation_masks, supported_mask
 from physics.world import World
 
 from helpers import TABLE_TOP, table_scene
@@ -69,3 +69,18 @@ def test_relations_on_pybullet_data_tray_and_mug():
     assert ("ball", "mug") in got_in and ("mug", "tray") in got_in and ("ball", "tray") in got_in
     assert ("tray", "table") in got_on and ("b1", "table") in got_on and ("b2", "b1") in got_on
     assert ("mug", "table") not in got_on and ("ball", "table") not in got_on
+
+
+def test_supported_mask_is_a_looser_on_top():
+    aabbs = np.stack([
+        box([-0.75, -0.5, 0.57], [0.75, 0.5, 0.626]),  # table (static)
+        box([0.0, 0.0, 0.65], [0.1, 0.1, 0.75]),       # 2.4 cm above the table: supported within 3 cm
+        box([0.3, 0.0, 0.70], [0.4, 0.1, 0.80]),       # 7.4 cm above: not
+        box([2.0, 2.0, 0.02], [2.1, 2.1, 0.12]),       # 2 cm above the floor
+    ])
+    static = np.array([True, False, False, False])
+    on, inside = relation_masks(aabbs, static=static)
+    assert not on[1].any()  # too high for the strict test
+    sup = supported_mask(aabbs, inside, static=static, z_gap=0.03)
+    assert sup.tolist() == [False, True, False, True]
+    assert supported_mask(aabbs, inside, static=static, floor=False, z_gap=0.03).tolist() == [False, True, False, False]
