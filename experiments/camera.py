@@ -29,6 +29,7 @@ import numpy as np
 
 from physics.scene import CameraSpec, ObjectSpec
 from physics.transforms import pose_compose, pose_inverse
+from physics.visibility import Camera
 from physics.world import World
 
 DEFAULT_POINTS = 64
@@ -116,16 +117,8 @@ class SyntheticCamera:
         radius = np.linalg.norm(self.points, axis=2).max(axis=1)
         self._extension = np.repeat(np.maximum(2.0 * radius, 0.02), self.n)  # (M*n,)
         self._owner = np.repeat(np.arange(len(pts)), self.n)
-        self.origin = np.asarray(camera.position, dtype=float)
-        fwd = np.asarray(camera.target, dtype=float) - self.origin
-        fwd /= np.linalg.norm(fwd)
-        right = np.cross(fwd, np.asarray(camera.up, dtype=float))
-        if np.linalg.norm(right) < 1e-9:  # looking along "up": pick any perpendicular
-            right = np.cross(fwd, [1.0, 0.0, 0.0] if abs(fwd[0]) < 0.9 else [0.0, 1.0, 0.0])
-        right /= np.linalg.norm(right)
-        self._axes = np.stack([right, np.cross(right, fwd), fwd])  # rows: x (right), y (up), z (forward)
-        self._tan_v = math.tan(math.radians(camera.fov_deg) / 2.0)
-        self._tan_h = self._tan_v * camera.aspect
+        self._pinhole = Camera(camera)  # the frustum test is the estimator's own
+        self.origin = self._pinhole.position
 
     def world_points(self, poses: np.ndarray | None = None) -> np.ndarray:
         """Sample points in the world frame (M, n, 3) at ``poses`` (M, 7) (default: current poses)."""
@@ -138,11 +131,7 @@ class SyntheticCamera:
 
     def in_frustum(self, points: np.ndarray) -> np.ndarray:
         """Bool mask (...,) of world points (..., 3) inside the view frustum."""
-        d = np.asarray(points, dtype=float) - self.origin
-        c = d @ self._axes.T
-        z = c[..., 2]
-        return ((z >= self.camera.near) & (z <= self.camera.far)
-                & (np.abs(c[..., 1]) <= z * self._tan_v) & (np.abs(c[..., 0]) <= z * self._tan_h))
+        return self._pinhole.in_view(points)
 
     def visible_fractions(self, poses: np.ndarray | None = None) -> np.ndarray:
         """Visible fraction (M,) of every object in the world's current state.

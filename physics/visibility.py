@@ -28,7 +28,7 @@ class Camera:
         up = np.asarray(spec.up, dtype=float)
         right = np.cross(self.forward, up)
         if np.linalg.norm(right) < 1e-9:  # looking straight along up: pick any perpendicular
-            right = np.cross(self.forward, [1.0, 0.0, 0.0])
+            right = np.cross(self.forward, [1.0, 0.0, 0.0] if abs(self.forward[0]) < 0.9 else [0.0, 1.0, 0.0])
         self.right = _unit(right)
         self.up = np.cross(self.right, self.forward)
         self.tan_v = np.tan(np.radians(spec.fov_deg) / 2.0)
