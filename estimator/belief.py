@@ -9,7 +9,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from actions.events import EventRecord
 from actions.modes import HELD
@@ -127,30 +126,26 @@ def _label_name(label: int, object_ids) -> tuple[str, str | None]:
     return "none", None
 
 
-def weighted_pose_stats(poses: np.ndarray, w: np.ndarray):
-    """Weighted mean position ``(3,)``, covariance ``(3, 3)``, mean orientation ``(4,)`` and angular
-    std (rad) of one object's particle poses ``(K, 7)`` with normalised weights ``(K,)``."""
-    if len(w) == 1 or np.max(w) >= 1.0:
-        k = int(np.argmax(w))
-        return poses[k, :3].copy(), np.zeros((3, 3)), poses[k, 3:].copy(), 0.0
-    mean = w @ poses[:, :3]
-    d = poses[:, :3] - mean
-    cov = (w[:, None] * d).T @ d
-    q = Rotation.from_quat(poses[:, 3:]).mean(weights=w).as_quat()
-    if q[3] < 0:
-        q = -q
-    ang = quat_angle(poses[:, 3:], q[None, :])
-    return mean, cov, q, float(np.sqrt(w @ (ang * ang)))
+def pose_stats(poses: np.ndarray, w: np.ndarray):
+    """Weighted statistics of particle poses ``(K, M, 7)`` with normalised weights ``(K,)``.
 
-
-def weighted_quat_means(quats: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Weighted chordal L2 mean orientations ``(M, 4)`` of particle orientations ``(K, M, 4)``
-    (x, y, z, w) with normalised weights ``(K,)``: for each object the principal eigenvector of
-    ``sum_k w_k q_k q_k^T`` (sign-invariant; the same as scipy's ``Rotation.mean``), w >= 0."""
-    a = np.einsum("k,kmi,kmj->mij", w, quats, quats)
-    _, vecs = np.linalg.eigh(a)
-    q = vecs[..., -1]
-    return np.where(q[:, 3:4] < 0, -q, q)
+    Returns mean positions ``(M, 3)``, position covariances ``(M, 3, 3)``, chordal L2 mean
+    orientations ``(M, 4)`` (x, y, z, w; the principal eigenvector of ``sum_k w_k q_k q_k^T``, as
+    scipy's ``Rotation.mean``) and angular spreads ``(M,)`` (rad, weighted RMS angle to the mean).
+    With all the weight on one particle, its poses are returned exactly, with zero spread.
+    """
+    k, m = poses.shape[:2]
+    if k == 1 or np.max(w) >= 1.0:
+        best = int(np.argmax(w))
+        return poses[best, :, :3].copy(), np.zeros((m, 3, 3)), poses[best, :, 3:].copy(), np.zeros(m)
+    means = np.einsum("k,kmi->mi", w, poses[..., :3])
+    dev = poses[..., :3] - means[None]
+    covs = np.einsum("k,kmi,kmj->mij", w, dev, dev)
+    _, vecs = np.linalg.eigh(np.einsum("k,kmi,kmj->mij", w, poses[..., 3:], poses[..., 3:]))
+    quats = vecs[..., -1]
+    quats = np.where(quats[:, 3:4] < 0, -quats, quats)
+    angs = np.sqrt(w @ quat_angle(poses[..., 3:], quats[None]) ** 2)
+    return means, covs, quats, angs
 
 
 def compute_belief(t: float, object_ids, known: np.ndarray, perceived: np.ndarray, poses: np.ndarray,
@@ -168,21 +163,11 @@ def compute_belief(t: float, object_ids, known: np.ndarray, perceived: np.ndarra
     labels = support_labels(modes, on_top, is_in)
     held = modes == HELD
     objects = {}
-    single = len(weights) == 1 or np.max(weights) >= 1.0
-    if not single:  # all objects at once
-        means = weights @ poses[..., :3].reshape(len(weights), -1)
-        means = means.reshape(-1, 3)
-        dev = poses[..., :3] - means[None]
-        covs = np.einsum("k,kmi,kmj->mij", weights, dev, dev)
-        quats = weighted_quat_means(poses[..., 3:], weights)
-        angs = np.sqrt(weights @ quat_angle(poses[..., 3:], quats[None]) ** 2)
+    means, covs, quats, angs = pose_stats(poses, weights)
     for m, oid in enumerate(object_ids):
         if not known[m]:
             continue
-        if single:
-            mean, cov, q, ang = weighted_pose_stats(poses[:, m], weights)
-        else:
-            mean, cov, q, ang = means[m], covs[m], quats[m], float(angs[m])
+        mean, cov, q, ang = means[m], covs[m], quats[m], float(angs[m])
         if not static[m] and cov_floor > 0:
             cov = cov + cov_floor * np.eye(3)
         p_held = float(weights @ held[:, m])

@@ -88,8 +88,8 @@ class NoiseConfig:
     * ``friction_range``, ``rolling_friction_range``, ``spinning_friction_range``,
       ``restitution_range``, ``mass_scale_range``: uniform priors of the physical parameters, per
       object and particle (``None`` keeps the scene's value). Rolling and spinning friction are not
-      perturbed by default: any rolling friction makes Bullet's contact solving about 6 times slower
-      for resting boxes (measured with ``scene-estimator bench``).
+      perturbed by default: any rolling friction makes Bullet's contact solving several times slower
+      for resting boxes.
     * ``param_jitter``: after resampling, parameters are shrunk toward their weighted mean by
       ``a = sqrt(1 - jitter**2)`` and jittered so that their spread is kept (Liu & West); 0 disables.
     * ``regularisation``: after resampling, hidden free objects are jittered with a Gaussian kernel
@@ -172,7 +172,7 @@ class EstimatorConfig:
       (a released object is not pulled back to where it was last seen); the paper tests every object
       seen within ``t_perceived`` (off in paper mode).
     * ``physics``: the particle worlds' engine settings; the solver stops at a residual of 1e-4
-      (the ground-truth simulator keeps pybullet's 1e-7): resting scenes step about 30 % faster.
+      (the ground-truth simulator keeps pybullet's 1e-7): resting scenes step faster.
     * ``visibility_threshold``: fraction of an object's sample points in view for it to count as
       visible to the camera.
     """

@@ -38,7 +38,7 @@ from actions.modes import FREE, HELD, merge_events, switch_events
 from physics.scene import Scene
 from physics.transforms import carry_pose, quat_angle, quat_from_rotvec, quat_multiply
 
-from .belief import Belief, compute_belief, weighted_pose_stats
+from .belief import Belief, compute_belief, pose_stats
 from .config import EstimatorConfig
 from .observations import Frame
 from .pool import BatchInput, WorldPool
@@ -310,7 +310,7 @@ class SceneEstimator:
             reset = (np.any(poses != self._world_poses, axis=-1) | np.any(vel != self._world_vel, axis=-1))
         batch = BatchInput(poses, vel, self.params, modes, check, target, target_vel, self.is_in, depen,
                            reset, vis_query)
-        out = self.pool.run(batch, n_steps, hr.d_sim_perc, True, cfg.lazy_checks)
+        out = self.pool.run(batch, n_steps, hr.d_sim_perc, cfg.lazy_checks)
         new_poses, new_vel, new_modes = out.poses, out.velocities, out.modes
         aabbs = out.aabbs
         bad = ~out.finite
@@ -508,8 +508,9 @@ class SceneEstimator:
         h = self.config.noise.regularisation
         kernels = {}
         if h > 0:
+            _, covs, _, _ = pose_stats(self.poses, weights)
             for m in np.flatnonzero(hidden):
-                _, cov, _, _ = weighted_pose_stats(self.poses[:, m], weights)
+                cov = covs[m]
                 if np.trace(cov) > 1e-10:
                     chol = np.linalg.cholesky(cov * h * h + 1e-12 * np.eye(3))
                     largest = np.sqrt(np.max(np.linalg.eigvalsh(cov)) * h * h)

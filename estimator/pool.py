@@ -80,13 +80,12 @@ class _Shard:
                       d["restitution"], d["mass"]]
         return out
 
-    def run(self, batch: BatchInput, n_steps: int, d_sim_perc: float, switch: bool,
-            lazy: bool = False) -> BatchOutput:
+    def run(self, batch: BatchInput, n_steps: int, d_sim_perc: float, lazy: bool = False) -> BatchOutput:
         outs, vis = [], []
         q = np.flatnonzero(batch.vis_query)
         for k, pw in enumerate(self.worlds):
             inp = StepInput(*(getattr(batch, f)[k] for f in _PER_PARTICLE))
-            out = propagate(pw, inp, n_steps, d_sim_perc, switch, lazy)
+            out = propagate(pw, inp, n_steps, d_sim_perc, lazy)
             outs.append(out)
             v = np.zeros(len(out.modes))
             if self.camera is not None and len(q) and out.finite:
@@ -120,9 +119,9 @@ def _worker_main(conn, scene, settings, lo, hi):
                 shard.bare_step(msg[1])
                 conn.send(("ok", None))
                 continue
-            _, batch, n_steps, d, switch, every = msg
+            _, batch, n_steps, d, lazy = msg
             try:
-                conn.send(("ok", shard.run(batch, n_steps, d, switch, every)))
+                conn.send(("ok", shard.run(batch, n_steps, d, lazy)))
             except Exception:  # report, keep serving
                 conn.send(("error", traceback.format_exc()))
     except (EOFError, KeyboardInterrupt):
@@ -183,13 +182,12 @@ class WorldPool:
             raise RuntimeError(f"particle worker failed:\n{payload}")
         return payload
 
-    def run(self, batch: BatchInput, n_steps: int, d_sim_perc: float, switch: bool = True,
-            lazy: bool = False) -> BatchOutput:
+    def run(self, batch: BatchInput, n_steps: int, d_sim_perc: float, lazy: bool = False) -> BatchOutput:
         """Propagate all K particles by ``n_steps`` steps (see :func:`~estimator.propagate.propagate`)."""
         if self._local is not None:
-            return self._local.run(batch, n_steps, d_sim_perc, switch, lazy)
+            return self._local.run(batch, n_steps, d_sim_perc, lazy)
         for conn, (lo, hi) in zip(self._conns, self._bounds):
-            conn.send(("run", batch.shard(lo, hi), n_steps, d_sim_perc, switch, lazy))
+            conn.send(("run", batch.shard(lo, hi), n_steps, d_sim_perc, lazy))
         parts = [self._receive(conn) for conn in self._conns]
         return BatchOutput(*(np.concatenate([getattr(p, f) for p in parts])
                              for f in ("poses", "velocities", "modes", "max_divergence", "aabbs",

@@ -97,7 +97,7 @@ A_MAX = 2.0 * 9.81
 
 
 def propagate(pw: ParticleWorld, inp: StepInput, n_steps: int, d_sim_perc: float,
-              switch_on_divergence: bool = True, lazy: bool = False) -> StepOutput:
+              lazy: bool = False) -> StepOutput:
     """Run Algorithm 1 for ``n_steps`` steps in ``pw``'s world from the state in ``inp``.
 
     With ``lazy=False`` the divergence of every free perceived object is tested after every step, as
@@ -155,7 +155,7 @@ def propagate(pw: ParticleWorld, inp: StepInput, n_steps: int, d_sim_perc: float
             d = math.sqrt((p[0] - item[2]) ** 2 + (p[1] - item[3]) ** 2 + (p[2] - item[4]) ** 2)
             if d > item[6]:
                 item[6] = d
-            if d > d_sim_perc and switch_on_divergence:
+            if d > d_sim_perc:
                 switched = switched or []
                 switched.append(item)
             elif lazy:
@@ -182,7 +182,7 @@ def propagate(pw: ParticleWorld, inp: StepInput, n_steps: int, d_sim_perc: float
         d_end = np.linalg.norm(w.com_positions(poses[idx], idx) - np.array([item[2:5] for item in watch]), axis=1)
         for item, d in zip(watch, d_end.tolist()):
             item[6] = max(item[6], d)
-        late = [item[0] for item, d in zip(watch, d_end.tolist()) if d > d_sim_perc and switch_on_divergence]
+        late = [item[0] for item, d in zip(watch, d_end.tolist()) if d > d_sim_perc]
         if late:  # diverged during the last steps: held, at the perception, as in the loop
             for i in late:
                 modes[i] = HELD

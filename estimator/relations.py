@@ -64,19 +64,28 @@ def _masks(aabbs: np.ndarray, valid: np.ndarray, floor: bool, cfg: RelationConfi
     # an object cannot contain one with a bigger footprint (guards against overlapping equal boxes)
     smaller = np.all(a_hi[..., :2] - a_lo[..., :2] <= b_hi[..., :2] - b_lo[..., :2] + 1e-9, axis=-1)
     is_in = inside_xy & inside_z & smaller
-    ov = np.minimum(a_hi[..., :2], b_hi[..., :2]) - np.maximum(a_lo[..., :2], b_lo[..., :2])
-    overlap_xy = np.all(ov >= cfg.overlap - widen, axis=-1)
-    near_top = np.abs(bottom - b_hi[..., 2]) <= cfg.z_margin + widen
-    on_top = overlap_xy & near_top & ~is_in
-    n = aabbs.shape[-3]
-    eye = np.eye(n, dtype=bool)
-    pair_ok = valid[..., :, None] & valid[..., None, :] & ~eye
-    is_in &= pair_ok
-    on_top &= pair_ok
-    floor_col = np.abs(lo[..., 2]) <= cfg.z_margin + widen
-    floor_col &= valid & np.bool_(floor)
-    on_top = np.concatenate([on_top, floor_col[..., None]], axis=-1)
+    is_in &= _pairs(valid)
+    on_top = _resting_on(lo, hi, valid, floor, cfg.overlap - widen, cfg.z_margin + widen)
+    on_top[..., :-1] &= ~is_in
     return _not_through_containers(on_top, is_in), is_in
+
+
+def _pairs(valid: np.ndarray) -> np.ndarray:
+    """``(..., M, M)``: pairs of two different valid objects."""
+    n = valid.shape[-1]
+    return valid[..., :, None] & valid[..., None, :] & ~np.eye(n, dtype=bool)
+
+
+def _resting_on(lo: np.ndarray, hi: np.ndarray, valid: np.ndarray, floor: bool, overlap: float,
+                z_margin: float) -> np.ndarray:
+    """The bounding-box isOnTop test alone ``(..., M, M + 1)``: a's bottom within ``z_margin`` of
+    b's top (or of z = 0, column M) and footprints overlapping by ``overlap`` in x and y."""
+    ov = (np.minimum(hi[..., :, None, :2], hi[..., None, :, :2])
+          - np.maximum(lo[..., :, None, :2], lo[..., None, :, :2]))
+    on = np.all(ov >= overlap, axis=-1) & (np.abs(lo[..., :, None, 2] - hi[..., None, :, 2]) <= z_margin)
+    on &= _pairs(valid)
+    floor_col = (np.abs(lo[..., 2]) <= z_margin) & valid & np.bool_(floor)
+    return np.concatenate([on, floor_col[..., None]], axis=-1)
 
 
 def _not_through_containers(on_top: np.ndarray, is_in: np.ndarray) -> np.ndarray:
@@ -129,19 +138,11 @@ def supported_mask(aabbs: np.ndarray, is_in: np.ndarray, valid: np.ndarray | Non
     :func:`relation_masks`); a looser isOnTop, computed in one pass, for deciding that a held object
     was put down."""
     aabbs = np.asarray(aabbs, dtype=float)
-    lo, hi = aabbs[..., 0, :], aabbs[..., 1, :]
     if valid is None:
         valid = np.ones(aabbs.shape[:-2], dtype=bool)
     valid = np.broadcast_to(np.asarray(valid, dtype=bool), aabbs.shape[:-2])
-    bottom = lo[..., :, None, 2]
-    ov = (np.minimum(hi[..., :, None, :2], hi[..., None, :, :2])
-          - np.maximum(lo[..., :, None, :2], lo[..., None, :, :2]))
-    on = np.all(ov >= config.overlap, axis=-1) & (np.abs(bottom - hi[..., None, :, 2]) <= z_gap)
-    n = aabbs.shape[-3]
-    on &= valid[..., :, None] & valid[..., None, :] & ~np.eye(n, dtype=bool)
+    on = _resting_on(aabbs[..., 0, :], aabbs[..., 1, :], valid, floor, config.overlap, z_gap)
     out = on.any(axis=-1) | np.asarray(is_in).any(axis=-1)
-    if floor:
-        out |= (np.abs(lo[..., 2]) <= z_gap) & valid
     if static is not None:
         out &= ~np.asarray(static, dtype=bool)
     return out

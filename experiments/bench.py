@@ -35,7 +35,7 @@ def bench_scene(n_objects: int) -> Scene:
     return scene_from_dict({"name": f"bench_{n_objects}", "objects": objs})
 
 
-def _frames(scene: Scene, n: int, horizon: float, rng: np.random.Generator):
+def bench_frames(scene: Scene, n: int, horizon: float, rng: np.random.Generator):
     rest = {o.id: np.array(o.position) + [0, 0, 0.01] for o in scene.objects if not o.static}
     for k in range(n):
         yield Frame(k * horizon, {oid: Detection(p + rng.normal(0, 0.003, 3), np.array([0, 0, 0, 1.0]))
@@ -69,7 +69,7 @@ def bench_one(k: int, n_objects: int, workers: int, updates: int = 20, warmup: i
     peak = 0.0
     with SceneEstimator(scene, cfg, rng) as est:
         pids = [os.getpid()] + est.pool.worker_pids()
-        for i, frame in enumerate(_frames(scene, warmup + updates, horizon, rng)):
+        for i, frame in enumerate(bench_frames(scene, warmup + updates, horizon, rng)):
             t0 = time.perf_counter()
             est.update(frame)
             dt = time.perf_counter() - t0

@@ -267,32 +267,27 @@ def run_method(name: str, scene: Scene, frames: list[Frame], particles: int, rng
     cfg = method_config(name, particles)
     steps: list[StepEstimate] = []
     seconds: list[float] = []
-    if cfg is None:
-        with LastSeenBaseline(scene) as base:
-            for frame in frames:
-                t0 = time.perf_counter()
-                step = base.update(frame)
-                if step is None:
-                    continue
-                seconds.append(time.perf_counter() - t0)
-                steps.append(step)
-                if on_step is not None:
-                    on_step(step, None)
-        return MethodRun(steps, [], seconds, 0)
     ids = scene.object_ids
     last: Belief | None = None
-    with SceneEstimator(scene, cfg, rng) as est:
+    if cfg is None:
+        model, to_step = LastSeenBaseline(scene), (lambda step: step)
+    else:
+        model, to_step = SceneEstimator(scene, cfg, rng), (lambda belief: step_from_belief(belief, ids))
+    with model:
         for frame in frames:
             t0 = time.perf_counter()
-            belief = est.update(frame)
-            if belief is None:
+            out = model.update(frame)
+            if out is None:
                 continue
             seconds.append(time.perf_counter() - t0)
-            steps.append(step_from_belief(belief, ids))
-            last = belief
+            steps.append(to_step(out))
+            if cfg is not None:
+                last = out
             if on_step is not None:
-                on_step(steps[-1], belief)
-        events = est.timeline.to_json()["events"]
+                on_step(steps[-1], last)
+        events = [] if cfg is None else model.timeline.to_json()["events"]
+    if cfg is None:
+        return MethodRun(steps, events, seconds, 0)
     if keep_particles and last is not None and steps:
         steps[-1] = step_from_belief(last, ids, keep_particles=True)
     return MethodRun(steps, events, seconds, cfg.particles)

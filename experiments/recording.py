@@ -595,11 +595,11 @@ def logging_overhead(k: int = 64, n_objects: int = 8, workers: int = 0, updates:
     from estimator.config import EstimatorConfig, NoiseConfig
     from estimator.filter import SceneEstimator
 
-    from .bench import _frames, bench_scene
+    from .bench import bench_frames, bench_scene
 
     scene = bench_scene(n_objects)
     cfg = EstimatorConfig(particles=k, workers=workers, noise=NoiseConfig())
-    frames = list(_frames(scene, warmup + updates, cfg.reasoner.horizon, np.random.default_rng([seed, 1])))
+    frames = list(bench_frames(scene, warmup + updates, cfg.reasoner.horizon, np.random.default_rng([seed, 1])))
     bare, upd, logt, cpu_bare, cpu_rec = [], [], [], [], []
     with tempfile.TemporaryDirectory() as tmp:
         target = path if path is not None else os.path.join(tmp, "bench.rrd")

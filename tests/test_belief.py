@@ -3,10 +3,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from actions.modes import FREE, HELD
-from estimator.belief import compute_belief, support_labels, weighted_pose_stats
+from estimator.belief import compute_belief, pose_stats, support_labels
 
 
-def test_weighted_pose_stats_match_direct_formulas():
+def test_pose_stats_match_direct_formulas():
     rng = np.random.default_rng(3)
     k = 200
     pos = rng.normal([1, 2, 3], [0.1, 0.2, 0.3], size=(k, 3))
@@ -14,12 +14,14 @@ def test_weighted_pose_stats_match_direct_formulas():
     poses = np.concatenate([pos, rot.as_quat()], axis=1)
     w = rng.random(k)
     w /= w.sum()
-    mean, cov, q, ang = weighted_pose_stats(poses, w)
+    means, covs, quats, angs = pose_stats(poses[:, None], w)
+    mean, cov, q, ang = means[0], covs[0], quats[0], angs[0]
     assert np.allclose(mean, w @ pos)
     assert np.allclose(cov, np.cov(pos.T, aweights=w, bias=True))
     assert Rotation.from_quat(q).magnitude() < 0.05 and 0.05 < ang < 0.3
-    one = weighted_pose_stats(poses[:1], np.ones(1))
-    assert np.array_equal(one[0], pos[0]) and np.all(one[1] == 0) and one[3] == 0.0
+    assert abs(abs(q @ rot.mean(weights=w).as_quat()) - 1) < 1e-9  # scipy's chordal mean
+    one = pose_stats(poses[:1, None], np.ones(1))
+    assert np.array_equal(one[0][0], pos[0]) and np.all(one[1] == 0) and one[3][0] == 0.0
 
 
 def test_hypotheses_group_particles_by_support():

@@ -30,5 +30,8 @@ def test_in_process_and_worker_pools_agree_bit_for_bit():
         assert np.array_equal(a.poses, b.poses) and np.array_equal(a.aabbs, b.aabbs)
         assert np.allclose(a.poses[:, 1, 2], TABLE_TOP + 0.05, atol=0.002)  # all fell onto the table
         assert np.allclose(local.initial_params, remote.initial_params)
-        local.bare_step(3)
+        local.bare_step(3)  # the benchmark's reference stepping, sharded the same way
         remote.bare_step(3)
+        c = local.run(batch(k, m, poses), 24, 0.045)
+        d = remote.run(batch(k, m, poses), 24, 0.045)
+        assert np.array_equal(c.poses, d.poses)
