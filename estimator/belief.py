@@ -140,8 +140,9 @@ def pose_stats(poses: np.ndarray, w: np.ndarray):
         return poses[best, :, :3].copy(), np.zeros((m, 3, 3)), poses[best, :, 3:].copy(), np.zeros(m)
     means = np.einsum("k,kmi->mi", w, poses[..., :3])
     dev = poses[..., :3] - means[None]
-    covs = np.einsum("k,kmi,kmj->mij", w, dev, dev)
-    _, vecs = np.linalg.eigh(np.einsum("k,kmi,kmj->mij", w, poses[..., 3:], poses[..., 3:]))
+    covs = np.einsum("kmi,kmj->mij", dev * w[:, None, None], dev)
+    q = poses[..., 3:]
+    _, vecs = np.linalg.eigh(np.einsum("kmi,kmj->mij", q * w[:, None, None], q))
     quats = vecs[..., -1]
     quats = np.where(quats[:, 3:4] < 0, -quats, quats)
     angs = np.sqrt(w @ quat_angle(poses[..., 3:], quats[None]) ** 2)
@@ -160,32 +161,39 @@ def compute_belief(t: float, object_ids, known: np.ndarray, perceived: np.ndarra
     diagonal of the position covariance of dynamic objects.
     """
     object_ids = tuple(object_ids)
+    k, m_count = modes.shape
     labels = support_labels(modes, on_top, is_in)
-    held = modes == HELD
+    # per object and label: weight, number of particles and weighted position sum, in one pass
+    n_labels = 3 + 2 * m_count
+    flat = (np.arange(m_count)[None, :] * n_labels + labels).ravel()
+    wk = np.broadcast_to(weights[:, None], (k, m_count)).ravel()
+    size = m_count * n_labels
+    p_lab = np.bincount(flat, weights=wk, minlength=size).reshape(m_count, n_labels)
+    n_lab = np.bincount(flat, minlength=size).reshape(m_count, n_labels)
+    pos_lab = np.stack([np.bincount(flat, weights=wk * poses[..., d].ravel(), minlength=size)
+                        for d in range(3)], axis=-1).reshape(m_count, n_labels, 3)
+    p_held_all = weights @ (modes == HELD)
     objects = {}
     means, covs, quats, angs = pose_stats(poses, weights)
+    eye = np.eye(3)
     for m, oid in enumerate(object_ids):
         if not known[m]:
             continue
         mean, cov, q, ang = means[m], covs[m], quats[m], float(angs[m])
         if not static[m] and cov_floor > 0:
-            cov = cov + cov_floor * np.eye(3)
-        p_held = float(weights @ held[:, m])
+            cov = cov + cov_floor * eye
+        p_held = float(p_held_all[m])
         p_plausible = 1.0 - p_held if perceived[m] else 1.0
         hyps = []
         if not static[m]:
-            for lab in np.unique(labels[:, m]):
-                sel = labels[:, m] == lab
-                p = float(weights[sel].sum())
-                if p < min_p:
-                    continue
-                rel, sup = _label_name(int(lab), object_ids)
-                pos = weights[sel] @ poses[sel, m, :3] / p
-                hyps.append(Hypothesis(p, rel, sup, pos))
+            for lab in np.flatnonzero((n_lab[m] > 0) & (p_lab[m] >= min_p)).tolist():
+                p = float(p_lab[m, lab])
+                rel, sup = _label_name(lab, object_ids)
+                hyps.append(Hypothesis(p, rel, sup, pos_lab[m, lab] / p if p > 0 else pos_lab[m, lab]))
             hyps.sort(key=lambda h: -h.p)
         objects[oid] = ObjectBelief(mean, q, cov, ang, bool(perceived[m]), p_plausible, p_held, tuple(hyps))
     p_on = np.tensordot(weights, on_top.astype(float), axes=1)
-    p_in = np.tensordot(weights, is_in.astype(float), axes=1)
+    p_in = np.tensordot(weights, is_in.astype(float), axes=1) if is_in.any() else np.zeros(is_in.shape[1:])
     relations = relation_list(None, None, object_ids, p_on, p_in, threshold=min_p)
     return Belief(t, objects, relations, events, ess, object_ids,
                   poses.copy() if keep_particles else None, weights.copy() if keep_particles else None)

@@ -42,7 +42,7 @@ from .belief import Belief, compute_belief, pose_stats
 from .config import EstimatorConfig
 from .observations import Frame
 from .pool import BatchInput, WorldPool
-from .relations import relation_masks, supported_mask
+from .relations import relations_and_support
 from .resampling import effective_sample_size, normalise_log_weights, systematic_resample
 from .timeline import Timeline
 
@@ -191,7 +191,8 @@ class SceneEstimator:
             self.last_std[m] = det.position_std if det.position_std is not None else np.nan
             self.last_seen[m] = frame.t
             hist = self._history[m]
-            hist.append((frame.t, det.position.copy(), None if det.orientation is None else det.orientation.copy()))
+            hist.append((frame.t, tuple(det.position.tolist()),
+                         None if det.orientation is None else tuple(det.orientation.tolist())))
             while hist and hist[0][0] < frame.t - 2.0 * self.config.reasoner.place_dwell - 0.1:
                 hist.popleft()
             self._nearest_hand(frame, m)
@@ -323,10 +324,9 @@ class SceneEstimator:
         # 6. relations; Place: a held object perceived at rest on a support is put down; Release in
         # view: a held object perceived falling, with nothing under it, was let go
         valid = np.broadcast_to(self.known, (K, M))
-        on_top, is_in = relation_masks(aabbs, valid, static=self.static, floor=self.scene.floor,
-                                       config=cfg.relations, previous=(self.on_top, self.is_in))
-        supported = supported_mask(aabbs, is_in, valid, static=self.static, floor=self.scene.floor,
-                                   z_gap=hr.place_gap, config=cfg.relations)
+        on_top, is_in, supported = relations_and_support(
+            aabbs, valid, static=self.static, floor=self.scene.floor, config=cfg.relations,
+            previous=(self.on_top, self.is_in), z_gap=hr.place_gap)
         rested = self._at_rest(t)
         vel = self._tick_velocity(t)
         accel = (vel[:, 2] - self._prev_tick_vel[:, 2]) / max(dt, 1e-9)
@@ -403,14 +403,21 @@ class SceneEstimator:
         ``place_speed * place_dwell`` and turned less than ``place_spin * place_dwell``."""
         hr = self.config.reasoner
         out = np.zeros(self.M, dtype=bool)
+        horizon = t - hr.place_dwell + 1e-9
         for m, hist in enumerate(self._history):
-            old = [h for h in hist if h[0] <= t - hr.place_dwell + 1e-9]
-            if not old or t - hist[-1][0] > hr.place_dwell:
+            if not hist or t - hist[-1][0] > hr.place_dwell:
                 continue
-            t0, p0, q0 = old[-1]
+            old = next((h for h in reversed(hist) if h[0] <= horizon), None)  # the latest one old enough
+            if old is None:
+                continue
+            t0, p0, q0 = old
             t1, p1, q1 = hist[-1]
-            moved = np.linalg.norm(p1 - p0) < hr.place_speed * max(t1 - t0, hr.place_dwell)
-            turned = q0 is None or q1 is None or quat_angle(q0, q1) < hr.place_spin * max(t1 - t0, hr.place_dwell)
+            span = max(t1 - t0, hr.place_dwell)
+            moved = math.dist(p0, p1) < hr.place_speed * span
+            turned = True
+            if q0 is not None and q1 is not None:
+                dot = min(1.0, abs(sum(a * b for a, b in zip(q0, q1))))
+                turned = 2.0 * math.acos(dot) < hr.place_spin * span
             out[m] = moved and turned
         return out
 

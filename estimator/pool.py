@@ -1,5 +1,6 @@
 """The particle worlds, one persistent pybullet world per particle slot, held in this process or
-sharded over persistent worker processes that exchange only numpy arrays.
+sharded over persistent worker processes. Workers and caller share the particles' input and output
+arrays in one block of shared memory; the pipes carry only commands.
 
 Slot ``k`` always lives in the same world, whatever the number of workers, and a world's history
 depends only on the arrays it is given, so results do not depend on ``workers`` (see DESIGN.md:
@@ -9,7 +10,6 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import traceback
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -17,47 +17,9 @@ from physics.scene import Scene
 from physics.visibility import Camera, local_sample_points, visible_fraction
 from physics.world import PhysicsSettings, World
 
-from .propagate import ParticleWorld, StepInput, propagate
+from .propagate import PER_PARTICLE, BatchInput, BatchOutput, ParticleWorld, propagate_batch
 
-
-@dataclass
-class BatchInput:
-    """Inputs for K particles (see :class:`~estimator.propagate.StepInput` for the per-particle
-    shapes; every array here has a leading K axis, except ``vis_query (M,)``: objects whose
-    visibility to the camera is wanted after the update)."""
-
-    poses: np.ndarray
-    velocities: np.ndarray
-    params: np.ndarray
-    modes: np.ndarray
-    check: np.ndarray
-    target: np.ndarray
-    target_vel: np.ndarray
-    contents: np.ndarray
-    depenetrate: np.ndarray
-    reset: np.ndarray
-    vis_query: np.ndarray
-
-    def shard(self, lo: int, hi: int) -> "BatchInput":
-        return BatchInput(*(getattr(self, f)[lo:hi] for f in _PER_PARTICLE), self.vis_query)
-
-
-_PER_PARTICLE = ("poses", "velocities", "params", "modes", "check", "target", "target_vel", "contents",
-                 "depenetrate", "reset")
-
-
-@dataclass
-class BatchOutput:
-    """Outputs for K particles: poses (K, M, 7), velocities (K, M, 6), modes (K, M), max_divergence
-    (K, M), aabbs (K, M, 2, 3), finite (K,), visible (K, M) (fraction seen; 0 where not queried)."""
-
-    poses: np.ndarray
-    velocities: np.ndarray
-    modes: np.ndarray
-    max_divergence: np.ndarray
-    aabbs: np.ndarray
-    finite: np.ndarray
-    visible: np.ndarray
+__all__ = ["BatchInput", "BatchOutput", "WorldPool", "shard_bounds"]
 
 
 class _Shard:
@@ -65,6 +27,7 @@ class _Shard:
 
     def __init__(self, scene: Scene, settings: PhysicsSettings, lo: int, hi: int):
         self.worlds = [ParticleWorld(World(scene, settings)) for _ in range(lo, hi)]
+        self._saved: list[int] = []
         self.camera = Camera(scene.camera) if scene.camera is not None else None
         self.points = None
         if self.camera is not None:
@@ -81,47 +44,113 @@ class _Shard:
         return out
 
     def run(self, batch: BatchInput, n_steps: int, d_sim_perc: float, lazy: bool = False) -> BatchOutput:
-        outs, vis = [], []
+        out = propagate_batch(self.worlds, batch, n_steps, d_sim_perc, lazy)
         q = np.flatnonzero(batch.vis_query)
-        for k, pw in enumerate(self.worlds):
-            inp = StepInput(*(getattr(batch, f)[k] for f in _PER_PARTICLE))
-            out = propagate(pw, inp, n_steps, d_sim_perc, lazy)
-            outs.append(out)
-            v = np.zeros(len(out.modes))
-            if self.camera is not None and len(q) and out.finite:
-                v[q] = visible_fraction(pw.world, self.camera, q, self.points, out.poses[q])
-            vis.append(v)
-        return BatchOutput(np.stack([o.poses for o in outs]), np.stack([o.velocities for o in outs]),
-                           np.stack([o.modes for o in outs]), np.stack([o.max_divergence for o in outs]),
-                           np.stack([o.aabbs for o in outs]), np.array([o.finite for o in outs]),
-                           np.stack(vis))
+        if self.camera is not None and len(q):
+            for k, pw in enumerate(self.worlds):
+                if out.finite[k]:
+                    out.visible[k, q] = visible_fraction(pw.world, self.camera, q, self.points, out.poses[k, q])
+        return out
 
     def bare_step(self, n_steps: int) -> None:
         """Step every world ``n_steps`` times and nothing else (the benchmark's reference)."""
         for pw in self.worlds:
             pw.world.step(n_steps)
 
+    def save(self) -> None:
+        """Save every world's state in memory (replacing any state saved before)."""
+        self.drop_saved()
+        self._saved = [pw.world.save_state() for pw in self.worlds]
+
+    def restore(self) -> None:
+        """Return every world to the state of the last :meth:`save`, and forget it."""
+        for pw, sid in zip(self.worlds, self._saved):
+            pw.world.restore_state(sid)
+        self.drop_saved()
+
+    def drop_saved(self) -> None:
+        for pw, sid in zip(self.worlds, self._saved):
+            pw.world.remove_state(sid)
+        self._saved = []
+
     def close(self) -> None:
         for pw in self.worlds:
             pw.world.close()
 
 
-def _worker_main(conn, scene, settings, lo, hi):
+class _SharedBatch:
+    """Inputs and outputs of K particles in one block of shared memory, seen as numpy arrays by the
+    caller and by every worker: a run sends only a few numbers through the pipes.
+
+    ``buffer`` is a ``multiprocessing`` RawArray of bytes of :meth:`nbytes` size.
+    """
+
+    def __init__(self, buffer, n_particles: int, n_objects: int):
+        raw = np.frombuffer(buffer, dtype=np.uint8)
+        self.arrays: dict[str, np.ndarray] = {}
+        offset = 0
+        for name, dtype, shape in self._fields(n_particles, n_objects):
+            size = int(np.prod(shape)) * np.dtype(dtype).itemsize
+            self.arrays[name] = raw[offset:offset + size].view(dtype).reshape(shape)
+            offset += -(-size // 8) * 8
+
+    @staticmethod
+    def _fields(K: int, M: int) -> list[tuple[str, type, tuple[int, ...]]]:
+        f8, i1, b = np.float64, np.int8, np.bool_
+        return [("poses", f8, (K, M, 7)), ("velocities", f8, (K, M, 6)), ("params", f8, (K, M, 5)),
+                ("modes", i1, (K, M)), ("check", b, (K, M)), ("target", f8, (K, M, 7)),
+                ("target_vel", f8, (K, M, 6)), ("contents", b, (K, M, M)), ("depenetrate", b, (K, M)),
+                ("reset", b, (K, M)), ("vis_query", b, (M,)),
+                ("out.poses", f8, (K, M, 7)), ("out.velocities", f8, (K, M, 6)), ("out.modes", i1, (K, M)),
+                ("out.max_divergence", f8, (K, M)), ("out.aabbs", f8, (K, M, 2, 3)), ("out.finite", b, (K,)),
+                ("out.visible", f8, (K, M))]
+
+    @classmethod
+    def nbytes(cls, n_particles: int, n_objects: int) -> int:
+        return sum(-(-int(np.prod(shape)) * np.dtype(dtype).itemsize // 8) * 8
+                   for _, dtype, shape in cls._fields(n_particles, n_objects))
+
+    def write_inputs(self, batch: BatchInput) -> None:
+        for name in PER_PARTICLE + ("vis_query",):
+            self.arrays[name][...] = getattr(batch, name)
+
+    def inputs(self, lo: int, hi: int) -> BatchInput:
+        a = self.arrays
+        return BatchInput(*(a[name][lo:hi] for name in PER_PARTICLE), a["vis_query"])
+
+    def write_outputs(self, lo: int, hi: int, out: BatchOutput) -> None:
+        for name in _OUTPUTS:
+            self.arrays["out." + name][lo:hi] = getattr(out, name)
+
+    def outputs(self) -> BatchOutput:
+        """A copy of the outputs of all K particles."""
+        return BatchOutput(*(self.arrays["out." + name].copy() for name in _OUTPUTS))
+
+
+_OUTPUTS = ("poses", "velocities", "modes", "max_divergence", "aabbs", "finite", "visible")
+
+
+def _worker_main(conn, scene, settings, lo, hi, buffer, n_particles):
     shard = None
     try:
         shard = _Shard(scene, settings, lo, hi)
+        shared = _SharedBatch(buffer, n_particles, len(scene.objects))
         conn.send(("ok", shard.initial_params()))
         while True:
             msg = conn.recv()
             if msg[0] == "close":
                 break
-            if msg[0] == "bare":
-                shard.bare_step(msg[1])
+            if msg[0] in ("bare", "save", "restore"):
+                if msg[0] == "bare":
+                    shard.bare_step(msg[1])
+                else:
+                    getattr(shard, msg[0])()
                 conn.send(("ok", None))
                 continue
-            _, batch, n_steps, d, lazy = msg
+            _, n_steps, d, lazy = msg
             try:
-                conn.send(("ok", shard.run(batch, n_steps, d, lazy)))
+                shared.write_outputs(lo, hi, shard.run(shared.inputs(lo, hi), n_steps, d, lazy))
+                conn.send(("ok", None))
             except Exception:  # report, keep serving
                 conn.send(("error", traceback.format_exc()))
     except (EOFError, KeyboardInterrupt):
@@ -161,10 +190,13 @@ class WorldPool:
             return
         ctx = mp.get_context("spawn")
         self._bounds = shard_bounds(n_particles, workers)
+        buffer = ctx.RawArray("b", _SharedBatch.nbytes(n_particles, len(scene.objects)))
+        self._shared = _SharedBatch(buffer, n_particles, len(scene.objects))
         try:
             for lo, hi in self._bounds:
                 parent, child = ctx.Pipe()
-                p = ctx.Process(target=_worker_main, args=(child, scene, settings, lo, hi), daemon=True)
+                p = ctx.Process(target=_worker_main, args=(child, scene, settings, lo, hi, buffer, n_particles),
+                                daemon=True)
                 p.start()
                 child.close()
                 self._procs.append(p)
@@ -186,12 +218,14 @@ class WorldPool:
         """Propagate all K particles by ``n_steps`` steps (see :func:`~estimator.propagate.propagate`)."""
         if self._local is not None:
             return self._local.run(batch, n_steps, d_sim_perc, lazy)
-        for conn, (lo, hi) in zip(self._conns, self._bounds):
-            conn.send(("run", batch.shard(lo, hi), n_steps, d_sim_perc, lazy))
-        parts = [self._receive(conn) for conn in self._conns]
-        return BatchOutput(*(np.concatenate([getattr(p, f) for p in parts])
-                             for f in ("poses", "velocities", "modes", "max_divergence", "aabbs",
-                                       "finite", "visible")))
+        self._shared.write_inputs(batch)
+        for conn in self._conns:
+            conn.send(("run", n_steps, d_sim_perc, lazy))
+        replies = [conn.recv() for conn in self._conns]  # all of them, so that no reply is left unread
+        for status, payload in replies:
+            if status != "ok":
+                raise RuntimeError(f"particle worker failed:\n{payload}")
+        return self._shared.outputs()
 
     def bare_step(self, n_steps: int) -> None:
         """Step every world ``n_steps`` times, with the same sharding and nothing else."""
@@ -200,6 +234,24 @@ class WorldPool:
             return
         for conn in self._conns:
             conn.send(("bare", n_steps))
+        for conn in self._conns:
+            self._receive(conn)
+
+    def save(self) -> None:
+        """Save the state of every particle world (to be put back by :meth:`restore`; the benchmark
+        steps the worlds between the two)."""
+        self._command("save")
+
+    def restore(self) -> None:
+        """Put every particle world back in the state of the last :meth:`save`."""
+        self._command("restore")
+
+    def _command(self, name: str) -> None:
+        if self._local is not None:
+            getattr(self._local, name)()
+            return
+        for conn in self._conns:
+            conn.send((name,))
         for conn in self._conns:
             self._receive(conn)
 

@@ -68,6 +68,48 @@ class StepOutput:
     finite: bool
 
 
+@dataclass
+class BatchInput:
+    """Inputs for K particles: the fields of :class:`StepInput` with a leading K axis (``reset (K,
+    M)`` is required), plus ``vis_query (M,)``: objects whose visibility to the camera is wanted
+    after the update."""
+
+    poses: np.ndarray
+    velocities: np.ndarray
+    params: np.ndarray
+    modes: np.ndarray
+    check: np.ndarray
+    target: np.ndarray
+    target_vel: np.ndarray
+    contents: np.ndarray
+    depenetrate: np.ndarray
+    reset: np.ndarray
+    vis_query: np.ndarray
+
+    def shard(self, lo: int, hi: int) -> "BatchInput":
+        """Particles ``[lo, hi)``."""
+        return BatchInput(*(getattr(self, f)[lo:hi] for f in PER_PARTICLE), self.vis_query)
+
+
+PER_PARTICLE = ("poses", "velocities", "params", "modes", "check", "target", "target_vel", "contents",
+                "depenetrate", "reset")
+"""The fields of :class:`BatchInput` with a leading particle axis."""
+
+
+@dataclass
+class BatchOutput:
+    """Outputs for K particles: poses (K, M, 7), velocities (K, M, 6), modes (K, M), max_divergence
+    (K, M), aabbs (K, M, 2, 3), finite (K,), visible (K, M) (fraction seen; 0 where not queried)."""
+
+    poses: np.ndarray
+    velocities: np.ndarray
+    modes: np.ndarray
+    max_divergence: np.ndarray
+    aabbs: np.ndarray
+    finite: np.ndarray
+    visible: np.ndarray
+
+
 class ParticleWorld:
     """A persistent world for one particle slot, remembering the parameters last applied."""
 
@@ -75,9 +117,11 @@ class ParticleWorld:
         self.world = world
         self.dynamic = [int(i) for i in world.dynamic_indices]
         self._params: np.ndarray | None = None
+        self._params_key: bytes = b""
 
     def apply_params(self, params: np.ndarray) -> None:
-        if self._params is not None and np.array_equal(params, self._params):
+        key = params.tobytes()
+        if key == self._params_key:
             return
         w = self.world
         for i in w.dynamic_indices:
@@ -87,69 +131,172 @@ class ParticleWorld:
             w.set_dynamics(int(i), lateral_friction=row[0], rolling_friction=row[1],
                            spinning_friction=row[2], restitution=row[3], mass=row[4])
         self._params = params.copy()
+        self._params_key = key
 
 
 MAX_SPEED = 50.0  # m/s: anything faster is a simulation that exploded
 
 
-A_MAX = 2.0 * 9.81
-"""Bound on an object's acceleration (m/s^2) between two divergence tests when checks are lazy."""
+A_MAX = 9.81
+"""Bound on an object's acceleration (m/s^2) between two divergence tests when checks are lazy:
+gravity's, the only force that acts without a contact (an object in flight, sliding or rolling
+down a slope accelerates at most this much; one pushed or hit may exceed it and is then tested a
+few steps late, at the latest after the last step)."""
 
 
 def propagate(pw: ParticleWorld, inp: StepInput, n_steps: int, d_sim_perc: float,
               lazy: bool = False) -> StepOutput:
-    """Run Algorithm 1 for ``n_steps`` steps in ``pw``'s world from the state in ``inp``.
+    """Run Algorithm 1 for ``n_steps`` steps in one particle's world (see :func:`propagate_batch`)."""
+    m = len(inp.modes)
+    reset = np.ones(m, dtype=bool) if inp.reset is None else inp.reset
+    fields = [getattr(inp, f) for f in PER_PARTICLE[:-1]] + [reset]
+    batch = BatchInput(*(np.asarray(a)[None] for a in fields), np.zeros(m, dtype=bool))
+    out = propagate_batch([pw], batch, n_steps, d_sim_perc, lazy)
+    return StepOutput(out.poses[0], out.velocities[0], out.modes[0], out.max_divergence[0], out.aabbs[0],
+                      bool(out.finite[0]))
+
+
+def _due_steps(d: np.ndarray, v: np.ndarray, d_sim_perc: float, dt: float) -> np.ndarray:
+    """First step (>= 1) at which an object at divergence ``d`` (m) moving at ``v`` (m/s) and
+    accelerating at most at :data:`A_MAX` could have crossed ``d_sim_perc``."""
+    room = np.maximum(d_sim_perc - d, 0.0)
+    tau = (-v + np.sqrt(v * v + 2.0 * A_MAX * room)) / A_MAX
+    return np.maximum(1, (tau / dt).astype(np.int64))
+
+
+def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d_sim_perc: float,
+                    lazy: bool = False) -> BatchOutput:
+    """Run Algorithm 1 for ``n_steps`` steps in each of the K worlds ``pws`` (all built from the same
+    scene), particle ``k`` from the state in row ``k`` of ``batch``.
 
     With ``lazy=False`` the divergence of every free perceived object is tested after every step, as
     the paper does. With ``lazy=True`` an object is tested again only at the first step at which,
     starting from its present divergence ``d`` and speed ``v`` and accelerating at most at
-    :data:`A_MAX`, it could have crossed ``d_sim_perc`` (and after the last step): exact for objects
+    :data:`A_MAX`, it could have crossed ``d_sim_perc``, and after the last step: exact for objects
     moving freely or resting, late by a few steps only when something hits an object hard.
+
+    Array work is done once for the K worlds (frame conversions, first test steps, the finiteness
+    test); each world's loop is plain Python around direct pybullet calls. A world's result depends
+    only on its own row of ``batch``, so that sharding the particles does not change any output.
+    Returns a :class:`BatchOutput` whose ``visible`` is all zeros.
     """
-    w = pw.world
-    c = w.client
-    dyn = pw.dynamic
-    dt = w.settings.time_step
+    K = len(pws)
+    if K == 0:
+        raise ValueError("propagate_batch needs at least one world")
+    w0 = pws[0].world
+    M = w0.num_objects
+    if batch.poses.shape != (K, M, 7):
+        raise ValueError(f"batch.poses must have shape ({K}, {M}, 7), got {batch.poses.shape}")
+    dyn = pws[0].dynamic
+    dt = w0.settings.time_step
     n_steps = int(n_steps)
-    pw.apply_params(inp.params)
-    reset = dyn if inp.reset is None else [i for i in dyn if inp.reset[i]]
-    if reset:
-        w.set_poses(inp.poses[reset], reset)
-        w.set_velocities(inp.velocities[reset], reset)
-    if inp.depenetrate.any():
-        depenetrate(w, [i for i in dyn if inp.depenetrate[i]])
-    modes = inp.modes.copy()
-    max_d = np.zeros(len(modes))
-    target = inp.target
-    held = _Overrider(w, target, inp.target_vel, inp.contents, n_steps)
-    held.glide([i for i in dyn if modes[i] == HELD])
-    # watched objects as plain lists [index, body id, target of its centre of mass, next step to test,
-    # largest divergence seen]: the per-step test is the hot path and stays in plain Python
-    checked = [i for i in dyn if inp.check[i] and modes[i] == FREE]
-    com = w.com_positions(target[checked], checked) if checked else np.zeros((0, 3))
-    watch = [[i, w.uids[i], x, y, z, 1, 0.0] for i, (x, y, z) in zip(checked, com.tolist())]
-    if lazy and watch:  # the first test is due when the starting state could have diverged
-        d0 = np.linalg.norm(w.com_positions(inp.poses[checked], checked) - com, axis=1)
-        v0 = np.linalg.norm(inp.velocities[checked, :3], axis=1)
-        for item, d, v in zip(watch, d0.tolist(), v0.tolist()):
-            if d < d_sim_perc:
-                tau = (-v + math.sqrt(v * v + 2.0 * A_MAX * (d_sim_perc - d))) / A_MAX
-                item[5] = max(1, int(tau / dt))
+    dyn_mask = np.zeros(M, dtype=bool)
+    dyn_mask[dyn] = True
+    modes_out = batch.modes.copy()
+    # loads: centre-of-mass poses and velocities of the entries to reset, as nested lists
+    reset = batch.reset & dyn_mask
+    any_reset = reset.any(axis=1).tolist()
+    com_p, com_v = w0.com_frame(batch.poses, batch.velocities)
+    reset_l, depen_l = reset.tolist(), (batch.depenetrate & dyn_mask).tolist()
+    held_l = ((batch.modes == HELD) & dyn_mask).tolist()
+    # watched objects and the first step at which each one needs testing
+    checked = batch.check & (batch.modes == FREE) & dyn_mask
+    target_com = w0.com_frame(batch.target, batch.target_vel)[0][..., :3]
+    due = np.ones((K, M), dtype=np.int64)
+    if lazy:
+        d0 = np.linalg.norm(com_p[..., :3] - target_com, axis=-1)
+        due = _due_steps(d0, np.linalg.norm(com_v[..., :3], axis=-1), d_sim_perc, dt)
+    checked_l, target_l, due_l = checked.tolist(), target_com.tolist(), due.tolist()
+    # the read-back, for all K worlds: dynamic objects from the worlds, static ones fixed
+    D = len(dyn)
+    slot = {i: j for j, i in enumerate(dyn)}  # position of an object in the read-back lists
+    raw_p: list[float] = []
+    raw_v: list[float] = []
+    raw_b: list[float] = []
+    max_d = np.zeros((K, M))
+    for k, pw in enumerate(pws):
+        w = pw.world
+        pw.apply_params(batch.params[k])
+        if any_reset[k]:
+            rows = [i for i in dyn if reset_l[k][i]]
+            w.load_com_state(rows, com_p[k, rows].tolist(), com_v[k, rows].tolist())
+        if True in depen_l[k]:
+            depenetrate(w, [i for i in dyn if depen_l[k][i]])
+        held = _Overrider(w, batch.target[k], batch.target_vel[k], batch.contents[k], n_steps)
+        if True in held_l[k]:
+            held.glide([i for i in dyn if held_l[k][i]])
+        # [index, body id, x, y, z of the perceived centre of mass, next step to test, largest divergence]
+        watch = [[i, w.uids[i], *target_l[k][i], due_l[k][i], 0.0] for i in dyn if checked_l[k][i]]
+        switched = _simulate(w, held, watch, n_steps, d_sim_perc, lazy)
+        for i in switched:
+            modes_out[k, i] = HELD
+        p, v, b = w.read_raw(dyn)
+        if lazy and watch and n_steps > 0:
+            # the test after the last step, on the state read back
+            late = []
+            for item in watch:
+                j = 7 * slot[item[0]]
+                d = math.sqrt((p[j] - item[2]) ** 2 + (p[j + 1] - item[3]) ** 2 + (p[j + 2] - item[4]) ** 2)
+                item[6] = max(item[6], d)
+                if d > d_sim_perc:
+                    late.append(item[0])
+            if late:  # diverged during the last steps: held, at the perception, as in the loop
+                for i in late:
+                    modes_out[k, i] = HELD
+                held.jump(late)
+                p, v, b = w.read_raw(dyn)
+        for item in watch:
+            max_d[k, item[0]] = item[6]
+        for i, d in switched.items():
+            max_d[k, i] = d
+        raw_p += p
+        raw_v += v
+        raw_b += b
+    poses = np.empty((K, M, 7))
+    vel = np.zeros((K, M, 6))
+    aabbs = np.empty((K, M, 2, 3))
+    st = ~dyn_mask
+    if st.any():  # static objects never move: their centre-of-mass poses and boxes from the scene
+        sp, sb = w0.static_raw()
+        poses[:, st], aabbs[:, st] = sp[st], sb[st]
+    poses[:, dyn] = np.array(raw_p).reshape(K, D, 7)
+    vel[:, dyn] = np.array(raw_v).reshape(K, D, 6)
+    aabbs[:, dyn] = np.array(raw_b).reshape(K, D, 2, 3)
+    finite = (np.isfinite(poses).all(axis=(1, 2)) & np.isfinite(vel).all(axis=(1, 2))
+              & (np.abs(vel[..., :3]) < MAX_SPEED).all(axis=(1, 2)))
+    aabbs[~finite] = np.nan
+    poses, vel = w0.link_frame(poses, vel)
+    return BatchOutput(poses, vel, modes_out, max_d, aabbs, finite, np.zeros((K, M)))
+
+
+def _simulate(w: World, held: "_Overrider", watch: list[list], n_steps: int, d_sim_perc: float,
+              lazy: bool) -> dict[int, float]:
+    """The step loop of one world (the hot path, plain Python). ``watch`` items are updated in
+    place; returns the objects that switched to HELD during the loop, with their largest divergence
+    (lazily, the test after the last step is left to the caller, on the state read back)."""
+    c = w.client
+    dt = w.settings.time_step
     get = pb.getBasePositionAndOrientation
     get_vel = pb.getBaseVelocity
     step = pb.stepSimulation
-    next_due = min((item[5] for item in watch), default=n_steps)
-    # lazily, the test after the last step uses the state read back at the end (no extra calls)
-    last_in_loop = n_steps if not lazy else n_steps + 1
-    for s in range(1, n_steps + 1):
+    out: dict[int, float] = {}
+    s = 0
+    while s < n_steps:
+        # step, with no test, up to the next step at which one is due
+        stop = min(min(item[5] for item in watch), n_steps) if watch else n_steps
         if held.items:
-            held.apply(s)
-        step(physicsClientId=c)
-        if not watch or (s < next_due and s < last_in_loop):
-            continue
+            for t in range(s + 1, stop + 1):
+                held.apply(t)
+                step(physicsClientId=c)
+        else:
+            for _ in range(stop - s):
+                step(physicsClientId=c)
+        s = stop
+        if lazy and s == n_steps:
+            break  # the caller tests after the last step, on the state it reads back
         switched = None
         for item in watch:
-            if item[5] > s and s < last_in_loop:
+            if item[5] > s:
                 continue
             p = get(item[1], physicsClientId=c)[0]
             d = math.sqrt((p[0] - item[2]) ** 2 + (p[1] - item[3]) ** 2 + (p[2] - item[4]) ** 2)
@@ -167,33 +314,12 @@ def propagate(pw: ParticleWorld, inp: StepInput, n_steps: int, d_sim_perc: float
             else:
                 item[5] = s + 1
         if switched:
-            moved = [item[0] for item in switched]
-            for i in moved:
-                modes[i] = HELD
-            held.jump(moved)
+            held.jump([item[0] for item in switched])
             for item in switched:
-                max_d[item[0]] = item[6]
-            watch = [item for item in watch if item not in switched]
-        next_due = min((item[5] for item in watch), default=n_steps)
+                out[item[0]] = item[6]
+            watch[:] = [item for item in watch if item not in switched]
     held.apply(n_steps + 1)  # held objects end the update exactly at their target
-    poses, vel, aabbs = w.read_state()
-    if lazy and watch and n_steps > 0:
-        idx = [item[0] for item in watch]
-        d_end = np.linalg.norm(w.com_positions(poses[idx], idx) - np.array([item[2:5] for item in watch]), axis=1)
-        for item, d in zip(watch, d_end.tolist()):
-            item[6] = max(item[6], d)
-        late = [item[0] for item, d in zip(watch, d_end.tolist()) if d > d_sim_perc]
-        if late:  # diverged during the last steps: held, at the perception, as in the loop
-            for i in late:
-                modes[i] = HELD
-            held.jump(late)
-            poses, vel, aabbs = w.read_state()
-    for item in watch:
-        max_d[item[0]] = item[6]
-    finite = bool(np.isfinite(poses).all() and np.isfinite(vel).all() and (np.abs(vel[:, :3]) < MAX_SPEED).all())
-    if not finite:
-        aabbs = np.full((len(modes), 2, 3), np.nan)
-    return StepOutput(poses, vel, modes, max_d, aabbs, finite)
+    return out
 
 
 def depenetrate(w: World, indices: list[int], rounds: int = 2) -> None:

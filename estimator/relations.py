@@ -47,52 +47,73 @@ class RelationConfig:
                 raise ValueError(f"RelationConfig.{name} must be >= 0")
 
 
-def _masks(aabbs: np.ndarray, valid: np.ndarray, floor: bool, cfg: RelationConfig,
-           widen: float) -> tuple[np.ndarray, np.ndarray]:
-    lo = aabbs[..., 0, :]
-    hi = aabbs[..., 1, :]
-    a_lo, a_hi = lo[..., :, None, :], hi[..., :, None, :]  # subject on axis -3 (rows)
-    b_lo, b_hi = lo[..., None, :, :], hi[..., None, :, :]  # object on axis -2 (columns)
-    m = cfg.margin + widen
-    inside_xy = np.all((a_lo[..., :2] >= b_lo[..., :2] - m) & (a_hi[..., :2] <= b_hi[..., :2] + m),
-                       axis=-1)
-    bottom = a_lo[..., 2]
-    # a's bottom must be well below b's rim: a quarter of b's height, so that an object sunk a few
-    # millimetres into a solid table top is not "in" it
-    rim = np.maximum(cfg.rim, cfg.rim_fraction * (b_hi[..., 2] - b_lo[..., 2]))
-    inside_z = (bottom >= b_lo[..., 2] - m) & (bottom <= b_hi[..., 2] - rim + widen)
-    # an object cannot contain one with a bigger footprint (guards against overlapping equal boxes)
-    smaller = np.all(a_hi[..., :2] - a_lo[..., :2] <= b_hi[..., :2] - b_lo[..., :2] + 1e-9, axis=-1)
-    is_in = inside_xy & inside_z & smaller
-    is_in &= _pairs(valid)
-    on_top = _resting_on(lo, hi, valid, floor, cfg.overlap - widen, cfg.z_margin + widen)
-    on_top[..., :-1] &= ~is_in
-    return _not_through_containers(on_top, is_in), is_in
+class _PairGeometry:
+    """Continuous quantities of the bounding-box tests for all pairs, computed once and thresholded
+    for the strict test, the widened (hysteresis) test and the put-down support test.
 
+    Pairs ``(..., M, M)``: subject a on axis -2, object b on axis -1.
+    """
 
-def _pairs(valid: np.ndarray) -> np.ndarray:
-    """``(..., M, M)``: pairs of two different valid objects."""
-    n = valid.shape[-1]
-    return valid[..., :, None] & valid[..., None, :] & ~np.eye(n, dtype=bool)
+    def __init__(self, aabbs: np.ndarray, valid: np.ndarray, floor: bool, cfg: RelationConfig):
+        lo = aabbs[..., 0, :]
+        hi = aabbs[..., 1, :]
+        n = valid.shape[-1]
+        self.pairs = valid[..., :, None] & valid[..., None, :] & ~np.eye(n, dtype=bool)
+        # per axis, subject a as a column (..., M, 1) against object b as a row (..., 1, M)
+        (ax_lo, ay_lo, az_lo), (ax_hi, ay_hi, az_hi) = ([lo[..., d, None] for d in range(3)],
+                                                       [hi[..., d, None] for d in range(3)])
+        (bx_lo, by_lo, bz_lo), (bx_hi, by_hi, bz_hi) = ([lo[..., None, :, d] for d in range(3)],
+                                                       [hi[..., None, :, d] for d in range(3)])
+        # isIn: how far a's footprint lies inside b's (negative: sticks out), a's bottom above b's
+        # bottom, and a's bottom below b's rim (a quarter of b's height, so that an object sunk a
+        # few millimetres into a solid table top is not "in" it)
+        self.inside_xy = np.minimum(np.minimum(ax_lo - bx_lo, bx_hi - ax_hi),
+                                    np.minimum(ay_lo - by_lo, by_hi - ay_hi))
+        self.above_bottom = az_lo - bz_lo
+        rim = np.maximum(cfg.rim, cfg.rim_fraction * (bz_hi - bz_lo))
+        self.below_rim = (bz_hi - rim) - az_lo
+        # an object cannot contain one with a bigger footprint (guards against overlapping equal boxes)
+        smaller = ((ax_hi - ax_lo <= bx_hi - bx_lo + 1e-9) & (ay_hi - ay_lo <= by_hi - by_lo + 1e-9))
+        self.can_be_in = smaller & self.pairs
+        # isOnTop: footprint overlap (the smaller of x and y) and gap between a's bottom and b's top
+        self.overlap = np.minimum(np.minimum(ax_hi, bx_hi) - np.maximum(ax_lo, bx_lo),
+                                  np.minimum(ay_hi, by_hi) - np.maximum(ay_lo, by_lo))
+        self.gap = np.abs(az_lo - bz_hi)
+        self.floor_gap = np.where(valid & np.bool_(floor), np.abs(lo[..., 2]), np.inf)
 
+    def is_in(self, cfg: RelationConfig, widen: float) -> np.ndarray:
+        m = cfg.margin + widen
+        return self.can_be_in & (self.inside_xy >= -m) & (self.above_bottom >= -m) & (self.below_rim >= -widen)
 
-def _resting_on(lo: np.ndarray, hi: np.ndarray, valid: np.ndarray, floor: bool, overlap: float,
-                z_margin: float) -> np.ndarray:
-    """The bounding-box isOnTop test alone ``(..., M, M + 1)``: a's bottom within ``z_margin`` of
-    b's top (or of z = 0, column M) and footprints overlapping by ``overlap`` in x and y."""
-    ov = (np.minimum(hi[..., :, None, :2], hi[..., None, :, :2])
-          - np.maximum(lo[..., :, None, :2], lo[..., None, :, :2]))
-    on = np.all(ov >= overlap, axis=-1) & (np.abs(lo[..., :, None, 2] - hi[..., None, :, 2]) <= z_margin)
-    on &= _pairs(valid)
-    floor_col = (np.abs(lo[..., 2]) <= z_margin) & valid & np.bool_(floor)
-    return np.concatenate([on, floor_col[..., None]], axis=-1)
+    def resting_on(self, overlap: float, z_margin: float) -> np.ndarray:
+        """The bounding-box isOnTop test alone ``(..., M, M + 1)``: a's bottom within ``z_margin`` of
+        b's top (or of z = 0, column M) and footprints overlapping by ``overlap`` in x and y."""
+        on = self.pairs & (self.overlap >= overlap) & (self.gap <= z_margin)
+        return np.concatenate([on, (self.floor_gap <= z_margin)[..., None]], axis=-1)
+
+    def masks(self, cfg: RelationConfig, widen: float) -> tuple[np.ndarray, np.ndarray]:
+        is_in = self.is_in(cfg, widen)
+        on_top = self.resting_on(cfg.overlap - widen, cfg.z_margin + widen)
+        on_top[..., :-1] &= ~is_in
+        return _not_through_containers(on_top, is_in), is_in
 
 
 def _not_through_containers(on_top: np.ndarray, is_in: np.ndarray) -> np.ndarray:
     """An object in container c is not on top of what c stands on (a thin tray floor would pass the
     test): drop isOnTop(a, b) when isIn(a, c) and isOnTop(c, b) for some c."""
-    through = np.einsum("...ac,...cb->...ab", is_in.astype(np.int32), on_top.astype(np.int32)) > 0
+    if not is_in.any():
+        return on_top
+    through = np.matmul(is_in.astype(np.float32), on_top.astype(np.float32)) > 0
     return on_top & ~through
+
+
+def _checked(aabbs, valid) -> tuple[np.ndarray, np.ndarray]:
+    aabbs = np.asarray(aabbs, dtype=float)
+    if aabbs.ndim < 3 or aabbs.shape[-2:] != (2, 3):
+        raise ValueError(f"aabbs must have shape (..., M, 2, 3), got {aabbs.shape}")
+    if valid is None:
+        valid = np.ones(aabbs.shape[:-2], dtype=bool)
+    return aabbs, np.broadcast_to(np.asarray(valid, dtype=bool), aabbs.shape[:-2])
 
 
 def relation_masks(aabbs: np.ndarray, valid: np.ndarray | None = None, *, static: np.ndarray | None = None,
@@ -111,18 +132,17 @@ def relation_masks(aabbs: np.ndarray, valid: np.ndarray | None = None, *, static
         ``on_top (..., M, M + 1)`` with ``on_top[..., a, b]`` = isOnTop(a, b) (column M: the floor),
         and ``is_in (..., M, M)`` with ``is_in[..., a, b]`` = isIn(a, b).
     """
-    aabbs = np.asarray(aabbs, dtype=float)
-    if aabbs.ndim < 3 or aabbs.shape[-2:] != (2, 3):
-        raise ValueError(f"aabbs must have shape (..., M, 2, 3), got {aabbs.shape}")
-    if valid is None:
-        valid = np.ones(aabbs.shape[:-2], dtype=bool)
-    valid = np.broadcast_to(np.asarray(valid, dtype=bool), aabbs.shape[:-2])
-    on_top, is_in = _masks(aabbs, valid, floor, config, 0.0)
+    aabbs, valid = _checked(aabbs, valid)
+    return _relations(_PairGeometry(aabbs, valid, floor, config), config, static, previous)
+
+
+def _relations(g: _PairGeometry, config: RelationConfig, static, previous):
+    on_top, is_in = g.masks(config, 0.0)
     if previous is not None:
-        on_relaxed, in_relaxed = _masks(aabbs, valid, floor, config, config.hysteresis)
+        on_relaxed, in_relaxed = g.masks(config, config.hysteresis)
         is_in = is_in | (previous[1] & in_relaxed)
         on_top = _not_through_containers(on_top | (previous[0] & on_relaxed), is_in)
-        on_top &= ~is_in_pad(is_in)
+        on_top[..., :-1] &= ~is_in
     if static is not None:
         subj = ~np.asarray(static, dtype=bool)
         on_top = on_top & subj[:, None]
@@ -137,21 +157,28 @@ def supported_mask(aabbs: np.ndarray, is_in: np.ndarray, valid: np.ndarray | Non
     overlapping footprints, or on the floor) or are in something (``is_in`` from
     :func:`relation_masks`); a looser isOnTop, computed in one pass, for deciding that a held object
     was put down."""
-    aabbs = np.asarray(aabbs, dtype=float)
-    if valid is None:
-        valid = np.ones(aabbs.shape[:-2], dtype=bool)
-    valid = np.broadcast_to(np.asarray(valid, dtype=bool), aabbs.shape[:-2])
-    on = _resting_on(aabbs[..., 0, :], aabbs[..., 1, :], valid, floor, config.overlap, z_gap)
-    out = on.any(axis=-1) | np.asarray(is_in).any(axis=-1)
+    aabbs, valid = _checked(aabbs, valid)
+    return _supported(_PairGeometry(aabbs, valid, floor, config), is_in, static, z_gap, config)
+
+
+def _supported(g: _PairGeometry, is_in, static, z_gap: float, config: RelationConfig) -> np.ndarray:
+    out = g.resting_on(config.overlap, z_gap).any(axis=-1) | np.asarray(is_in).any(axis=-1)
     if static is not None:
         out &= ~np.asarray(static, dtype=bool)
     return out
 
 
-def is_in_pad(is_in: np.ndarray) -> np.ndarray:
-    """``is_in (..., M, M)`` padded with a False floor column to ``(..., M, M + 1)``."""
-    pad = np.zeros(is_in.shape[:-1] + (1,), dtype=bool)
-    return np.concatenate([is_in, pad], axis=-1)
+def relations_and_support(aabbs: np.ndarray, valid: np.ndarray | None = None, *,
+                          static: np.ndarray | None = None, floor: bool = True,
+                          config: RelationConfig = RelationConfig(),
+                          previous: tuple[np.ndarray, np.ndarray] | None = None,
+                          z_gap: float = 0.03) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`relation_masks` and :func:`supported_mask` from one pass over the box pairs: returns
+    ``(on_top (..., M, M + 1), is_in (..., M, M), supported (..., M))``."""
+    aabbs, valid = _checked(aabbs, valid)
+    g = _PairGeometry(aabbs, valid, floor, config)
+    on_top, is_in = _relations(g, config, static, previous)
+    return on_top, is_in, _supported(g, is_in, static, z_gap, config)
 
 
 def relation_list(on_top: np.ndarray, is_in: np.ndarray, object_ids, p_on_top: np.ndarray | None = None,

@@ -2,8 +2,8 @@
 
 For each particle count K and number of dynamic objects N (5 cm boxes resting on a table, perceived
 floating 1 cm with 3 mm noise), it times estimator updates of one reasoning horizon (0.08 s, 19
-steps) and, in the same run and the same worker processes, bare ``stepSimulation`` of the same worlds
-for the same number of steps. It reports the median and 95th percentile update time, the bare time,
+steps) and, after each update, in the same worker processes, bare ``stepSimulation`` of the same
+worlds for the same number of steps (their states are saved before and restored after, untimed). It reports the median and 95th percentile update time, the bare time,
 their ratio, updates per second and the peak memory of the process and its workers.
 """
 from __future__ import annotations
@@ -73,13 +73,17 @@ def bench_one(k: int, n_objects: int, workers: int, updates: int = 20, warmup: i
             t0 = time.perf_counter()
             est.update(frame)
             dt = time.perf_counter() - t0
-            if i >= warmup:
-                times.append(dt)
-            peak = max(peak, _rss_mb(pids))
-        for _ in range(updates):  # the same worlds, the same steps, nothing else
+            # right after each update, so that load on the machine affects both alike: the same
+            # worlds, the same number of steps, nothing else; then the worlds are put back
+            est.pool.save()
             t0 = time.perf_counter()
             est.pool.bare_step(n_steps)
-            bare.append(time.perf_counter() - t0)
+            dt_bare = time.perf_counter() - t0
+            est.pool.restore()
+            if i >= warmup:
+                times.append(dt)
+                bare.append(dt_bare)
+            peak = max(peak, _rss_mb(pids))
     med, p95, bare_med = float(np.median(times)), float(np.percentile(times, 95)), float(np.median(bare))
     return {"particles": k, "objects": n_objects, "workers": workers, "steps_per_update": n_steps,
             "update_ms_median": 1e3 * med, "update_ms_p95": 1e3 * p95, "bare_step_ms_median": 1e3 * bare_med,

@@ -134,6 +134,7 @@ class World:
                                 or np.any(np.abs(off[:, 3:6]) > 1e-12))
         self._inertial_inv = pose_inverse(off)
         self._num_links = [pb.getNumJoints(u, physicsClientId=c) for u in uids]
+        self._static_raw: tuple[np.ndarray, np.ndarray] | None = None
         self.parked_pose = np.zeros((len(uids), 7))
         self.parked_pose[:, 0] = PARK_DISTANCE + 3.0 * np.arange(len(uids))
         self.parked_pose[:, 1] = PARK_DISTANCE
@@ -306,13 +307,49 @@ class World:
 
     def read_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Poses ``(M, 7)``, velocities ``(M, 6)`` and AABBs ``(M, 2, 3)`` of all objects, read in one
-        pass (the per-update read-back of the estimator)."""
+        pass."""
+        m = len(self.uids)
+        flat_p, flat_v, flat_b = self.read_raw(range(m))
+        poses, vel = self.link_frame(np.array(flat_p).reshape(m, 7), np.array(flat_v).reshape(m, 6))
+        return poses, vel, np.array(flat_b).reshape(m, 2, 3)
+
+    def load_com_state(self, indices: list[int], com_poses: list, com_vel: list) -> None:
+        """Set objects ``indices`` to centre-of-mass poses and velocities given as nested lists
+        ``[[x, y, z, qx, qy, qz, qw], ...]`` and ``[[vx, vy, vz, wx, wy, wz], ...]`` (the hot load
+        path; :meth:`com_frame` converts link-frame arrays)."""
+        c = self.client
+        reset, reset_vel = pb.resetBasePositionAndOrientation, pb.resetBaseVelocity
+        for i, p, v in zip(indices, com_poses, com_vel):
+            uid = self.uids[i]
+            reset(uid, p[:3], p[3:], physicsClientId=c)
+            reset_vel(uid, v[:3], v[3:], physicsClientId=c)
+
+    def static_raw(self) -> tuple[np.ndarray, np.ndarray]:
+        """Centre-of-mass poses ``(M, 7)`` and AABBs ``(M, 2, 3)`` of all objects, as read when first
+        asked (valid for the static objects, which never move; the other rows are NaN)."""
+        if self._static_raw is None:
+            m = len(self.uids)
+            st = [int(i) for i in np.flatnonzero(self.static)]
+            p, _, b = self.read_raw(st)
+            poses = np.full((m, 7), np.nan)
+            boxes = np.full((m, 2, 3), np.nan)
+            poses[st] = np.array(p).reshape(len(st), 7)
+            boxes[st] = np.array(b).reshape(len(st), 2, 3)
+            self._static_raw = (poses, boxes)
+        return self._static_raw
+
+    def read_raw(self, indices) -> tuple[list[float], list[float], list[float]]:
+        """Pybullet's own state of objects ``indices``, as flat lists (the hot read-back path: no
+        numpy): centre-of-mass poses (7 floats per object), centre-of-mass velocities (6) and AABBs
+        (6: ``lo, hi``, the union over all links). :meth:`link_frame` converts the first two."""
         c = self.client
         get, get_vel, get_box = pb.getBasePositionAndOrientation, pb.getBaseVelocity, pb.getAABB
         flat_p: list[float] = []
         flat_v: list[float] = []
         flat_b: list[float] = []
-        for uid in self.uids:
+        links = self._num_links
+        for i in indices:
+            uid = self.uids[i]
             p, q = get(uid, physicsClientId=c)
             v, a = get_vel(uid, physicsClientId=c)
             lo, hi = get_box(uid, -1, physicsClientId=c)
@@ -320,19 +357,35 @@ class World:
             flat_p += q
             flat_v += v
             flat_v += a
+            if links[i]:
+                lo, hi = list(lo), list(hi)
+                for link in range(links[i]):
+                    a_lo, a_hi = get_box(uid, link, physicsClientId=c)
+                    lo = [min(x, y) for x, y in zip(lo, a_lo)]
+                    hi = [max(x, y) for x, y in zip(hi, a_hi)]
             flat_b += lo
             flat_b += hi
-        m = len(self.uids)
-        poses = np.array(flat_p).reshape(m, 7)
-        vel = np.array(flat_v).reshape(m, 6)
-        boxes = np.array(flat_b).reshape(m, 2, 3)
-        if self._has_offset:  # from centre-of-mass to link frames
-            poses = pose_compose(poses, self._inertial_inv)
-            self._link_velocities(poses, vel, slice(None))
-        for i, n in enumerate(self._num_links):
-            if n:
-                boxes[i] = self.aabbs([i])[0]
-        return poses, vel, boxes
+        return flat_p, flat_v, flat_b
+
+    def link_frame(self, com_poses: np.ndarray, com_vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pybullet's centre-of-mass poses ``(..., M, 7)`` and velocities ``(..., M, 6)`` of all M
+        objects (any leading axes, e.g. particles) to link-frame poses and link-origin velocities."""
+        if not self._has_offset:
+            return com_poses, com_vel
+        poses = pose_compose(com_poses, self._inertial_inv)
+        vel = com_vel.copy()
+        vel[..., :3] += np.cross(vel[..., 3:], -quat_rotate(poses[..., 3:], self._inertial[:, :3]))
+        return poses, vel
+
+    def com_frame(self, poses: np.ndarray, vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The inverse of :meth:`link_frame`: link-frame poses ``(..., M, 7)`` and link-origin
+        velocities ``(..., M, 6)`` of all M objects to pybullet's centre-of-mass ones."""
+        if not self._has_offset:
+            return poses, vel
+        com = pose_compose(poses, self._inertial)
+        cvel = np.array(vel, dtype=float)
+        cvel[..., :3] += np.cross(cvel[..., 3:], quat_rotate(poses[..., 3:], self._inertial[:, :3]))
+        return com, cvel
 
     def step(self, n: int = 1) -> None:
         """Advance the simulation by ``n`` fixed steps of :attr:`PhysicsSettings.time_step` seconds."""
@@ -415,3 +468,7 @@ class World:
     def restore_state(self, state_id: int) -> None:
         """Restore a state saved by :meth:`save_state` (about 5 us)."""
         pb.restoreState(stateId=state_id, physicsClientId=self.client)
+
+    def remove_state(self, state_id: int) -> None:
+        """Free a state saved by :meth:`save_state`."""
+        pb.removeState(state_id, physicsClientId=self.client)

@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 
 from estimator.pool import BatchInput, WorldPool, shard_bounds
 
@@ -35,3 +36,35 @@ def test_in_process_and_worker_pools_agree_bit_for_bit():
         c = local.run(batch(k, m, poses), 24, 0.045)
         d = remote.run(batch(k, m, poses), 24, 0.045)
         assert np.array_equal(c.poses, d.poses)
+
+
+def test_worker_errors_are_reported_and_the_pool_keeps_serving():
+    k, m = 4, 2
+    poses = np.zeros((k, m, 7))
+    poses[..., 6] = 1
+    poses[:, 1, 2] = TABLE_TOP + 0.05
+    with WorldPool(SCENE, k, 2) as pool:
+        with pytest.raises(RuntimeError, match="particle worker failed"):
+            pool.run(batch(k, m, poses), "not a number", 0.045)  # fails inside both workers
+        out = pool.run(batch(k, m, poses), 24, 0.045)  # every reply was read: the next run works
+        assert out.finite.all() and np.allclose(out.poses[:, 1, 2], TABLE_TOP + 0.05, atol=2e-3)
+
+
+def test_saved_worlds_come_back_after_bare_stepping():
+    k, m = 3, 2
+    poses = np.zeros((k, m, 7))
+    poses[..., 6] = 1
+    poses[:, 1, 2] = TABLE_TOP + 0.3  # falling: bare stepping moves it
+    for workers in (0, 2):
+        with WorldPool(SCENE, k, workers) as pool:
+            pool.run(batch(k, m, poses), 10, 0.045)
+            keep = np.zeros((k, m), bool)
+            b = batch(k, m, poses)
+            b.reset = keep  # load nothing: a run of 0 steps reads the worlds back
+            before = pool.run(b, 0, 0.045)
+            pool.save()
+            pool.bare_step(30)
+            assert not np.array_equal(pool.run(b, 0, 0.045).poses, before.poses)
+            pool.restore()
+            after = pool.run(b, 0, 0.045)
+            assert np.array_equal(after.poses, before.poses) and np.array_equal(after.velocities, before.velocities)

@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from estimator.relations import RelationConfig, relation_list, relation_masks, supported_mask
+from estimator.relations import (RelationConfig, relation_list, relation_masks, relations_and_support,
+                                 supported_mask)
 from physics.world import World
 
 from helpers import TABLE_TOP, table_scene
@@ -84,3 +85,63 @@ def test_supported_mask_is_a_looser_on_top():
     sup = supported_mask(aabbs, inside, static=static, z_gap=0.03)
     assert sup.tolist() == [False, True, False, True]
     assert supported_mask(aabbs, inside, static=static, floor=False, z_gap=0.03).tolist() == [False, True, False, False]
+
+
+def _reference(aabbs, cfg, floor=True, z_gap=0.03):
+    """The definitions of the module docstring, pair by pair in plain Python (no hysteresis)."""
+    m = len(aabbs)
+    is_in = np.zeros((m, m), bool)
+    on = np.zeros((m, m + 1), bool)
+    sup = np.zeros(m, bool)
+    for a in range(m):
+        alo, ahi = aabbs[a]
+        for b in range(m):
+            if a == b:
+                continue
+            blo, bhi = aabbs[b]
+            rim = max(cfg.rim, cfg.rim_fraction * (bhi[2] - blo[2]))
+            is_in[a, b] = (all(alo[d] >= blo[d] - cfg.margin and ahi[d] <= bhi[d] + cfg.margin for d in (0, 1))
+                           and blo[2] - cfg.margin <= alo[2] <= bhi[2] - rim
+                           and all(ahi[d] - alo[d] <= bhi[d] - blo[d] + 1e-9 for d in (0, 1)))
+    for a in range(m):
+        alo, ahi = aabbs[a]
+        for b in range(m):
+            if a == b:
+                continue
+            blo, bhi = aabbs[b]
+            ov = min(min(ahi[d], bhi[d]) - max(alo[d], blo[d]) for d in (0, 1))
+            on[a, b] = ov >= cfg.overlap and abs(alo[2] - bhi[2]) <= cfg.z_margin and not is_in[a, b]
+            sup[a] |= ov >= cfg.overlap and abs(alo[2] - bhi[2]) <= z_gap
+        on[a, m] = floor and abs(alo[2]) <= cfg.z_margin
+        sup[a] |= (floor and abs(alo[2]) <= z_gap) or is_in[a].any()
+    through = on.copy()
+    for a in range(m):
+        for b in range(m + 1):
+            through[a, b] = on[a, b] and not any(is_in[a, c] and on[c, b] for c in range(m))
+    return through, is_in, sup
+
+
+def test_one_pass_relations_and_support_match_the_definitions_pair_by_pair():
+    rng = np.random.default_rng(7)
+    cfg = RelationConfig()
+    k, m = 40, 6
+    # a table, an open box on it, and objects dropped around: inside, on top, on the floor, in the air
+    aabbs = np.zeros((k, m, 2, 3))
+    aabbs[:, 0] = box([-0.75, -0.5, 0.57], [0.75, 0.5, 0.626])
+    aabbs[:, 1] = box([0.0, 0.0, 0.626], [0.3, 0.2, 0.746])
+    for j in range(2, m):
+        size = rng.uniform(0.03, 0.08, (k, 3))
+        lo = np.stack([rng.uniform(-0.05, 0.3, k), rng.uniform(-0.05, 0.2, k),
+                       rng.choice([0.0, 0.636, 0.626, 0.746, 0.9], k) + rng.normal(0, 0.01, k)], axis=1)
+        aabbs[:, j, 0], aabbs[:, j, 1] = lo, lo + size
+    on, inside, sup = relations_and_support(aabbs, config=cfg, z_gap=0.03)
+    on2, inside2 = relation_masks(aabbs, config=cfg)
+    assert np.array_equal(on, on2) and np.array_equal(inside, inside2)
+    assert np.array_equal(sup, supported_mask(aabbs, inside, config=cfg, z_gap=0.03))
+    n_in = 0
+    for p in range(k):
+        ref_on, ref_in, ref_sup = _reference(aabbs[p], cfg)
+        assert np.array_equal(on[p], ref_on) and np.array_equal(inside[p], ref_in), p
+        assert np.array_equal(sup[p], ref_sup), p
+        n_in += ref_in.sum()
+    assert n_in > 5 and on[:, 2:, :].sum() > 20  # the draw did exercise both relations

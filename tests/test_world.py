@@ -27,8 +27,8 @@ def test_static_table_and_falling_primitives():
 
 
 def test_poses_velocities_roundtrip_and_offsets():
-    # the mug's URDF frame is at its bottom while its centre of mass is not at the origin of the link
-    scene = table_scene({"id": "mug", "urdf": "pybullet_data://objects/mug.urdf", "mass": 0.3,
+    # the teddy's centre of mass is 9 cm off the origin of its link frame
+    scene = table_scene({"id": "teddy", "urdf": "pybullet_data://teddy_vhacd.urdf", "mass": 0.3,
                          "pose": {"position": [0.2, 0.1, 0.9], "orientation": [0, 0, 0.3826834, 0.9238795]}})
     with World(scene) as w:
         p = w.get_poses([1])
@@ -83,3 +83,39 @@ def test_bad_urdf_is_a_scene_error(tmp_path):
     with pytest.raises(SceneError, match="could not load URDF") as e:
         World(scene)
     assert e.value.field == "objects[0].urdf"
+
+
+def test_raw_read_back_and_frame_conversions_agree_with_the_named_access():
+    # a URDF whose centre of mass is off its link frame (the teddy) next to a primitive and the table
+    scene = table_scene({"id": "teddy", "urdf": "pybullet_data://teddy_vhacd.urdf", "mass": 0.3,
+                         "pose": {"position": [0.2, 0.1, 0.9], "orientation": [0, 0, 0.3826834, 0.9238795]}},
+                        {"id": "box", "box": {"size": [0.1, 0.1, 0.1]}, "pose": {"position": [-0.2, 0, 0.9]}})
+    with World(scene) as w:
+        v = np.array([[0.1, -0.2, 0.3, 0.5, 0.0, 2.0], [0.0, 0.3, 0.0, 0.0, 1.0, 0.0]])
+        w.set_velocities(v, [1, 2])
+        w.step(3)
+        p, vel, boxes = w.read_state()
+        assert np.allclose(p, w.get_poses(), atol=1e-12) and np.allclose(vel, w.get_velocities(), atol=1e-12)
+        assert np.allclose(boxes, w.aabbs())
+        raw_p, raw_v, _ = w.read_raw(range(w.num_objects))
+        com_p, com_v = np.array(raw_p).reshape(-1, 7), np.array(raw_v).reshape(-1, 6)
+        assert not np.allclose(com_p[1, :3], p[1, :3], atol=1e-3)  # the offset is real
+        # the conversions are inverse to each other, for stacks of particles too
+        stack_p, stack_v = np.stack([p, p]), np.stack([vel, vel])
+        back_p, back_v = w.link_frame(*w.com_frame(stack_p, stack_v))
+        assert np.allclose(back_p, stack_p, atol=1e-12) and np.allclose(back_v, stack_v, atol=1e-12)
+        assert np.allclose(w.com_frame(p, vel)[0], com_p, atol=1e-12)
+        # loading centre-of-mass state puts the objects back exactly where they were read
+        w.step(10)
+        w.load_com_state([1, 2], com_p[1:].tolist(), com_v[1:].tolist())
+        assert np.allclose(w.get_poses([1, 2]), p[1:], atol=1e-12)
+        assert np.allclose(w.get_velocities([1, 2]), vel[1:], atol=1e-12)
+        sp, sb = w.static_raw()
+        assert np.allclose(sp[0], com_p[0]) and np.allclose(sb[0], boxes[0]) and np.isnan(sp[1:]).all()
+        # saved states come back exactly and are freed
+        sid = w.save_state()
+        before = w.get_poses()
+        w.step(20)
+        w.restore_state(sid)
+        w.remove_state(sid)
+        assert np.array_equal(w.get_poses(), before)
