@@ -140,9 +140,10 @@ def pose_stats(poses: np.ndarray, w: np.ndarray):
         return poses[best, :, :3].copy(), np.zeros((m, 3, 3)), poses[best, :, 3:].copy(), np.zeros(m)
     means = np.einsum("k,kmi->mi", w, poses[..., :3])
     dev = poses[..., :3] - means[None]
-    covs = np.einsum("kmi,kmj->mij", dev * w[:, None, None], dev)
-    q = poses[..., 3:]
-    _, vecs = np.linalg.eigh(np.einsum("kmi,kmj->mij", q * w[:, None, None], q))
+    dev = dev.transpose(1, 0, 2)  # (M, K, 3)
+    covs = (dev.transpose(0, 2, 1) * w) @ dev
+    q = poses[..., 3:].transpose(1, 0, 2)  # (M, K, 4)
+    _, vecs = np.linalg.eigh((q.transpose(0, 2, 1) * w) @ q)  # sum_k w_k q_k q_k^T, (M, 4, 4)
     quats = vecs[..., -1]
     quats = np.where(quats[:, 3:4] < 0, -quats, quats)
     angs = np.sqrt(w @ quat_angle(poses[..., 3:], quats[None]) ** 2)

@@ -209,11 +209,11 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     checked_l, target_l, due_l = checked.tolist(), target_com.tolist(), due.tolist()
     # the read-back, for all K worlds: dynamic objects from the worlds, static ones fixed
     D = len(dyn)
-    slot = {i: j for j, i in enumerate(dyn)}  # position of an object in the read-back lists
     raw_p: list[float] = []
     raw_v: list[float] = []
     raw_b: list[float] = []
-    max_d = np.zeros((K, M))
+    tested: list[tuple[int, int, float]] = []  # (particle, object, largest divergence) of in-loop tests
+    switched_at: list[tuple[int, int, float]] = []
     for k, pw in enumerate(pws):
         w = pw.world
         pw.apply_params(batch.params[k])
@@ -228,30 +228,10 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
         # [index, body id, x, y, z of the perceived centre of mass, next step to test, largest divergence]
         watch = [[i, w.uids[i], *target_l[k][i], due_l[k][i], 0.0] for i in dyn if checked_l[k][i]]
         switched = _simulate(w, held, watch, n_steps, d_sim_perc, lazy)
-        for i in switched:
-            modes_out[k, i] = HELD
-        p, v, b = w.read_raw(dyn)
-        if lazy and watch and n_steps > 0:
-            # the test after the last step, on the state read back
-            late = []
-            for item in watch:
-                j = 7 * slot[item[0]]
-                d = math.sqrt((p[j] - item[2]) ** 2 + (p[j + 1] - item[3]) ** 2 + (p[j + 2] - item[4]) ** 2)
-                item[6] = max(item[6], d)
-                if d > d_sim_perc:
-                    late.append(item[0])
-            if late:  # diverged during the last steps: held, at the perception, as in the loop
-                for i in late:
-                    modes_out[k, i] = HELD
-                held.jump(late)
-                p, v, b = w.read_raw(dyn)
-        for item in watch:
-            max_d[k, item[0]] = item[6]
-        for i, d in switched.items():
-            max_d[k, i] = d
-        raw_p += p
-        raw_v += v
-        raw_b += b
+        if switched:
+            switched_at += [(k, i, d) for i, d in switched.items()]
+        tested += [(k, item[0], item[6]) for item in watch if item[6]]
+        w.read_raw(dyn, raw_p, raw_v, raw_b)
     poses = np.empty((K, M, 7))
     vel = np.zeros((K, M, 6))
     aabbs = np.empty((K, M, 2, 3))
@@ -262,6 +242,31 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     poses[:, dyn] = np.array(raw_p).reshape(K, D, 7)
     vel[:, dyn] = np.array(raw_v).reshape(K, D, 6)
     aabbs[:, dyn] = np.array(raw_b).reshape(K, D, 2, 3)
+    # largest divergences: from the tests in the loop and, lazily, the test after the last step on
+    # the state read back (an object that diverged during the last steps is held, at the
+    # perception, as in the loop)
+    max_d = np.zeros((K, M))
+    if tested:
+        kk, ii, dd = zip(*tested)
+        max_d[list(kk), list(ii)] = dd
+    still = checked.copy()
+    for k, i, _ in switched_at:
+        still[k, i] = False
+        modes_out[k, i] = HELD
+    if lazy and n_steps > 0 and still.any():
+        d_end = np.where(still, np.linalg.norm(poses[..., :3] - target_com, axis=-1), 0.0)
+        np.maximum(max_d, d_end, out=max_d)
+        for k in np.flatnonzero((d_end > d_sim_perc).any(axis=1)).tolist():
+            late = np.flatnonzero(d_end[k] > d_sim_perc).tolist()
+            modes_out[k, late] = HELD
+            w = pws[k].world
+            _Overrider(w, batch.target[k], batch.target_vel[k], batch.contents[k], n_steps).jump(late)
+            p, v, b = w.read_raw(dyn)
+            poses[k, dyn] = np.array(p).reshape(D, 7)
+            vel[k, dyn] = np.array(v).reshape(D, 6)
+            aabbs[k, dyn] = np.array(b).reshape(D, 2, 3)
+    for k, i, d in switched_at:
+        max_d[k, i] = d
     finite = (np.isfinite(poses).all(axis=(1, 2)) & np.isfinite(vel).all(axis=(1, 2))
               & (np.abs(vel[..., :3]) < MAX_SPEED).all(axis=(1, 2)))
     aabbs[~finite] = np.nan

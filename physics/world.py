@@ -338,15 +338,17 @@ class World:
             self._static_raw = (poses, boxes)
         return self._static_raw
 
-    def read_raw(self, indices) -> tuple[list[float], list[float], list[float]]:
+    def read_raw(self, indices, flat_p: list | None = None, flat_v: list | None = None,
+                 flat_b: list | None = None) -> tuple[list[float], list[float], list[float]]:
         """Pybullet's own state of objects ``indices``, as flat lists (the hot read-back path: no
         numpy): centre-of-mass poses (7 floats per object), centre-of-mass velocities (6) and AABBs
-        (6: ``lo, hi``, the union over all links). :meth:`link_frame` converts the first two."""
+        (6: ``lo, hi``, the union over all links). :meth:`link_frame` converts the first two.
+        Given lists are extended in place (and returned)."""
         c = self.client
         get, get_vel, get_box = pb.getBasePositionAndOrientation, pb.getBaseVelocity, pb.getAABB
-        flat_p: list[float] = []
-        flat_v: list[float] = []
-        flat_b: list[float] = []
+        flat_p = [] if flat_p is None else flat_p
+        flat_v = [] if flat_v is None else flat_v
+        flat_b = [] if flat_b is None else flat_b
         links = self._num_links
         for i in indices:
             uid = self.uids[i]
