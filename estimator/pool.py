@@ -208,8 +208,15 @@ class WorldPool:
         self.initial_params = params[0]
 
     @staticmethod
-    def _receive(conn):
-        status, payload = conn.recv()
+    def _recv(conn) -> tuple[str, object]:
+        try:
+            return conn.recv()
+        except (EOFError, OSError):
+            return "error", "the worker process died (killed, or out of memory?)"
+
+    @classmethod
+    def _receive(cls, conn):
+        status, payload = cls._recv(conn)
         if status != "ok":
             raise RuntimeError(f"particle worker failed:\n{payload}")
         return payload
@@ -220,8 +227,11 @@ class WorldPool:
             return self._local.run(batch, n_steps, d_sim_perc, lazy)
         self._shared.write_inputs(batch)
         for conn in self._conns:
-            conn.send(("run", n_steps, d_sim_perc, lazy))
-        replies = [conn.recv() for conn in self._conns]  # all of them, so that no reply is left unread
+            try:
+                conn.send(("run", n_steps, d_sim_perc, lazy))
+            except OSError:
+                raise RuntimeError("particle worker failed: the worker process died") from None
+        replies = [self._recv(conn) for conn in self._conns]  # all of them: no reply is left unread
         for status, payload in replies:
             if status != "ok":
                 raise RuntimeError(f"particle worker failed:\n{payload}")

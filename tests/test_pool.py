@@ -68,3 +68,14 @@ def test_saved_worlds_come_back_after_bare_stepping():
             pool.restore()
             after = pool.run(b, 0, 0.045)
             assert np.array_equal(after.poses, before.poses) and np.array_equal(after.velocities, before.velocities)
+
+
+def test_a_dead_worker_is_a_clear_error():
+    k, m = 2, 2
+    poses = np.zeros((k, m, 7))
+    poses[..., 6] = 1
+    with WorldPool(SCENE, k, 2) as pool:
+        pool._procs[1].kill()
+        pool._procs[1].join()
+        with pytest.raises(RuntimeError, match="worker"):
+            pool.run(batch(k, m, poses), 5, 0.045)
