@@ -3,13 +3,28 @@
 :class:`ReasonerConfig` holds the parameters of the IROS 2019 physics reasoner (its Table I).
 :class:`NoiseConfig` the perturbations of the particle filter; all zero is the paper's reasoner.
 :class:`EstimatorConfig` bundles them with the particle count, resampling and output settings.
+
+Configuration files (YAML or JSON) name the fields to change; everything else keeps its default::
+
+    particles: 64
+    noise: {position_std: 0.02, motion_noise: 0.5}
+    reasoner: {horizon: 0.1}
+
+:func:`load_config` reads one (errors name the file, line and field), :func:`config_to_dict` writes
+the full configuration in the same form (``scene-estimator config`` prints it).
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+import os
+import re
+import typing
+from dataclasses import dataclass, field, fields, is_dataclass, replace
+from typing import Any
 
 from actions.modes import ModePriors
+from physics.errors import ConfigError
+from physics.scene import _compose_with_lines, _Fields
 from physics.world import PhysicsSettings
 
 from .relations import RelationConfig
@@ -218,3 +233,124 @@ class EstimatorConfig:
         return cls(particles=1, noise=NoiseConfig.off(), reasoner=reasoner or ReasonerConfig(),
                    priors=ModePriors(release_on_loss=1.0), negative_evidence=False, follow_hands=False,
                    lazy_checks=False, fresh_checks=False)
+
+
+SECTIONS: dict[str, type] = {"reasoner": ReasonerConfig, "noise": NoiseConfig, "priors": ModePriors,
+                             "relations": RelationConfig, "physics": PhysicsSettings}
+"""The nested sections of :class:`EstimatorConfig`, by field name."""
+
+BASES = ("paper", "particles")
+"""What a configuration file starts from (its ``base`` field): the paper's reasoner
+(:meth:`EstimatorConfig.paper`) or the particle filter with its default noise. Default: ``paper``
+for one particle, ``particles`` for more."""
+
+
+def default_config(particles: int = 1, base: str | None = None) -> EstimatorConfig:
+    """The configuration a file (or the command line) starts from, for ``particles`` worlds."""
+    base = base or ("paper" if particles == 1 else "particles")
+    if base not in BASES:
+        raise ValueError(f"base must be one of {', '.join(BASES)}, got {base!r}")
+    if base == "paper":
+        return replace(EstimatorConfig.paper(), particles=particles)
+    return EstimatorConfig(particles=particles, noise=NoiseConfig())
+
+
+def _plain(value: Any) -> Any:
+    return list(value) if isinstance(value, tuple) else value
+
+
+def config_to_dict(config: EstimatorConfig) -> dict[str, Any]:
+    """Every field of ``config`` as plain YAML / JSON data (sections as nested mappings); reading it
+    back with :func:`config_from_dict` gives ``config`` again."""
+    out: dict[str, Any] = {}
+    for f in fields(EstimatorConfig):
+        value = getattr(config, f.name)
+        if is_dataclass(value):
+            out[f.name] = {g.name: _plain(getattr(value, g.name)) for g in fields(value)}
+        else:
+            out[f.name] = _plain(value)
+    return out
+
+
+def _parse_value(f: _Fields, value: Any, hint: Any, where: str) -> Any:
+    """``value`` checked against the type annotation ``hint`` (float, int, bool, tuple of floats,
+    optionally None)."""
+    args = typing.get_args(hint)
+    if type(None) in args:
+        if value is None:
+            return None
+        hint = next(a for a in args if a is not type(None))
+    if hint is bool:
+        if not isinstance(value, bool):
+            raise f.error(where, f"must be true or false, got {value!r}")
+        return value
+    if hint is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise f.error(where, f"must be an integer, got {value!r}")
+        return value
+    if hint is float:
+        return f.number(value, where)
+    if typing.get_origin(hint) is tuple:
+        return f.vector(value, where, len(typing.get_args(hint)))
+    raise f.error(where, f"cannot be set from a file (type {hint})")
+
+
+def _parse_section(f: _Fields, cls: type, base: Any, raw: Any, where: str) -> Any:
+    raw = f.mapping(raw, where)
+    hints = typing.get_type_hints(cls)
+    names = {g.name for g in fields(cls)}
+    f.only(raw, names, where)
+    values = {k: _parse_value(f, v, hints[k], f"{where}.{k}" if where else k) for k, v in raw.items()}
+    try:
+        return replace(base, **values)
+    except ValueError as exc:  # the dataclass's own checks name the field
+        bad = next((k for k in values if re.search(rf"\.{k}\b", str(exc))), None)
+        loc = ".".join(x for x in (where, bad) if x)
+        raise f.error(loc, str(exc)) from None
+
+
+def config_from_dict(data: Any, *, path: str | None = None, lines: dict[str, int] | None = None,
+                     particles: int | None = None, base: str | None = None) -> EstimatorConfig:
+    """An :class:`EstimatorConfig` from configuration data (a mapping of field names; sections as
+    nested mappings): the fields given replace those of :func:`default_config` for the number of
+    particles and the ``base`` named in the data. ``particles`` and ``base`` given here take
+    precedence over the data's. Raises :class:`~physics.errors.ConfigError` naming the file, line
+    and field of a problem."""
+    f = _Fields(path, lines or {}, ConfigError)
+    data = dict({} if data is None else f.mapping(data, ""))
+    base_name = data.pop("base", None)
+    if base_name is not None and base_name not in BASES:
+        raise f.error("base", f"must be one of {', '.join(BASES)}, got {base_name!r}")
+    if "particles" in data:
+        k = _parse_value(f, data["particles"], int, "particles")
+        if k < 1:
+            raise f.error("particles", f"must be >= 1, got {k}")
+    k = particles if particles is not None else data.pop("particles", 1)
+    data.pop("particles", None)
+    out = default_config(k, base if base is not None else base_name)
+    top = {name: v for name, v in data.items() if name not in SECTIONS}
+    if top:
+        out = _parse_section(f, EstimatorConfig, out, top, "")
+    sections = {name: _parse_section(f, SECTIONS[name], getattr(out, name), data[name], name)
+                for name in SECTIONS if name in data}
+    return replace(out, **sections) if sections else out
+
+
+def read_config_file(path: str | os.PathLike) -> tuple[Any, dict[str, int]]:
+    """The data of a configuration file (YAML or JSON) and the line of each field."""
+    path = str(path)
+    try:
+        with open(path, encoding="utf-8") as fh:
+            text = fh.read()
+    except FileNotFoundError:
+        raise ConfigError("configuration file not found", path=path) from None
+    except OSError as exc:
+        raise ConfigError(f"cannot read configuration file: {exc.strerror}", path=path) from None
+    return _compose_with_lines(text, path, ConfigError)
+
+
+def load_config(path: str | os.PathLike, *, particles: int | None = None,
+                base: str | None = None) -> EstimatorConfig:
+    """Read a configuration file (see :func:`config_from_dict`)."""
+    data, lines = read_config_file(path)
+    return config_from_dict(data, path=str(path), lines=lines, particles=particles, base=base)

@@ -1,6 +1,7 @@
 """The ``scene-estimator`` command line.
 
-Subcommands: ``run`` (estimate a recorded stream), ``demo`` (the built-in example), ``simulate``
+Subcommands: ``run`` (estimate a recorded stream), ``config`` (the configuration ``run`` would use),
+``demo`` (the built-in example), ``simulate``
 (scenario simulator), ``evaluate`` (statistics over scenarios, seeds and methods), ``bench`` (speed
 against bare pybullet stepping).
 """
@@ -17,7 +18,8 @@ from importlib import resources
 
 import numpy as np
 
-from estimator.config import EstimatorConfig, NoiseConfig, ReasonerConfig
+from estimator.config import (EstimatorConfig, NoiseConfig, ReasonerConfig, config_from_dict, config_to_dict,
+                              default_config, read_config_file)
 from estimator.filter import SceneEstimator
 from estimator.observations import ObservationReader
 from physics.errors import InputError
@@ -25,20 +27,28 @@ from physics.scene import load_scene
 
 
 def build_config(args) -> EstimatorConfig:
-    """Estimator configuration from ``run`` arguments: one particle is the paper's reasoner unless
-    ``--noise`` is given; more particles use the default noise unless ``--no-noise``."""
-    reasoner = ReasonerConfig(horizon=args.horizon, t_perceived=args.t_perceived,
-                              d_sim_perc=args.d_sim_perc, d_perc_prev=args.d_perc_prev)
+    """Estimator configuration from ``run`` arguments. Without ``--config``, one particle is the
+    paper's reasoner unless ``--noise`` is given, more particles use the default noise unless
+    ``--no-noise``. A configuration file (``--config``) changes the fields it names; options given
+    on the command line win over the file."""
+    base = "particles" if args.noise else ("paper" if args.no_noise else None)
+    file_data = None
+    if args.config:
+        file_data, lines = read_config_file(args.config)
+        cfg = config_from_dict(file_data, path=args.config, lines=lines, particles=args.particles, base=base)
+    else:
+        cfg = default_config(args.particles or 1, base)
+    given = {name: getattr(args, name) for name in ("horizon", "t_perceived", "d_sim_perc", "d_perc_prev")
+             if getattr(args, name) is not None}
+    if given:
+        cfg = dataclasses.replace(cfg, reasoner=dataclasses.replace(cfg.reasoner, **given))
     workers = args.workers
-    if workers is None:
-        workers = (os.cpu_count() or 1) if args.particles > 1 else 0
-    args.workers = workers
-    noisy = (args.particles > 1 and not args.no_noise) or args.noise
-    if not noisy:
-        return dataclasses.replace(EstimatorConfig.paper(reasoner), particles=args.particles,
-                                   workers=args.workers)
-    return EstimatorConfig(particles=args.particles, workers=args.workers, reasoner=reasoner,
-                           noise=NoiseConfig())
+    if workers is None and not (isinstance(file_data, dict) and "workers" in file_data):
+        workers = (os.cpu_count() or 1) if cfg.particles > 1 else 0
+    if workers is not None:
+        cfg = dataclasses.replace(cfg, workers=workers)
+    args.workers = cfg.workers
+    return cfg
 
 
 def run_stream(scene_path: str, observations_path: str, config: EstimatorConfig, seed: int,
@@ -105,17 +115,21 @@ def _add_run_arguments(p: argparse.ArgumentParser) -> None:
 
 def _add_estimator_arguments(p: argparse.ArgumentParser) -> None:
     d = ReasonerConfig()
-    p.add_argument("--particles", type=int, default=1, help="particle worlds K (1: the paper's reasoner)")
+    p.add_argument("--config", metavar="FILE",
+                   help="estimator configuration file (YAML or JSON): the fields to change, e.g. "
+                        "'noise: {position_std: 0.02}'; `scene-estimator config` prints them all")
+    p.add_argument("--particles", type=int, default=None,
+                   help="particle worlds K (default 1: the paper's reasoner)")
     p.add_argument("--workers", type=int, default=None,
                    help="worker processes holding the particle worlds (0: in this process; "
                         "default: one per core when there is more than one particle)")
     p.add_argument("--seed", type=int, default=0, help="random seed")
     p.add_argument("--noise", action="store_true", help="perturb even with one particle")
     p.add_argument("--no-noise", action="store_true", help="no perturbation even with many particles")
-    p.add_argument("--horizon", type=float, default=d.horizon, help="reasoning period in s (paper: 0.08)")
-    p.add_argument("--t-perceived", type=float, default=d.t_perceived, help="perceived timeout in s (0.7)")
-    p.add_argument("--d-sim-perc", type=float, default=d.d_sim_perc, help="simulation tolerance in m (0.045)")
-    p.add_argument("--d-perc-prev", type=float, default=d.d_perc_prev, help="perception jump in m (0.032)")
+    p.add_argument("--horizon", type=float, default=None, help=f"reasoning period in s ({d.horizon})")
+    p.add_argument("--t-perceived", type=float, default=None, help=f"perceived timeout in s ({d.t_perceived})")
+    p.add_argument("--d-sim-perc", type=float, default=None, help=f"simulation tolerance in m ({d.d_sim_perc})")
+    p.add_argument("--d-perc-prev", type=float, default=None, help=f"perception jump in m ({d.d_perc_prev})")
 
 
 def print_summary(summary: dict, stream=None) -> None:
@@ -195,12 +209,28 @@ def cmd_demo(args) -> int:
     return 0
 
 
+def cmd_config(args) -> int:
+    """Print the effective estimator configuration (every field) as YAML, or JSON with --json."""
+    cfg = build_config(args)
+    data = config_to_dict(cfg)
+    if args.json:
+        print(json.dumps(data, indent=2))
+    else:
+        import yaml
+        print(yaml.safe_dump(data, sort_keys=False, default_flow_style=None), end="")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="scene-estimator", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     p_run = sub.add_parser("run", help="estimate a recorded observation stream")
     _add_run_arguments(p_run)
     p_run.set_defaults(func=cmd_run)
+    p_cfg = sub.add_parser("config", help="print the estimator configuration (all fields) that `run` would use")
+    _add_estimator_arguments(p_cfg)
+    p_cfg.add_argument("--json", action="store_true", help="JSON instead of YAML")
+    p_cfg.set_defaults(func=cmd_config)
     p_demo = sub.add_parser("demo", help="run the built-in example")
     p_demo.add_argument("--out", help="folder to write estimates.jsonl and timeline.json to")
     p_demo.add_argument("--particles", type=int, default=1)

@@ -40,3 +40,7 @@ class SceneError(InputError):
 
 class ObservationError(InputError):
     """A malformed frame of an observation stream."""
+
+
+class ConfigError(InputError):
+    """A malformed estimator configuration file."""

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from .errors import SceneError
+from .errors import InputError, SceneError
 
 PYBULLET_DATA_PREFIX = "pybullet_data://"
 SHAPES = ("urdf", "box", "sphere", "cylinder", "container")
@@ -105,7 +105,8 @@ class Scene:
 # YAML with line numbers
 
 
-def _compose_with_lines(text: str, path: str | None) -> tuple[Any, dict[str, int]]:
+def _compose_with_lines(text: str, path: str | None,
+                        error_class: type[InputError] = SceneError) -> tuple[Any, dict[str, int]]:
     """Parse YAML ``text``; return the data and a map from field path (``objects[1].mass``) to line."""
     try:
         node = yaml.compose(text, Loader=yaml.SafeLoader)
@@ -113,7 +114,7 @@ def _compose_with_lines(text: str, path: str | None) -> tuple[Any, dict[str, int
         mark = getattr(exc, "problem_mark", None)
         line = mark.line + 1 if mark is not None else None
         problem = getattr(exc, "problem", None) or str(exc)
-        raise SceneError(f"invalid YAML/JSON: {problem}", path=path, line=line) from None
+        raise error_class(f"invalid YAML/JSON: {problem}", path=path, line=line) from None
     lines: dict[str, int] = {}
 
     def convert(n: yaml.Node, where: str) -> Any:
@@ -140,17 +141,18 @@ def _compose_with_lines(text: str, path: str | None) -> tuple[Any, dict[str, int
 
 
 class _Fields:
-    """Validation helpers that raise :class:`SceneError` located at a field."""
+    """Validation helpers that raise ``error_class`` (:class:`SceneError`) located at a field."""
 
-    def __init__(self, path: str | None, lines: dict[str, int]):
+    def __init__(self, path: str | None, lines: dict[str, int], error_class: type[InputError] = SceneError):
         self.path = path
         self.lines = lines
+        self.error_class = error_class
 
-    def error(self, where: str, message: str) -> SceneError:
+    def error(self, where: str, message: str) -> InputError:
         probe = where
         while probe and probe not in self.lines:
             probe = probe.rsplit(".", 1)[0] if "." in probe else ""
-        return SceneError(message, path=self.path, line=self.lines.get(probe), field=where or None)
+        return self.error_class(message, path=self.path, line=self.lines.get(probe), field=where or None)
 
     def number(self, value: Any, where: str, *, positive: bool = False, nonneg: bool = False) -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):

@@ -1,4 +1,5 @@
 """The command line end to end."""
+import dataclasses
 import json
 import subprocess
 import sys
@@ -112,7 +113,7 @@ def test_one_particle_without_noise_is_exactly_the_papers_reasoner():
     from experiments.cli import build_config
 
     def args(**kw):
-        base = dict(particles=1, workers=None, noise=False, no_noise=False, horizon=0.08, t_perceived=0.7,
+        base = dict(config=None, particles=1, workers=None, noise=False, no_noise=False, horizon=0.08, t_perceived=0.7,
                     d_sim_perc=0.045, d_perc_prev=0.032)
         base.update(kw)
         return argparse.Namespace(**base)
@@ -147,3 +148,26 @@ def test_interrupted_run_keeps_what_it_wrote(tmp_path):
     timeline = json.loads(tl.read_text())
     last_t = json.loads(lines[-1])["t"]
     assert last_t <= timeline["t_end"] <= last_t + 0.2  # the interrupt may fall between update and write
+
+
+def test_config_command_and_run_with_a_configuration_file(files, tmp_path, capsys):
+    _, scene, obs = files
+    assert main(["config", "--particles", "8", "--workers", "0"]) == 0
+    printed = capsys.readouterr().out
+    (tmp_path / "all.yaml").write_text(printed)
+    from estimator.config import default_config, load_config
+    assert load_config(tmp_path / "all.yaml") == dataclasses.replace(default_config(8), workers=0)
+    # a file names what it changes; options on the command line win over it
+    (tmp_path / "c.yaml").write_text("particles: 4\nworkers: 0\nreasoner: {horizon: 0.1}\nnoise: {position_std: 0.02}\n")
+    assert main(["config", "--config", str(tmp_path / "c.yaml"), "--horizon", "0.12", "--json"]) == 0
+    cfg = json.loads(capsys.readouterr().out)
+    assert cfg["particles"] == 4 and cfg["workers"] == 0 and cfg["reasoner"]["horizon"] == 0.12
+    assert cfg["noise"]["position_std"] == 0.02 and cfg["noise"]["motion_noise"] > 0
+    out = tmp_path / "e.jsonl"
+    assert main(["run", "--scene", str(scene), "--observations", str(obs), "--config", str(tmp_path / "c.yaml"),
+                 "--out", str(out), "--quiet"]) == 0
+    lines = [json.loads(x) for x in out.read_text().splitlines()]
+    assert len(lines) > 0 and abs(lines[1]["t"] - lines[0]["t"] - 0.1) < 0.04  # the file's horizon
+    (tmp_path / "bad.yaml").write_text("particles: 4\nnoise:\n  position_std: -1\n")
+    assert main(["run", "--scene", str(scene), "--observations", str(obs), "--config", str(tmp_path / "bad.yaml")]) == 2
+    assert f"{tmp_path / 'bad.yaml'}:3: noise.position_std:" in capsys.readouterr().err

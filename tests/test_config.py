@@ -1,6 +1,11 @@
-import pytest
+import dataclasses
 
-from estimator.config import EstimatorConfig, NoiseConfig, ReasonerConfig
+import pytest
+import yaml
+
+from estimator.config import (EstimatorConfig, NoiseConfig, ReasonerConfig, config_to_dict, default_config,
+                              load_config)
+from physics.errors import ConfigError
 
 
 def test_defaults_are_the_papers_table_one():
@@ -26,3 +31,47 @@ def test_defaults_are_the_papers_table_one():
 def test_bad_values_are_rejected(make):
     with pytest.raises(ValueError):
         make()
+
+
+def test_configuration_files_round_trip_and_change_only_what_they_name(tmp_path):
+    for cfg in (default_config(1), default_config(64),
+                dataclasses.replace(default_config(16), noise=NoiseConfig(friction_range=None, motion_noise=0.5),
+                                    workers=2, lazy_checks=False)):
+        text = yaml.safe_dump(config_to_dict(cfg), sort_keys=False)
+        (tmp_path / "c.yaml").write_text(text)
+        assert load_config(tmp_path / "c.yaml") == cfg
+    assert default_config(1) == EstimatorConfig.paper() and default_config(64).noise == NoiseConfig()
+    (tmp_path / "small.yaml").write_text("particles: 32\nnoise: {position_std: 0.02}\nreasoner:\n  horizon: 0.1\n")
+    cfg = load_config(tmp_path / "small.yaml")
+    assert cfg.particles == 32 and cfg.noise.position_std == 0.02 and cfg.reasoner.horizon == 0.1
+    assert cfg.noise.motion_noise == NoiseConfig().motion_noise  # the particle defaults, not paper mode
+    one = load_config(tmp_path / "small.yaml", particles=1)  # one particle: the paper's base ...
+    assert one.noise.motion_noise == 0.0 and one.noise.position_std == 0.02 and not one.lazy_checks
+    assert load_config(tmp_path / "small.yaml", particles=1, base="particles").noise.motion_noise > 0
+
+
+@pytest.mark.parametrize("text, line, where", [
+    ("particles: 8\nnoise:\n  position_std: -1\n", 3, "noise.position_std"),
+    ("particles: 8\nnoise:\n  postion_std: 0.1\n", 3, "noise.postion_std"),
+    ("particles: 8.5\n", 1, "particles"),
+    ("reasoner: {horizon: fast}\n", 1, "reasoner.horizon"),
+    ("priors:\n  pick: 0.1\n  release_on_loss: 2\n", 3, "priors.release_on_loss"),
+    ("lazy_checks: 1\n", 1, "lazy_checks"),
+    ("noise: [1, 2]\n", 1, "noise"),
+    ("base: fast\n", 1, "base"),
+])
+def test_bad_configuration_files_name_file_line_and_field(tmp_path, text, line, where):
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as exc:
+        load_config(path)
+    assert (exc.value.path, exc.value.line, exc.value.field) == (str(path), line, where)
+    assert str(exc.value).startswith(f"{path}:{line}: {where}: ")
+
+
+def test_missing_or_unparsable_configuration_file(tmp_path):
+    with pytest.raises(ConfigError, match="not found"):
+        load_config(tmp_path / "nope.yaml")
+    (tmp_path / "broken.yaml").write_text("noise: {position_std: [\n")
+    with pytest.raises(ConfigError, match="invalid YAML"):
+        load_config(tmp_path / "broken.yaml")
