@@ -24,7 +24,7 @@ from typing import Any
 
 from actions.modes import ModePriors
 from physics.errors import ConfigError
-from physics.scene import _compose_with_lines, _Fields
+from physics.scene import _Fields, read_yaml_with_lines
 from physics.world import PhysicsSettings
 
 from .relations import RelationConfig
@@ -338,15 +338,7 @@ def config_from_dict(data: Any, *, path: str | None = None, lines: dict[str, int
 
 def read_config_file(path: str | os.PathLike) -> tuple[Any, dict[str, int]]:
     """The data of a configuration file (YAML or JSON) and the line of each field."""
-    path = str(path)
-    try:
-        with open(path, encoding="utf-8") as fh:
-            text = fh.read()
-    except FileNotFoundError:
-        raise ConfigError("configuration file not found", path=path) from None
-    except OSError as exc:
-        raise ConfigError(f"cannot read configuration file: {exc.strerror}", path=path) from None
-    return _compose_with_lines(text, path, ConfigError)
+    return read_yaml_with_lines(path, "configuration file", ConfigError)
 
 
 def load_config(path: str | os.PathLike, *, particles: int | None = None,

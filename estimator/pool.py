@@ -45,7 +45,7 @@ class _Shard:
 
     def run(self, batch: BatchInput, n_steps: int, d_sim_perc: float, lazy: bool = False) -> BatchOutput:
         out = propagate_batch(self.worlds, batch, n_steps, d_sim_perc, lazy)
-        q = np.flatnonzero(batch.vis_query)
+        q = np.flatnonzero(batch.vis_query) if batch.vis_query is not None else np.zeros(0, int)
         if self.camera is not None and len(q):
             for k, pw in enumerate(self.worlds):
                 if out.finite[k]:
@@ -112,7 +112,8 @@ class _SharedBatch:
 
     def write_inputs(self, batch: BatchInput) -> None:
         for name in PER_PARTICLE + ("vis_query",):
-            self.arrays[name][...] = getattr(batch, name)
+            value = getattr(batch, name)
+            self.arrays[name][...] = (name == "reset") if value is None else value  # None: all / none
 
     def inputs(self, lo: int, hi: int) -> BatchInput:
         a = self.arrays

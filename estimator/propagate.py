@@ -58,37 +58,28 @@ class StepInput:
 class StepOutput:
     """Result of one particle's update: poses ``(M, 7)``, velocities ``(M, 6)``, modes ``(M,)``,
     max_divergence ``(M,)`` (m, over the steps, for checked objects; 0 otherwise), aabbs ``(M, 2, 3)``,
-    finite (bool): False if the simulation produced NaN or a runaway velocity."""
+    finite: False if the simulation produced NaN or a runaway velocity (bool; ``(K,)`` in a batch)."""
 
     poses: np.ndarray
     velocities: np.ndarray
     modes: np.ndarray
     max_divergence: np.ndarray
     aabbs: np.ndarray
-    finite: bool
+    finite: bool | np.ndarray
 
 
 @dataclass
-class BatchInput:
-    """Inputs for K particles: the fields of :class:`StepInput` with a leading K axis (``reset (K,
-    M)`` is required), plus ``vis_query (M,)``: objects whose visibility to the camera is wanted
-    after the update."""
+class BatchInput(StepInput):
+    """Inputs for K particles: the fields of :class:`StepInput` with a leading K axis, plus
+    ``vis_query (M,)`` bool: objects whose visibility to the camera is wanted after the update
+    (None: none)."""
 
-    poses: np.ndarray
-    velocities: np.ndarray
-    params: np.ndarray
-    modes: np.ndarray
-    check: np.ndarray
-    target: np.ndarray
-    target_vel: np.ndarray
-    contents: np.ndarray
-    depenetrate: np.ndarray
-    reset: np.ndarray
-    vis_query: np.ndarray
+    vis_query: np.ndarray | None = None
 
     def shard(self, lo: int, hi: int) -> "BatchInput":
         """Particles ``[lo, hi)``."""
-        return BatchInput(*(getattr(self, f)[lo:hi] for f in PER_PARTICLE), self.vis_query)
+        return BatchInput(*(None if getattr(self, f) is None else getattr(self, f)[lo:hi] for f in PER_PARTICLE),
+                          self.vis_query)
 
 
 PER_PARTICLE = ("poses", "velocities", "params", "modes", "check", "target", "target_vel", "contents",
@@ -97,17 +88,12 @@ PER_PARTICLE = ("poses", "velocities", "params", "modes", "check", "target", "ta
 
 
 @dataclass
-class BatchOutput:
-    """Outputs for K particles: poses (K, M, 7), velocities (K, M, 6), modes (K, M), max_divergence
-    (K, M), aabbs (K, M, 2, 3), finite (K,), visible (K, M) (fraction seen; 0 where not queried)."""
+class BatchOutput(StepOutput):
+    """Outputs for K particles: the fields of :class:`StepOutput` with a leading K axis (``finite
+    (K,)``), plus ``visible (K, M)``: fraction of each object's sample points seen by the camera (0
+    where not queried)."""
 
-    poses: np.ndarray
-    velocities: np.ndarray
-    modes: np.ndarray
-    max_divergence: np.ndarray
-    aabbs: np.ndarray
-    finite: np.ndarray
-    visible: np.ndarray
+    visible: np.ndarray | None = None
 
 
 class ParticleWorld:
@@ -147,10 +133,8 @@ few steps late, at the latest after the last step)."""
 def propagate(pw: ParticleWorld, inp: StepInput, n_steps: int, d_sim_perc: float,
               lazy: bool = False) -> StepOutput:
     """Run Algorithm 1 for ``n_steps`` steps in one particle's world (see :func:`propagate_batch`)."""
-    m = len(inp.modes)
-    reset = np.ones(m, dtype=bool) if inp.reset is None else inp.reset
-    fields = [getattr(inp, f) for f in PER_PARTICLE[:-1]] + [reset]
-    batch = BatchInput(*(np.asarray(a)[None] for a in fields), np.zeros(m, dtype=bool))
+    batch = BatchInput(*(None if getattr(inp, f) is None else np.asarray(getattr(inp, f))[None]
+                         for f in PER_PARTICLE))
     out = propagate_batch([pw], batch, n_steps, d_sim_perc, lazy)
     return StepOutput(out.poses[0], out.velocities[0], out.modes[0], out.max_divergence[0], out.aabbs[0],
                       bool(out.finite[0]))
@@ -194,7 +178,7 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     dyn_mask[dyn] = True
     modes_out = batch.modes.copy()
     # loads: centre-of-mass poses and velocities of the entries to reset, as nested lists
-    reset = batch.reset & dyn_mask
+    reset = np.broadcast_to(dyn_mask, (K, M)) if batch.reset is None else batch.reset & dyn_mask
     any_reset = reset.any(axis=1).tolist()
     com_p, com_v = w0.com_frame(batch.poses, batch.velocities)
     reset_l, depen_l = reset.tolist(), (batch.depenetrate & dyn_mask).tolist()

@@ -331,18 +331,25 @@ def scene_from_dict(data: Any, *, path: str | None = None, lines: dict[str, int]
     return Scene(name=name, objects=tuple(objects), floor=floor, camera=camera, source=path)
 
 
-def load_scene(path: str | os.PathLike) -> Scene:
-    """Read and validate a scene file (YAML or JSON). Raises :class:`SceneError`."""
+def read_yaml_with_lines(path: str | os.PathLike, what: str = "scene file",
+                         error_class: type[InputError] = SceneError) -> tuple[Any, dict[str, int]]:
+    """The data of a YAML or JSON file and the line of each field (``objects[1].mass``), or
+    ``error_class`` naming the file (``what`` it is) when it is missing, unreadable or malformed."""
     path = str(path)
     try:
         with open(path, encoding="utf-8") as fh:
             text = fh.read()
     except FileNotFoundError:
-        raise SceneError("scene file not found", path=path) from None
+        raise error_class(f"{what} not found", path=path) from None
     except OSError as exc:
-        raise SceneError(f"cannot read scene file: {exc.strerror}", path=path) from None
-    data, lines = _compose_with_lines(text, path)
-    return scene_from_dict(data, path=path, lines=lines)
+        raise error_class(f"cannot read {what}: {exc.strerror}", path=path) from None
+    return _compose_with_lines(text, path, error_class)
+
+
+def load_scene(path: str | os.PathLike) -> Scene:
+    """Read and validate a scene file (YAML or JSON). Raises :class:`SceneError`."""
+    data, lines = read_yaml_with_lines(path)
+    return scene_from_dict(data, path=str(path), lines=lines)
 
 
 def scene_to_dict(scene: Scene) -> dict[str, Any]:

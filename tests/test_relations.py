@@ -103,12 +103,6 @@ def _reference(aabbs, cfg, floor=True, z_gap=0.03):
             is_in[a, b] = (all(alo[d] >= blo[d] - cfg.margin and ahi[d] <= bhi[d] + cfg.margin for d in (0, 1))
                            and blo[2] - cfg.margin <= alo[2] <= bhi[2] - rim
                            and all(ahi[d] - alo[d] <= bhi[d] - blo[d] + 1e-9 for d in (0, 1)))
-    for a in range(m):
-        alo, ahi = aabbs[a]
-        for b in range(m):
-            if a == b:
-                continue
-            blo, bhi = aabbs[b]
             ov = min(min(ahi[d], bhi[d]) - max(alo[d], blo[d]) for d in (0, 1))
             on[a, b] = ov >= cfg.overlap and abs(alo[2] - bhi[2]) <= cfg.z_margin and not is_in[a, b]
             sup[a] |= ov >= cfg.overlap and abs(alo[2] - bhi[2]) <= z_gap

@@ -49,7 +49,7 @@ from pathlib import Path
 from typing import Any
 
 from physics.errors import InputError, SceneError
-from physics.scene import Scene, _compose_with_lines, _Fields, scene_from_dict
+from physics.scene import Scene, _Fields, read_yaml_with_lines, scene_from_dict
 
 from ..perception import PerceptionConfig
 
@@ -173,11 +173,7 @@ def scenario_path(name_or_path: str | os.PathLike) -> tuple[Path, bool]:
 def load_scenario(name_or_path: str | os.PathLike) -> Scenario:
     """Read and validate a scenario by built-in name or by path. Raises :class:`InputError`."""
     path, builtin = scenario_path(name_or_path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise InputError(f"cannot read scenario file: {exc.strerror}", path=str(path)) from None
-    data, lines = _compose_with_lines(text, str(path))
+    data, lines = read_yaml_with_lines(path, "scenario file")
     return scenario_from_dict(data, path=str(path), lines=lines, builtin=builtin)
 
 
