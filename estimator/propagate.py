@@ -140,6 +140,11 @@ def propagate(pw: ParticleWorld, inp: StepInput, n_steps: int, d_sim_perc: float
                       bool(out.finite[0]))
 
 
+LAST_STEPS = 2
+"""With lazy tests, a test that falls due in the last this many steps of an update is left to the
+test after the last step (at most this many steps late)."""
+
+
 def _due_steps(d: np.ndarray, v: np.ndarray, d_sim_perc: float, dt: float) -> np.ndarray:
     """First step (>= 1) at which an object at divergence ``d`` (m) moving at ``v`` (m/s) and
     accelerating at most at :data:`A_MAX` could have crossed ``d_sim_perc``."""
@@ -273,6 +278,8 @@ def _simulate(w: World, held: "_Overrider", watch: list[list], n_steps: int, d_s
     while s < n_steps:
         # step, with no test, up to the next step at which one is due
         stop = min(min(item[5] for item in watch), n_steps) if watch else n_steps
+        if lazy and stop > n_steps - LAST_STEPS:
+            stop = n_steps  # a test due in the last steps is the test after the last step
         if held.items:
             for t in range(s + 1, stop + 1):
                 held.apply(t)
