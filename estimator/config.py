@@ -310,12 +310,13 @@ def _parse_section(f: _Fields, cls: type, base: Any, raw: Any, where: str) -> An
 
 
 def config_from_dict(data: Any, *, path: str | None = None, lines: dict[str, int] | None = None,
-                     particles: int | None = None, base: str | None = None) -> EstimatorConfig:
+                     particles: int | None = None, base: str | None = None,
+                     start: EstimatorConfig | None = None) -> EstimatorConfig:
     """An :class:`EstimatorConfig` from configuration data (a mapping of field names; sections as
     nested mappings): the fields given replace those of :func:`default_config` for the number of
-    particles and the ``base`` named in the data. ``particles`` and ``base`` given here take
-    precedence over the data's. Raises :class:`~physics.errors.ConfigError` naming the file, line
-    and field of a problem."""
+    particles and the ``base`` named in the data, or of ``start`` when it is given. ``particles``
+    and ``base`` given here take precedence over the data's. Raises
+    :class:`~physics.errors.ConfigError` naming the file, line and field of a problem."""
     f = _Fields(path, lines or {}, ConfigError)
     data = dict({} if data is None else f.mapping(data, ""))
     base_name = data.pop("base", None)
@@ -325,9 +326,12 @@ def config_from_dict(data: Any, *, path: str | None = None, lines: dict[str, int
         k = _parse_value(f, data["particles"], int, "particles")
         if k < 1:
             raise f.error("particles", f"must be >= 1, got {k}")
-    k = particles if particles is not None else data.pop("particles", 1)
+    k = particles if particles is not None else data.pop("particles", None)
     data.pop("particles", None)
-    out = default_config(k, base if base is not None else base_name)
+    if start is None:
+        out = default_config(k or 1, base if base is not None else base_name)
+    else:
+        out = start if k is None else replace(start, particles=k)
     top = {name: v for name, v in data.items() if name not in SECTIONS}
     if top:
         out = _parse_section(f, EstimatorConfig, out, top, "")

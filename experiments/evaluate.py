@@ -57,7 +57,9 @@ object was released after its 0.7 s perception timeout, later than the 0.5 s win
 class TrialSpec:
     """One trial. ``particles`` is the method's effective K (0 for last-seen, 1 for paper);
     ``duration`` (s) overrides the scenario's; ``trace`` asks for the data of the per-scenario
-    figures; ``rerun_dir`` records the trial as ``<rerun_dir>/<key>.rrd``."""
+    figures; ``rerun_dir`` records the trial as ``<rerun_dir>/<key>.rrd``; ``config`` is estimator
+    configuration data (canonical JSON, see :mod:`estimator.config`) applied on top of the method's
+    own configuration."""
 
     scenario: str
     seed: int
@@ -66,12 +68,16 @@ class TrialSpec:
     duration: float | None = None
     trace: bool = False
     rerun_dir: str | None = None
+    config: str | None = None
 
     @property
     def key(self) -> str:
         """Identity of the trial in ``trials.jsonl`` (also a safe file name)."""
         d = "full" if self.duration is None else f"{self.duration:g}s"
-        return f"{self.scenario}__s{self.seed}__{self.method}__K{self.particles}__{d}"
+        key = f"{self.scenario}__s{self.seed}__{self.method}__K{self.particles}__{d}"
+        if self.config is not None:
+            key += f"__cfg{zlib.crc32(self.config.encode()):08x}"
+        return key
 
 
 def trial_rng(seed: int, method: str) -> np.random.Generator:
@@ -357,7 +363,7 @@ def run_trial(spec: TrialSpec) -> dict:
                 rec.log_belief(belief)
     try:
         run = run_method(spec.method, scene, frames, spec.particles, trial_rng(spec.seed, spec.method),
-                         keep_particles=spec.trace, on_step=on_step)
+                         keep_particles=spec.trace, on_step=on_step, config=spec.config)
         if rec is not None:
             flush(math.inf)
             if run.events and hasattr(rec, "log_timeline"):
@@ -370,6 +376,8 @@ def run_trial(spec: TrialSpec) -> dict:
     ms = 1e3 * np.asarray(run.step_seconds)
     row = {"key": spec.key, "version": ROW_VERSION, "scenario": spec.scenario, "seed": spec.seed,
            "method": spec.method, "particles": spec.particles, "duration": spec.duration}
+    if spec.config is not None:
+        row["config"] = spec.config
     row.update(scores)
     row["timing"] = {"update_ms_median": float(np.median(ms)) if ms.size else None,
                      "update_ms_p95": float(np.percentile(ms, 95)) if ms.size else None,
@@ -405,7 +413,9 @@ def deterministic_part(row: dict) -> dict:
 class SweepConfig:
     """The trials of a sweep: every scenario x seed x method, each particle method once per K in
     ``particles`` (last-seen and paper once). ``trace_seeds``: seeds whose trials write traces for
-    the per-scenario figures (default: the first seed)."""
+    the per-scenario figures (default: the first seed). ``config``: estimator configuration data
+    (canonical JSON) for the particle methods, on top of each one's own settings; last-seen and the
+    paper's reasoner, the references, are left as they are."""
 
     scenarios: tuple[str, ...]
     seeds: tuple[int, ...]
@@ -413,6 +423,7 @@ class SweepConfig:
     particles: tuple[int, ...] = (64,)
     duration: float | None = None
     trace_seeds: tuple[int, ...] | None = None
+    config: str | None = None
 
     def __post_init__(self):
         if not self.scenarios or not self.seeds or not self.methods or not self.particles:
@@ -432,8 +443,9 @@ class SweepConfig:
             for seed in self.seeds:
                 for m in self.methods:
                     for k in self.particles:
+                        cfg = self.config if get_method(m).uses_particles else None
                         spec = TrialSpec(sc, int(seed), m, effective_particles(m, k), self.duration,
-                                         trace=seed in traces, rerun_dir=rerun_dir)
+                                         trace=seed in traces, rerun_dir=rerun_dir, config=cfg)
                         if spec.key not in seen:
                             seen.add(spec.key)
                             out.append(spec)
@@ -769,6 +781,8 @@ def summarize(rows: list[dict], columns: Iterable[Column] = SUMMARY_COLUMNS + EX
         if not sel:
             continue
         rec = {"scenario": sc, "method": m, "particles": k, "n": len(sel)}
+        if sel[0].get("config"):
+            rec["config"] = sel[0]["config"]
         for c in columns:
             ci = bootstrap_ci([_value(r, c.field) for r in sel], group_rng(sc, m, k, c.field))
             rec[c.field], rec[c.field + ".lo"], rec[c.field + ".hi"] = ci.estimate, ci.low, ci.high
@@ -826,6 +840,9 @@ def markdown_summary(summary: list[dict], tests: list[dict], columns=SUMMARY_COL
         buf.write(f"# Evaluation summary\n\n{n} trials. Cells: mean over seeds [95 % bootstrap interval].\n"
                   "Errors in cm; 'hidden' = samples where the true object is not visible to the camera; "
                   "success = final error < 5 cm and correct support/container.\n\n")
+        configs = sorted({rec["config"] for rec in summary if rec.get("config")})
+        for c in configs:
+            buf.write(f"Particle methods with the estimator configuration `{c}`.\n\n")
     head = ["scenario", "method", "n"] + [c.header for c in columns]
     buf.write("| " + " | ".join(head) + " |\n|" + "|".join(["---"] * len(head)) + "|\n")
     for rec in summary:
@@ -867,9 +884,9 @@ def write_summary_csv(summary: list[dict], path: str | os.PathLike) -> None:
     if not summary:
         Path(path).write_text("")
         return
-    fields = list(summary[0].keys())
+    fields = list(dict.fromkeys(k for rec in summary for k in rec))
     with open(path, "w", encoding="utf-8", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=fields, lineterminator="\n")
+        w = csv.DictWriter(fh, fieldnames=fields, lineterminator="\n", restval="")
         w.writeheader()
         for rec in summary:
             w.writerow({k: ("" if isinstance(v, float) and not math.isfinite(v) else

@@ -16,6 +16,7 @@ are read back from ``OUT/trials.jsonl`` and skipped.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 
@@ -30,6 +31,22 @@ def _positive_int_list(text: str) -> tuple[int, ...]:
     if not values or any(v < 1 for v in values):
         raise argparse.ArgumentTypeError(f"expected integers >= 1, got {text!r}")
     return values
+
+
+def _estimator_config(path: str) -> str:
+    """The data of an estimator configuration file as canonical JSON, checked (a bad field raises
+    :class:`~physics.errors.ConfigError` with its line); ``particles`` and ``workers`` belong to the
+    sweep, not to the file."""
+    from estimator.config import config_from_dict, default_config, read_config_file
+    from physics.errors import ConfigError
+
+    data, lines = read_config_file(path)
+    for name in ("particles", "workers", "base"):
+        if isinstance(data, dict) and name in data:
+            raise ConfigError("set by the sweep (--particles; trials run their worlds in their own process)",
+                              path=path, line=lines.get(name), field=name)
+    config_from_dict(data, path=path, lines=lines, start=default_config(64))
+    return json.dumps(data or {}, sort_keys=True, separators=(",", ":"))
 
 
 def add_evaluate_arguments(parser: argparse.ArgumentParser) -> None:
@@ -61,6 +78,10 @@ def add_evaluate_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--trace-seeds", type=int, default=1,
                         help="how many seeds (the first ones) keep traces for the per-scenario figures "
                              "(default 1)")
+    parser.add_argument("--config", metavar="FILE", default=None,
+                        help="estimator configuration file (YAML or JSON) for the particle methods, on top "
+                             "of each one's own settings (K comes from --particles); last-seen and paper "
+                             "are left as they are. Trials run with a file are keyed by its content.")
     parser.add_argument("--quiet", action="store_true", help="no progress bar, no summary on stdout")
 
 
@@ -95,9 +116,15 @@ def run_evaluate(args: argparse.Namespace) -> int:
     if args.address and args.backend != "ray":
         return fail("--address needs --backend ray")
     seeds = tuple(range(args.first_seed, args.first_seed + args.seeds))
+    estimator_config = None
+    if args.config:
+        try:
+            estimator_config = _estimator_config(args.config)
+        except InputError as exc:
+            return fail(str(exc))
     try:
         config = SweepConfig(scenarios, seeds, methods, tuple(args.particles), args.duration,
-                             trace_seeds=seeds[:max(args.trace_seeds, 0)])
+                             trace_seeds=seeds[:max(args.trace_seeds, 0)], config=estimator_config)
     except ValueError as exc:
         return fail(str(exc))
     if args.rerun_dir:

@@ -21,6 +21,7 @@ the same instants), the events of the run, and the wall-clock time of every step
 from __future__ import annotations
 
 import dataclasses
+import json
 import time
 from dataclasses import dataclass, field
 from typing import Callable
@@ -29,7 +30,7 @@ import numpy as np
 
 from actions.modes import ModePriors
 from estimator.belief import Belief
-from estimator.config import EstimatorConfig, NoiseConfig, ReasonerConfig
+from estimator.config import EstimatorConfig, NoiseConfig, ReasonerConfig, config_from_dict
 from estimator.filter import SceneEstimator
 from estimator.observations import Frame
 from estimator.relations import relation_list, relation_masks
@@ -102,14 +103,18 @@ def effective_particles(name: str, particles: int) -> int:
     return int(particles) if spec.uses_particles else spec.config(1).particles
 
 
-def method_config(name: str, particles: int) -> EstimatorConfig | None:
+def method_config(name: str, particles: int, config: str | None = None) -> EstimatorConfig | None:
     """Estimator configuration of method ``name`` with ``particles`` worlds (``None`` for
-    last-seen). Every method runs its worlds in the trial's own process (``workers = 0``): trials
-    are the unit of parallelism, and results never depend on the number of processes."""
+    last-seen), with the fields of ``config`` (configuration data as JSON, see
+    :func:`estimator.config.config_from_dict`) on top. Every method runs its worlds in the trial's
+    own process (``workers = 0``): trials are the unit of parallelism, and results never depend on
+    the number of processes."""
     spec = get_method(name)
     if spec.config is None:
         return None
     cfg = spec.config(effective_particles(name, particles))
+    if config is not None:
+        cfg = config_from_dict(json.loads(config), start=cfg)
     return dataclasses.replace(cfg, workers=0)
 
 
@@ -253,8 +258,8 @@ class LastSeenBaseline:
 
 
 def run_method(name: str, scene: Scene, frames: list[Frame], particles: int, rng: np.random.Generator,
-               keep_particles: bool = False, on_step: Callable[[StepEstimate, Belief | None], None] | None = None
-               ) -> MethodRun:
+               keep_particles: bool = False, on_step: Callable[[StepEstimate, Belief | None], None] | None = None,
+               config: str | None = None) -> MethodRun:
     """Run method ``name`` on ``frames`` of ``scene``.
 
     Args:
@@ -263,8 +268,9 @@ def run_method(name: str, scene: Scene, frames: list[Frame], particles: int, rng
         keep_particles: keep the particle cloud of the *last* step (for plots).
         on_step: called with every step and the estimator's belief (``None`` for last-seen), e.g. to
             record it.
+        config: configuration data (JSON) on top of the method's own (see :func:`method_config`).
     """
-    cfg = method_config(name, particles)
+    cfg = method_config(name, particles, config)
     steps: list[StepEstimate] = []
     seconds: list[float] = []
     ids = scene.object_ids

@@ -228,6 +228,33 @@ def test_cli_rejects_bad_arguments(args, message, tmp_path, capsys):
     assert message in capsys.readouterr().err
 
 
+def test_an_estimator_configuration_file_changes_the_particle_methods_only(tmp_path, capsys):
+    cfg_file = tmp_path / "noisy.yaml"
+    cfg_file.write_text("noise:\n  position_std: 0.03\nreasoner: {d_sim_perc: 0.06}\n")
+    out = tmp_path / "out"
+    args = ["--scenarios", "cup_falls_behind_box", "--seeds", "1", "--methods", "paper,particles",
+            "--particles", str(K), "--duration", "1.0", "--workers", "1", "--quiet", "--out", str(out)]
+    assert evaluate_cli.main([*args, "--config", str(cfg_file)]) == 0
+    rows = {r["method"]: r for r in read_rows(out / "trials.jsonl")}
+    assert "config" not in rows["paper"] and json.loads(rows["particles"]["config"])["noise"]["position_std"] == 0.03
+    assert rows["particles"]["key"].split("__")[-1].startswith("cfg") and "cfg" not in rows["paper"]["key"]
+    assert "estimator configuration" in (out / "summary.md").read_text()
+    # the configuration reaches the estimator: the same trial without the file is another row
+    from experiments.methods import method_config
+    with_file = method_config("particles", K, rows["particles"]["config"])
+    assert with_file.noise.position_std == 0.03 and with_file.reasoner.d_sim_perc == 0.06
+    assert with_file.noise.motion_noise == method_config("particles", K).noise.motion_noise
+    assert evaluate_cli.main(args) == 0  # without the file: the paper's row is reused, particles runs again
+    assert sorted(r["method"] for r in read_rows(out / "trials.jsonl")) == ["paper", "particles", "particles"]
+    # the sweep sets K and workers; bad fields are located
+    (tmp_path / "k.yaml").write_text("noise: {position_std: 0.01}\nparticles: 8\n")
+    assert evaluate_cli.main([*args, "--config", str(tmp_path / "k.yaml")]) == 2
+    assert "k.yaml:2: particles:" in capsys.readouterr().err
+    (tmp_path / "bad.yaml").write_text("noise:\n  position_std: -1\n")
+    assert evaluate_cli.main([*args, "--config", str(tmp_path / "bad.yaml")]) == 2
+    assert "bad.yaml:2: noise.position_std:" in capsys.readouterr().err
+
+
 def test_sweep_config_expands_methods_once_per_particle_count():
     cfg = SweepConfig(("cup_falls_behind_box",), (0, 1), ("last-seen", "paper", "particles"), (8, 16))
     keys = [t.key for t in cfg.trials()]
