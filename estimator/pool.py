@@ -9,6 +9,7 @@ contact caches survive pose resets, so a world must not be shared between partic
 from __future__ import annotations
 
 import multiprocessing as mp
+import time
 import traceback
 
 import numpy as np
@@ -141,17 +142,18 @@ def _worker_main(conn, scene, settings, lo, hi, buffer, n_particles):
             msg = conn.recv()
             if msg[0] == "close":
                 break
+            t0 = time.perf_counter()
             if msg[0] in ("bare", "save", "restore"):
                 if msg[0] == "bare":
                     shard.bare_step(msg[1])
                 else:
                     getattr(shard, msg[0])()
-                conn.send(("ok", None))
+                conn.send(("ok", time.perf_counter() - t0))
                 continue
             _, n_steps, d, lazy = msg
             try:
                 shared.write_outputs(lo, hi, shard.run(shared.inputs(lo, hi), n_steps, d, lazy))
-                conn.send(("ok", None))
+                conn.send(("ok", time.perf_counter() - t0))  # the reply carries the worker's time
             except Exception:  # report, keep serving
                 conn.send(("error", traceback.format_exc()))
     except (EOFError, KeyboardInterrupt):
@@ -176,7 +178,11 @@ def shard_bounds(n_particles: int, n_shards: int) -> list[tuple[int, int]]:
 
 class WorldPool:
     """K particle worlds. ``workers=0`` keeps them in this process; otherwise that many worker
-    processes each own a contiguous shard of slots. Use as a context manager or call :meth:`close`."""
+    processes each own a contiguous shard of slots. Use as a context manager or call :meth:`close`.
+
+    After :meth:`run` (and :meth:`bare_step`), ``last_run_seconds`` is the wall time of the call in
+    this process and ``last_worker_seconds`` the time each shard took in its worker (the benchmark's
+    breakdown)."""
 
     def __init__(self, scene: Scene, n_particles: int, workers: int = 0,
                  settings: PhysicsSettings | None = None):
@@ -184,6 +190,8 @@ class WorldPool:
         self.workers = workers
         settings = settings or PhysicsSettings()
         self._local: _Shard | None = None
+        self.last_run_seconds = 0.0
+        self.last_worker_seconds: list[float] = []
         self._procs, self._conns, self._bounds = [], [], []
         if workers <= 0:
             self._local = _Shard(scene, settings, 0, n_particles)
@@ -224,8 +232,12 @@ class WorldPool:
 
     def run(self, batch: BatchInput, n_steps: int, d_sim_perc: float, lazy: bool = False) -> BatchOutput:
         """Propagate all K particles by ``n_steps`` steps (see :func:`~estimator.propagate.propagate`)."""
+        t0 = time.perf_counter()
         if self._local is not None:
-            return self._local.run(batch, n_steps, d_sim_perc, lazy)
+            out = self._local.run(batch, n_steps, d_sim_perc, lazy)
+            self.last_run_seconds = time.perf_counter() - t0
+            self.last_worker_seconds = [self.last_run_seconds]
+            return out
         self._shared.write_inputs(batch)
         for conn in self._conns:
             try:
@@ -236,17 +248,21 @@ class WorldPool:
         for status, payload in replies:
             if status != "ok":
                 raise RuntimeError(f"particle worker failed:\n{payload}")
-        return self._shared.outputs()
+        out = self._shared.outputs()
+        self.last_run_seconds = time.perf_counter() - t0
+        self.last_worker_seconds = [payload for _, payload in replies]
+        return out
 
     def bare_step(self, n_steps: int) -> None:
         """Step every world ``n_steps`` times, with the same sharding and nothing else."""
+        t0 = time.perf_counter()
         if self._local is not None:
             self._local.bare_step(n_steps)
+            self.last_worker_seconds = [time.perf_counter() - t0]
             return
         for conn in self._conns:
             conn.send(("bare", n_steps))
-        for conn in self._conns:
-            self._receive(conn)
+        self.last_worker_seconds = [self._receive(conn) for conn in self._conns]
 
     def save(self) -> None:
         """Save the state of every particle world (to be put back by :meth:`restore`; the benchmark

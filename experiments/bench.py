@@ -3,8 +3,12 @@
 For each particle count K and number of dynamic objects N (5 cm boxes resting on a table, perceived
 floating 1 cm with 3 mm noise), it times estimator updates of one reasoning horizon (0.08 s, 19
 steps) and, after each update, in the same worker processes, bare ``stepSimulation`` of the same
-worlds for the same number of steps (their states are saved before and restored after, untimed). It reports the median and 95th percentile update time, the bare time,
-their ratio, updates per second and the peak memory of the process and its workers.
+worlds for the same number of steps (their states are saved before and restored after, untimed).
+It reports the median and 95th percentile update time, the bare time, their ratio, updates per
+second and the peak memory of the process and its workers; with
+``--breakdown``, where the update's time goes (medians over the timed updates): the main process's
+own work, the slowest shard in its worker, the exchange (the rest of the pool call: waiting for the
+slowest shard, messages, shared arrays), and each worker's time over its bare stepping per particle.
 """
 from __future__ import annotations
 
@@ -65,29 +69,41 @@ def bench_one(k: int, n_objects: int, workers: int, updates: int = 20, warmup: i
     horizon = cfg.reasoner.horizon
     n_steps = int(round(horizon / cfg.physics.time_step))
     rng = np.random.default_rng(seed)
-    times, bare = [], []
+    times, bare, main, exchange, shard, over = [], [], [], [], [], []
     peak = 0.0
     with SceneEstimator(scene, cfg, rng) as est:
-        pids = [os.getpid()] + est.pool.worker_pids()
+        pool = est.pool
+        pids = [os.getpid()] + pool.worker_pids()
+        sizes = [hi - lo for lo, hi in pool._bounds] or [k]
         for i, frame in enumerate(bench_frames(scene, warmup + updates, horizon, rng)):
             t0 = time.perf_counter()
             est.update(frame)
             dt = time.perf_counter() - t0
+            run_s, worker_s = pool.last_run_seconds, list(pool.last_worker_seconds)
             # right after each update, so that load on the machine affects both alike: the same
             # worlds, the same number of steps, nothing else; then the worlds are put back
-            est.pool.save()
+            pool.save()
             t0 = time.perf_counter()
-            est.pool.bare_step(n_steps)
+            pool.bare_step(n_steps)
             dt_bare = time.perf_counter() - t0
-            est.pool.restore()
+            bare_s = list(pool.last_worker_seconds)
+            pool.restore()
             if i >= warmup:
                 times.append(dt)
                 bare.append(dt_bare)
+                main.append(dt - run_s)
+                exchange.append(run_s - max(worker_s))
+                shard.append(max(worker_s))
+                over.append(np.mean([(w - b) / n for w, b, n in zip(worker_s, bare_s, sizes)]))
             peak = max(peak, _rss_mb(pids))
     med, p95, bare_med = float(np.median(times)), float(np.percentile(times, 95)), float(np.median(bare))
     return {"particles": k, "objects": n_objects, "workers": workers, "steps_per_update": n_steps,
             "update_ms_median": 1e3 * med, "update_ms_p95": 1e3 * p95, "bare_step_ms_median": 1e3 * bare_med,
-            "ratio": med / bare_med, "updates_per_s": 1.0 / med, "peak_memory_mb": peak}
+            "ratio": med / bare_med, "updates_per_s": 1.0 / med, "peak_memory_mb": peak,
+            "main_ms_median": 1e3 * float(np.median(main)),
+            "exchange_ms_median": 1e3 * float(np.median(exchange)),
+            "slowest_shard_ms_median": 1e3 * float(np.median(shard)),
+            "worker_overhead_us_per_particle": 1e6 * float(np.median(over))}
 
 
 def add_bench_arguments(p: argparse.ArgumentParser) -> None:
@@ -97,6 +113,10 @@ def add_bench_arguments(p: argparse.ArgumentParser) -> None:
                    help="worker processes (default: one per core)")
     p.add_argument("--updates", type=int, default=20, help="timed updates per configuration")
     p.add_argument("--json", action="store_true", help="print the figures as one JSON object")
+    p.add_argument("--breakdown", action="store_true",
+                   help="also print where an update's time goes: the main process's own work, the slowest "
+                        "shard in its worker, the exchange (waiting for it, messages, shared arrays), and "
+                        "each worker's time over bare stepping per particle")
     p.add_argument("--rerun-overhead", action="store_true",
                    help="measure the cost of --rerun recording instead (e.g. --particles 64)")
 
@@ -113,9 +133,11 @@ def run_bench(args) -> int:
                       f"log {r['log_ms_median']:.2f} ms  overhead {100 * r['overhead']:.1f} %")
         return 0
     rows = []
+    extra = args.breakdown and not args.json
     if not args.json:
         print(f"{'K':>5} {'N':>3} {'median ms':>10} {'p95 ms':>8} {'bare ms':>8} {'ratio':>6} "
-              f"{'upd/s':>7} {'peak MB':>8}")
+              f"{'upd/s':>7} {'peak MB':>8}"
+              + (f" {'main ms':>8} {'shard ms':>9} {'exch. ms':>9} {'over us/particle':>17}" if extra else ""))
     for k in args.particles:
         for n in args.objects:
             r = bench_one(k, n, args.workers, args.updates)
@@ -123,7 +145,10 @@ def run_bench(args) -> int:
             if not args.json:
                 print(f"{k:>5} {n:>3} {r['update_ms_median']:>10.1f} {r['update_ms_p95']:>8.1f} "
                       f"{r['bare_step_ms_median']:>8.1f} {r['ratio']:>6.2f} {r['updates_per_s']:>7.1f} "
-                      f"{r['peak_memory_mb']:>8.0f}", flush=True)
+                      f"{r['peak_memory_mb']:>8.0f}"
+                      + (f" {r['main_ms_median']:>8.2f} {r['slowest_shard_ms_median']:>9.1f} "
+                         f"{r['exchange_ms_median']:>9.2f} {r['worker_overhead_us_per_particle']:>17.0f}"
+                         if extra else ""), flush=True)
     if args.json:
         print(json.dumps({"workers": args.workers, "cpu_count": os.cpu_count(), "results": rows}))
     return 0
