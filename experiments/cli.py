@@ -192,8 +192,10 @@ def demo_files() -> tuple[str, str]:
 
 def cmd_demo(args) -> int:
     scene, obs = demo_files()
+    who = ("The paper's reasoner (one world, no noise)" if args.particles <= 1
+           else f"The particle estimator ({args.particles} perturbed worlds)")
     print("Built-in demo: a cup hidden behind a box; the box is pulled back and the cup falls off the\n"
-          "table, unseen. The paper's reasoner (one world, no noise) infers where it went.\n")
+          f"table, unseen. {who} infers where it went.\n")
     out = timeline = None
     if args.out:
         os.makedirs(args.out, exist_ok=True)
