@@ -138,7 +138,8 @@ def relation_masks(aabbs: np.ndarray, valid: np.ndarray | None = None, *, static
 
 def _relations(g: _PairGeometry, config: RelationConfig, static, previous):
     on_top, is_in = g.masks(config, 0.0)
-    if previous is not None:
+    # the widened test matters only for relations that held and fail the strict test now
+    if previous is not None and ((previous[1] & ~is_in).any() or (previous[0] & ~on_top).any()):
         on_relaxed, in_relaxed = g.masks(config, config.hysteresis)
         is_in = is_in | (previous[1] & in_relaxed)
         on_top = _not_through_containers(on_top | (previous[0] & on_relaxed), is_in)
