@@ -74,6 +74,7 @@ class SceneEstimator:
         K, M = cfg.particles, len(scene.objects)
         self.K, self.M = K, M
         self.static = np.array([o.static for o in scene.objects], dtype=bool)
+        self.hollow = np.array(scene.hollow, dtype=bool)
         self.dynamic = ~self.static
         self.pool = WorldPool(scene, K, cfg.workers, cfg.physics)
         try:
@@ -326,7 +327,7 @@ class SceneEstimator:
         valid = np.broadcast_to(self.known, (K, M))
         on_top, is_in, supported = relations_and_support(
             aabbs, valid, static=self.static, floor=self.scene.floor, config=cfg.relations,
-            previous=(self.on_top, self.is_in), z_gap=hr.place_gap)
+            previous=(self.on_top, self.is_in), z_gap=hr.place_gap, hollow=self.hollow)
         rested = self._at_rest(t)
         vel = self._tick_velocity(t)
         accel = (vel[:, 2] - self._prev_tick_vel[:, 2]) / max(dt, 1e-9)

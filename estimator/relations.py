@@ -8,8 +8,8 @@ Definitions, for objects a (subject) and b (object), with AABBs ``[lo, hi]``:
 
 * ``isIn(a, b)``: a's box lies inside b's box in x and y (within ``margin`` on each side), and a's
   bottom is between b's bottom and b's top (within ``margin``) but not above b's top minus
-  ``max(rim, rim_fraction * height of b)``. Physics keeps solid objects from interpenetrating, so
-  only a hollow b passes this test.
+  ``max(rim, rim_fraction * height of b)``, and b may contain others (``hollow``: open containers
+  and meshes, not solid primitives; a block perceived sunk into another is not in it).
 * ``isOnTop(a, b)``: a's bottom is within ``z_margin`` of b's top, a's and b's footprints overlap by
   at least ``overlap`` in x and y, a is not in b, and a is not in a container c that is itself on b.
   ``isOnTop(a, floor)``: a's bottom is within ``z_margin`` of z = 0.
@@ -54,7 +54,8 @@ class _PairGeometry:
     Pairs ``(..., M, M)``: subject a on axis -2, object b on axis -1.
     """
 
-    def __init__(self, aabbs: np.ndarray, valid: np.ndarray, floor: bool, cfg: RelationConfig):
+    def __init__(self, aabbs: np.ndarray, valid: np.ndarray, floor: bool, cfg: RelationConfig,
+                 hollow: np.ndarray | None = None):
         lo = aabbs[..., 0, :]
         hi = aabbs[..., 1, :]
         n = valid.shape[-1]
@@ -75,6 +76,8 @@ class _PairGeometry:
         # an object cannot contain one with a bigger footprint (guards against overlapping equal boxes)
         smaller = ((ax_hi - ax_lo <= bx_hi - bx_lo + 1e-9) & (ay_hi - ay_lo <= by_hi - by_lo + 1e-9))
         self.can_be_in = smaller & self.pairs
+        if hollow is not None:  # a solid object contains nothing, even when perceived sunk into
+            self.can_be_in &= np.asarray(hollow, dtype=bool)[None, :]
         # isOnTop: footprint overlap (the smaller of x and y) and gap between a's bottom and b's top
         self.overlap = np.minimum(np.minimum(ax_hi, bx_hi) - np.maximum(ax_lo, bx_lo),
                                   np.minimum(ay_hi, by_hi) - np.maximum(ay_lo, by_lo))
@@ -118,7 +121,8 @@ def _checked(aabbs, valid) -> tuple[np.ndarray, np.ndarray]:
 
 def relation_masks(aabbs: np.ndarray, valid: np.ndarray | None = None, *, static: np.ndarray | None = None,
                    floor: bool = True, config: RelationConfig = RelationConfig(),
-                   previous: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+                   previous: tuple[np.ndarray, np.ndarray] | None = None,
+                   hollow: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """isOnTop and isIn as boolean matrices.
 
     Args:
@@ -127,13 +131,15 @@ def relation_masks(aabbs: np.ndarray, valid: np.ndarray | None = None, *, static
         static: ``(M,)`` bool; static objects are never subjects (the table is on nothing).
         floor: whether the scene has a floor plane at z = 0 (support index ``M``).
         previous: the ``(on_top, is_in)`` returned at the previous update, for hysteresis.
+        hollow: ``(M,)`` bool, objects that may contain others (:attr:`Scene.hollow
+            <physics.scene.Scene.hollow>`); default: all.
 
     Returns:
         ``on_top (..., M, M + 1)`` with ``on_top[..., a, b]`` = isOnTop(a, b) (column M: the floor),
         and ``is_in (..., M, M)`` with ``is_in[..., a, b]`` = isIn(a, b).
     """
     aabbs, valid = _checked(aabbs, valid)
-    return _relations(_PairGeometry(aabbs, valid, floor, config), config, static, previous)
+    return _relations(_PairGeometry(aabbs, valid, floor, config, hollow), config, static, previous)
 
 
 def _relations(g: _PairGeometry, config: RelationConfig, static, previous):
@@ -173,11 +179,12 @@ def relations_and_support(aabbs: np.ndarray, valid: np.ndarray | None = None, *,
                           static: np.ndarray | None = None, floor: bool = True,
                           config: RelationConfig = RelationConfig(),
                           previous: tuple[np.ndarray, np.ndarray] | None = None,
-                          z_gap: float = 0.03) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                          z_gap: float = 0.03, hollow: np.ndarray | None = None
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`relation_masks` and :func:`supported_mask` from one pass over the box pairs: returns
     ``(on_top (..., M, M + 1), is_in (..., M, M), supported (..., M))``."""
     aabbs, valid = _checked(aabbs, valid)
-    g = _PairGeometry(aabbs, valid, floor, config)
+    g = _PairGeometry(aabbs, valid, floor, config, hollow)
     on_top, is_in = _relations(g, config, static, previous)
     return on_top, is_in, _supported(g, is_in, static, z_gap, config)
 

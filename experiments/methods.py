@@ -244,7 +244,7 @@ class LastSeenBaseline:
         self.world.set_poses(self.poses[dyn], dyn)
         aabbs = self.world.aabbs()
         self.previous = relation_masks(aabbs, self.known, static=self.static, floor=self.scene.floor,
-                                       previous=self.previous)
+                                       previous=self.previous, hollow=self.scene.hollow)
         rels = {(r["subject"], r["predicate"], r["object"]): float(r["p"])
                 for r in relation_list(self.previous[0], self.previous[1], self.ids)}
         m = len(self.ids)

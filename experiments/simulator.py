@@ -346,7 +346,7 @@ class GroundTruth:
         if contacts:
             return True
         on_top, is_in = relation_masks(self.world.aabbs(), static=self.world.static,
-                                       floor=self.world.scene.floor)
+                                       floor=self.world.scene.floor, hollow=self.world.scene.hollow)
         return bool(on_top[index].any() or is_in[index].any())
 
     def _event(self, step: int, action: str, index: int) -> None:
@@ -457,7 +457,8 @@ class GroundTruth:
             t_frame = _r(frame_times[frame_of_step[step]])
             poses, frac, hand = snap
             aabbs = world.aabbs()
-            previous = relation_masks(aabbs, static=world.static, floor=world.scene.floor, previous=previous)
+            previous = relation_masks(aabbs, static=world.static, floor=world.scene.floor, previous=previous,
+                                      hollow=world.scene.hollow)
             held = set(self.held)
             events = [e for s, e in self.events[emitted:] if s <= step]
             emitted += len(events)

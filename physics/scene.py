@@ -83,6 +83,12 @@ class Scene:
     def object_ids(self) -> tuple[str, ...]:
         return tuple(o.id for o in self.objects)
 
+    @property
+    def hollow(self) -> tuple[bool, ...]:
+        """Per object, whether it may contain others: open containers and URDF meshes (a mug, a
+        tray), not solid boxes, spheres and cylinders."""
+        return tuple(o.shape in ("container", "urdf") for o in self.objects)
+
     def index(self, object_id: str) -> int:
         """Position of ``object_id`` in :attr:`objects`; ``KeyError`` if unknown."""
         for i, o in enumerate(self.objects):

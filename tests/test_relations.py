@@ -139,3 +139,22 @@ def test_one_pass_relations_and_support_match_the_definitions_pair_by_pair():
         assert np.array_equal(sup[p], ref_sup), p
         n_in += ref_in.sum()
     assert n_in > 5 and on[:, 2:, :].sum() > 20  # the draw did exercise both relations
+
+
+def test_a_block_perceived_sunk_into_a_solid_block_is_not_in_it():
+    lower = box([0.0, 0.0, 0.626], [0.1, 0.1, 0.726])
+    upper = box([0.02, 0.02, 0.69], [0.08, 0.08, 0.75])  # sunk 3.6 cm into the lower block
+    tray = box([0.3, 0.0, 0.626], [0.5, 0.2, 0.7])
+    ball = box([0.35, 0.05, 0.636], [0.4, 0.1, 0.686])
+    aabbs = np.stack([lower, upper, tray, ball])
+    _, inside = relation_masks(aabbs, floor=False)
+    assert inside[1, 0] and inside[3, 2]  # by the boxes alone, both look contained
+    on, inside = relation_masks(aabbs, floor=False, hollow=np.array([False, False, True, False]))
+    assert not inside[1, 0] and inside[3, 2]  # a solid block contains nothing; the tray still does
+    _, inside2, _ = relations_and_support(aabbs, floor=False, hollow=np.array([False, False, True, False]))
+    assert np.array_equal(inside, inside2)
+    scene = table_scene({"id": "block", "box": {"size": [0.1, 0.1, 0.1]}, "pose": {"position": [0, 0, 0.7]}},
+                        {"id": "bin", "container": {"size": [0.2, 0.2, 0.1], "wall": 0.01},
+                         "pose": {"position": [0.4, 0, 0.7]}},
+                        {"id": "ball", "sphere": {"radius": 0.02}, "pose": {"position": [0.4, 0, 0.8]}})
+    assert scene.hollow == (True, False, True, False)  # the table (a URDF) and the open container
