@@ -33,7 +33,9 @@ class ObjectSpec:
     walls; ``size`` = outer extents, ``wall`` = wall thickness). Primitive and container frames are
     at the centre of their bounding box. ``position`` / ``orientation`` give the initial (for static
     objects: fixed) pose, or are ``None`` when the object is unknown until first perceived.
-    ``mass`` ``None`` keeps the URDF's mass (primitives then default to 0.1 kg).
+    ``mass`` ``None`` keeps the URDF's mass (primitives then default to 0.1 kg). ``hollow``: whether
+    the object may contain others (isIn); ``None`` (the default) means open containers and dynamic
+    URDF meshes (a mug, a tray) may, solid primitives and static URDFs (a table) may not.
     """
 
     id: str
@@ -53,6 +55,14 @@ class ObjectSpec:
     spinning_friction: float | None = None
     restitution: float | None = None
     color: tuple[float, float, float, float] | None = None
+    hollow: bool | None = None
+
+    @property
+    def may_contain(self) -> bool:
+        """Whether this object may contain others (see ``hollow``)."""
+        if self.hollow is not None:
+            return self.hollow
+        return self.shape == "container" or (self.shape == "urdf" and not self.static)
 
 
 @dataclass(frozen=True)
@@ -85,9 +95,8 @@ class Scene:
 
     @property
     def hollow(self) -> tuple[bool, ...]:
-        """Per object, whether it may contain others: open containers and URDF meshes (a mug, a
-        tray), not solid boxes, spheres and cylinders."""
-        return tuple(o.shape in ("container", "urdf") for o in self.objects)
+        """Per object, whether it may contain others (:attr:`ObjectSpec.may_contain`)."""
+        return tuple(o.may_contain for o in self.objects)
 
     def index(self, object_id: str) -> int:
         """Position of ``object_id`` in :attr:`objects`; ``KeyError`` if unknown."""
@@ -212,7 +221,8 @@ def resolve_urdf(ref: str, scene_dir: Path | None) -> str:
 
 
 _OBJECT_FIELDS = {"id", "urdf", "box", "sphere", "cylinder", "container", "pose", "static", "mass",
-                  "friction", "rolling_friction", "spinning_friction", "restitution", "color", "scale"}
+                  "friction", "rolling_friction", "spinning_friction", "restitution", "color", "scale",
+                  "hollow"}
 
 
 def _parse_object(f: _Fields, raw: Any, where: str, scene_dir: Path | None) -> ObjectSpec:
@@ -269,6 +279,10 @@ def _parse_object(f: _Fields, raw: Any, where: str, scene_dir: Path | None) -> O
     if not isinstance(static, bool):
         raise f.error(f"{where}.static", f"must be true or false, got {static!r}")
     kw["static"] = static
+    if "hollow" in raw:
+        if not isinstance(raw["hollow"], bool):
+            raise f.error(f"{where}.hollow", f"must be true or false, got {raw['hollow']!r}")
+        kw["hollow"] = raw["hollow"]
     if static and kw.get("position") is None:
         raise f.error(where, "a static object needs a pose")
     if "mass" in raw:
@@ -388,6 +402,8 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
                          "orientation": [float(v) for v in o.orientation]}
         if o.static:
             d["static"] = True
+        if o.hollow is not None:
+            d["hollow"] = o.hollow
         for key in ("mass", "friction", "rolling_friction", "spinning_friction", "restitution"):
             v = getattr(o, key)
             if v is not None:

@@ -3,6 +3,7 @@ import pytest
 
 from estimator.relations import (RelationConfig, relation_list, relation_masks, relations_and_support,
                                  supported_mask)
+from physics.errors import SceneError
 from physics.world import World
 
 from helpers import TABLE_TOP, table_scene
@@ -157,4 +158,12 @@ def test_a_block_perceived_sunk_into_a_solid_block_is_not_in_it():
                         {"id": "bin", "container": {"size": [0.2, 0.2, 0.1], "wall": 0.01},
                          "pose": {"position": [0.4, 0, 0.7]}},
                         {"id": "ball", "sphere": {"radius": 0.02}, "pose": {"position": [0.4, 0, 0.8]}})
-    assert scene.hollow == (True, False, True, False)  # the table (a URDF) and the open container
+    assert scene.hollow == (False, False, True, False)  # the open container; not the (static) table
+    from physics.scene import scene_from_dict, scene_to_dict
+    data = scene_to_dict(scene)
+    data["objects"][1]["hollow"] = True  # a scene file can say otherwise
+    assert scene_from_dict(data).hollow == (False, True, True, False)
+    assert scene_from_dict(scene_to_dict(scene_from_dict(data))).hollow == (False, True, True, False)
+    data["objects"][1]["hollow"] = "yes"
+    with pytest.raises(SceneError, match=r"objects\[1\]\.hollow"):
+        scene_from_dict(data)
