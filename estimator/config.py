@@ -103,7 +103,7 @@ class NoiseConfig:
     * ``friction_range``, ``rolling_friction_range``, ``spinning_friction_range``,
       ``restitution_range``, ``mass_scale_range``: uniform priors of the physical parameters, per
       object and particle (``None`` keeps the scene's value). Rolling and spinning friction are not
-      perturbed by default: any rolling friction makes Bullet's contact solving several times slower
+      perturbed by default: any rolling friction makes Bullet's contact solving much slower
       for resting boxes.
     * ``param_jitter``: after resampling, parameters are shrunk toward their weighted mean by
       ``a = sqrt(1 - jitter**2)`` and jittered so that their spread is kept (Liu & West); 0 disables.
@@ -322,12 +322,12 @@ def config_from_dict(data: Any, *, path: str | None = None, lines: dict[str, int
     base_name = data.pop("base", None)
     if base_name is not None and base_name not in BASES:
         raise f.error("base", f"must be one of {', '.join(BASES)}, got {base_name!r}")
+    k = None
     if "particles" in data:
-        k = _parse_value(f, data["particles"], int, "particles")
+        k = _parse_value(f, data.pop("particles"), int, "particles")
         if k < 1:
             raise f.error("particles", f"must be >= 1, got {k}")
-    k = particles if particles is not None else data.pop("particles", None)
-    data.pop("particles", None)
+    k = particles if particles is not None else k
     if start is None:
         out = default_config(k or 1, base if base is not None else base_name)
     else:

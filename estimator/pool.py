@@ -88,12 +88,9 @@ class _SharedBatch:
 
     def __init__(self, buffer, n_particles: int, n_objects: int):
         raw = np.frombuffer(buffer, dtype=np.uint8)
-        self.arrays: dict[str, np.ndarray] = {}
-        offset = 0
-        for name, dtype, shape in self._fields(n_particles, n_objects):
-            size = int(np.prod(shape)) * np.dtype(dtype).itemsize
-            self.arrays[name] = raw[offset:offset + size].view(dtype).reshape(shape)
-            offset += -(-size // 8) * 8
+        self.arrays: dict[str, np.ndarray] = {
+            name: raw[offset:offset + np.prod(shape, dtype=int) * np.dtype(dtype).itemsize].view(dtype).reshape(shape)
+            for name, dtype, shape, offset in self._layout(n_particles, n_objects)[0]}
 
     @staticmethod
     def _fields(K: int, M: int) -> list[tuple[str, type, tuple[int, ...]]]:
@@ -107,9 +104,17 @@ class _SharedBatch:
                 ("out.visible", f8, (K, M))]
 
     @classmethod
+    def _layout(cls, n_particles: int, n_objects: int) -> tuple[list[tuple], int]:
+        """``[(name, dtype, shape, byte offset)]`` (offsets 8-byte aligned) and the total size."""
+        out, offset = [], 0
+        for name, dtype, shape in cls._fields(n_particles, n_objects):
+            out.append((name, dtype, shape, offset))
+            offset += -(-int(np.prod(shape)) * np.dtype(dtype).itemsize // 8) * 8
+        return out, offset
+
+    @classmethod
     def nbytes(cls, n_particles: int, n_objects: int) -> int:
-        return sum(-(-int(np.prod(shape)) * np.dtype(dtype).itemsize // 8) * 8
-                   for _, dtype, shape in cls._fields(n_particles, n_objects))
+        return cls._layout(n_particles, n_objects)[1]
 
     def write_inputs(self, batch: BatchInput) -> None:
         for name in PER_PARTICLE + ("vis_query",):
@@ -281,6 +286,11 @@ class WorldPool:
             conn.send((name,))
         for conn in self._conns:
             self._receive(conn)
+
+    @property
+    def shard_sizes(self) -> list[int]:
+        """Number of particle worlds in each worker (one entry, K, in this process)."""
+        return [hi - lo for lo, hi in self._bounds] or [self.n_particles]
 
     def worker_pids(self) -> list[int]:
         return [p.pid for p in self._procs]

@@ -76,11 +76,6 @@ class BatchInput(StepInput):
 
     vis_query: np.ndarray | None = None
 
-    def shard(self, lo: int, hi: int) -> "BatchInput":
-        """Particles ``[lo, hi)``."""
-        return BatchInput(*(None if getattr(self, f) is None else getattr(self, f)[lo:hi] for f in PER_PARTICLE),
-                          self.vis_query)
-
 
 PER_PARTICLE = ("poses", "velocities", "params", "modes", "check", "target", "target_vel", "contents",
                 "depenetrate", "reset")
@@ -190,7 +185,7 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     held_l = ((batch.modes == HELD) & dyn_mask).tolist()
     # watched objects and the first step at which each one needs testing
     checked = batch.check & (batch.modes == FREE) & dyn_mask
-    target_com = w0.com_frame(batch.target, batch.target_vel)[0][..., :3]
+    target_com = w0.com_frame(batch.target)[0][..., :3]
     due = np.ones((K, M), dtype=np.int64)
     if lazy:
         d0 = np.linalg.norm(com_p[..., :3] - target_com, axis=-1)

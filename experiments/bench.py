@@ -13,13 +13,14 @@ slowest shard, messages, shared arrays), and each worker's time over its bare st
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import time
 
 import numpy as np
 
-from estimator.config import EstimatorConfig, NoiseConfig
+from estimator.config import EstimatorConfig, NoiseConfig, config_from_dict, read_config_file
 from estimator.filter import SceneEstimator
 from estimator.observations import Detection, Frame
 from physics.scene import Scene, scene_from_dict
@@ -62,10 +63,11 @@ def _rss_mb(pids) -> float:
 
 
 def bench_one(k: int, n_objects: int, workers: int, updates: int = 20, warmup: int = 3,
-              seed: int = 0) -> dict:
-    """Figures for one (K, N) configuration."""
+              seed: int = 0, config: EstimatorConfig | None = None) -> dict:
+    """Figures for one (K, N) configuration; ``config`` replaces the particle filter's defaults
+    (its particle count and workers are set to ``k`` and ``workers``)."""
     scene = bench_scene(n_objects)
-    cfg = EstimatorConfig(particles=k, workers=workers, noise=NoiseConfig())
+    cfg = dataclasses.replace(config or EstimatorConfig(noise=NoiseConfig()), particles=k, workers=workers)
     horizon = cfg.reasoner.horizon
     n_steps = int(round(horizon / cfg.physics.time_step))
     rng = np.random.default_rng(seed)
@@ -74,7 +76,7 @@ def bench_one(k: int, n_objects: int, workers: int, updates: int = 20, warmup: i
     with SceneEstimator(scene, cfg, rng) as est:
         pool = est.pool
         pids = [os.getpid()] + pool.worker_pids()
-        sizes = [hi - lo for lo, hi in pool._bounds] or [k]
+        sizes = pool.shard_sizes
         for i, frame in enumerate(bench_frames(scene, warmup + updates, horizon, rng)):
             t0 = time.perf_counter()
             est.update(frame)
@@ -113,6 +115,9 @@ def add_bench_arguments(p: argparse.ArgumentParser) -> None:
                    help="worker processes (default: one per core)")
     p.add_argument("--updates", type=int, default=20, help="timed updates per configuration")
     p.add_argument("--json", action="store_true", help="print the figures as one JSON object")
+    p.add_argument("--config", metavar="FILE", default=None,
+                   help="estimator configuration file (see `scene-estimator config`) to time instead of the "
+                        "particle filter's defaults, e.g. 'noise: {rolling_friction_range: [0.001, 0.01]}'")
     p.add_argument("--breakdown", action="store_true",
                    help="also print where an update's time goes: the main process's own work, the slowest "
                         "shard in its worker, the exchange (waiting for it, messages, shared arrays), and "
@@ -138,9 +143,14 @@ def run_bench(args) -> int:
         print(f"{'K':>5} {'N':>3} {'median ms':>10} {'p95 ms':>8} {'bare ms':>8} {'ratio':>6} "
               f"{'upd/s':>7} {'peak MB':>8}"
               + (f" {'main ms':>8} {'shard ms':>9} {'exch. ms':>9} {'over us/particle':>17}" if extra else ""))
+    file_data = read_config_file(args.config) if args.config else None
     for k in args.particles:
+        cfg = None
+        if file_data is not None:
+            cfg = config_from_dict(file_data[0], path=args.config, lines=file_data[1], particles=k,
+                                   base="particles")
         for n in args.objects:
-            r = bench_one(k, n, args.workers, args.updates)
+            r = bench_one(k, n, args.workers, args.updates, config=cfg)
             rows.append(r)
             if not args.json:
                 print(f"{k:>5} {n:>3} {r['update_ms_median']:>10.1f} {r['update_ms_p95']:>8.1f} "

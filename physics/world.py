@@ -246,63 +246,39 @@ class World:
             p, q = get(self.uids[i], physicsClientId=c)
             flat.extend(p)
             flat.extend(q)
-        poses = np.array(flat, dtype=float).reshape(len(idx), 7)
-        if self._has_offset:
-            poses = pose_compose(poses, self._inertial_inv[idx])
-        return poses
+        return self.link_frame(np.array(flat, dtype=float).reshape(len(idx), 7), None, idx)[0]
 
     def com_positions(self, poses: np.ndarray, indices) -> np.ndarray:
         """Centre-of-mass positions ``(n, 3)`` of objects ``indices`` placed at link-frame ``poses``
         ``(n, 7)`` (pybullet reports and integrates the centre of mass)."""
         idx = self._indices(indices)
         poses = np.asarray(poses, dtype=float).reshape(len(idx), 7)
-        if not self._has_offset:
-            return poses[:, :3].copy()
-        return pose_compose(poses, self._inertial[idx])[:, :3]
+        return self.com_frame(poses, None, idx)[0][:, :3].copy()
 
     def set_poses(self, poses: np.ndarray, indices=None) -> None:
         """Teleport objects ``indices`` to link-frame ``poses`` ``(n, 7)``. Velocities are kept."""
         idx = self._indices(indices)
-        poses = np.asarray(poses, dtype=float).reshape(len(idx), 7)
-        if self._has_offset:
-            poses = pose_compose(poses, self._inertial[idx])
+        poses = self.com_frame(np.asarray(poses, dtype=float).reshape(len(idx), 7), None, idx)[0]
         c = self.client
         reset = pb.resetBasePositionAndOrientation
-        rows = poses.tolist()
-        for i, row in zip(idx, rows):
+        for i, row in zip(idx, poses.tolist()):
             reset(self.uids[i], row[:3], row[3:], physicsClientId=c)
 
     def get_velocities(self, indices=None) -> np.ndarray:
         """Velocities ``(n, 6)``: linear velocity of the link-frame origin and angular velocity."""
         idx = self._indices(indices)
-        c = self.client
-        flat: list[float] = []
-        for i in idx:
-            v, w = pb.getBaseVelocity(self.uids[i], physicsClientId=c)
-            flat.extend(v)
-            flat.extend(w)
-        vel = np.array(flat, dtype=float).reshape(len(idx), 6)
-        if self._has_offset:
-            self._link_velocities(self.get_poses(idx), vel, idx)
-        return vel
-
-    def _link_velocities(self, poses: np.ndarray, vel: np.ndarray, idx) -> None:
-        """In place: pybullet's centre-of-mass linear velocities ``vel (n, 6)`` to those of the
-        link-frame origins of objects ``idx`` at link-frame ``poses (n, 7)``."""
-        com_to_link = -quat_rotate(poses[:, 3:], self._inertial[idx, :3])
-        vel[:, :3] += np.cross(vel[:, 3:], com_to_link)
+        p, v, _ = self.read_raw(idx)
+        n = len(idx)
+        return self.link_frame(np.array(p).reshape(n, 7), np.array(v).reshape(n, 6), idx)[1]
 
     def set_velocities(self, velocities: np.ndarray, indices=None) -> None:
         """Set velocities ``(n, 6)`` (linear of the link-frame origin, angular), world frame."""
         idx = self._indices(indices)
         vel = np.array(velocities, dtype=float).reshape(len(idx), 6)
         if self._has_offset:
-            poses = self.get_poses(idx)
-            link_to_com = quat_rotate(poses[:, 3:], self._inertial[idx, :3])
-            vel[:, :3] += np.cross(vel[:, 3:], link_to_com)
+            vel = self.com_frame(self.get_poses(idx), vel, idx)[1]
         c = self.client
-        rows = vel.tolist()
-        for i, row in zip(idx, rows):
+        for i, row in zip(idx, vel.tolist()):
             pb.resetBaseVelocity(self.uids[i], row[:3], row[3:], physicsClientId=c)
 
     def read_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -369,24 +345,35 @@ class World:
             flat_b += hi
         return flat_p, flat_v, flat_b
 
-    def link_frame(self, com_poses: np.ndarray, com_vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Pybullet's centre-of-mass poses ``(..., M, 7)`` and velocities ``(..., M, 6)`` of all M
-        objects (any leading axes, e.g. particles) to link-frame poses and link-origin velocities."""
+    def link_frame(self, com_poses: np.ndarray, com_vel: np.ndarray | None = None,
+                   indices=None) -> tuple[np.ndarray, np.ndarray | None]:
+        """Pybullet's centre-of-mass poses ``(..., n, 7)`` and velocities ``(..., n, 6)`` (or None)
+        of objects ``indices`` (default: all M; any leading axes, e.g. particles) to link-frame
+        poses and link-origin velocities."""
         if not self._has_offset:
             return com_poses, com_vel
-        poses = pose_compose(com_poses, self._inertial_inv)
-        vel = com_vel.copy()
-        vel[..., :3] += np.cross(vel[..., 3:], -quat_rotate(poses[..., 3:], self._inertial[:, :3]))
+        idx = slice(None) if indices is None else self._indices(indices)
+        off = self._inertial[idx]
+        poses = pose_compose(com_poses, self._inertial_inv[idx])
+        if com_vel is None:
+            return poses, None
+        vel = np.array(com_vel, dtype=float)
+        vel[..., :3] += np.cross(vel[..., 3:], -quat_rotate(poses[..., 3:], off[:, :3]))
         return poses, vel
 
-    def com_frame(self, poses: np.ndarray, vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The inverse of :meth:`link_frame`: link-frame poses ``(..., M, 7)`` and link-origin
-        velocities ``(..., M, 6)`` of all M objects to pybullet's centre-of-mass ones."""
+    def com_frame(self, poses: np.ndarray, vel: np.ndarray | None = None,
+                  indices=None) -> tuple[np.ndarray, np.ndarray | None]:
+        """The inverse of :meth:`link_frame`: link-frame poses ``(..., n, 7)`` and link-origin
+        velocities ``(..., n, 6)`` (or None) of objects ``indices`` (default: all M) to pybullet's
+        centre-of-mass ones."""
         if not self._has_offset:
             return poses, vel
-        com = pose_compose(poses, self._inertial)
+        off = self._inertial[slice(None) if indices is None else self._indices(indices)]
+        com = pose_compose(poses, off)
+        if vel is None:
+            return com, None
         cvel = np.array(vel, dtype=float)
-        cvel[..., :3] += np.cross(cvel[..., 3:], quat_rotate(poses[..., 3:], self._inertial[:, :3]))
+        cvel[..., :3] += np.cross(cvel[..., 3:], quat_rotate(poses[..., 3:], off[:, :3]))
         return com, cvel
 
     def step(self, n: int = 1) -> None:
@@ -464,11 +451,11 @@ class World:
         return hit, frac
 
     def save_state(self) -> int:
-        """Save the full simulation state in memory (about 650 us); returns an id for restore."""
+        """Save the full simulation state in memory; returns an id for :meth:`restore_state`."""
         return pb.saveState(physicsClientId=self.client)
 
     def restore_state(self, state_id: int) -> None:
-        """Restore a state saved by :meth:`save_state` (about 5 us)."""
+        """Restore a state saved by :meth:`save_state`."""
         pb.restoreState(stateId=state_id, physicsClientId=self.client)
 
     def remove_state(self, state_id: int) -> None:

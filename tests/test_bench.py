@@ -29,3 +29,11 @@ def test_bench_command_prints_json(capsys):
     assert main(["bench", "--particles", "2", "--objects", "2", "--updates", "2", "--workers", "0",
                  "--breakdown"]) == 0
     assert "over us/particle" in capsys.readouterr().out
+
+
+def test_bench_times_a_configuration_file(tmp_path, capsys):
+    (tmp_path / "c.yaml").write_text("noise: {position_std: 0.02}\nreasoner: {horizon: 0.1}\n")
+    assert main(["bench", "--particles", "2", "--objects", "2", "--updates", "2", "--workers", "0", "--json",
+                 "--config", str(tmp_path / "c.yaml")]) == 0
+    r = json.loads(capsys.readouterr().out)["results"][0]
+    assert r["particles"] == 2 and r["steps_per_update"] == 24  # the file's horizon: 0.1 s of 1/240 s steps
