@@ -172,6 +172,9 @@ class EstimatorConfig:
     * ``particles``: number of particle worlds K (1 with :meth:`NoiseConfig.off` is paper mode).
     * ``workers``: worker processes holding the particle worlds (0 = in this process; results do
       not depend on it).
+    * ``worlds``: pybullet clients the K particle worlds are packed into, side by side (at most K;
+      each costs about 28 MB, each particle a fraction of a megabyte more; a worker holds whole
+      clients, so more workers than clients are idle). Results depend on it, never on ``workers``.
     * ``resample_threshold``: resample when the effective sample size falls below this fraction of K.
     * ``event_threshold``: an event enters the timeline when its probability exceeds this.
     * ``event_window`` (s): an event's probability is the weight of the particles that made that
@@ -187,18 +190,23 @@ class EstimatorConfig:
       (a released object is not pulled back to where it was last seen); the paper tests every object
       seen within ``t_perceived`` (off in paper mode).
     * ``physics``: the particle worlds' engine settings; the solver stops at a residual of 1e-4
-      (the ground-truth simulator keeps pybullet's 1e-7): resting scenes step faster.
+      (the ground-truth simulator keeps pybullet's 1e-7): resting scenes step faster; URDFs are
+      loaded without their visual meshes and textures (much less memory and start-up); objects at
+      rest sleep (stepping skips them) until touched, reset or moved (see
+      :func:`~estimator.propagate.propagate_batch`).
     * ``visibility_threshold``: fraction of an object's sample points in view for it to count as
       visible to the camera.
     """
 
     particles: int = 1
     workers: int = 0
+    worlds: int = 8
     reasoner: ReasonerConfig = field(default_factory=ReasonerConfig)
     noise: NoiseConfig = field(default_factory=NoiseConfig.off)
     priors: ModePriors = field(default_factory=ModePriors)
     relations: RelationConfig = field(default_factory=RelationConfig)
-    physics: PhysicsSettings = field(default_factory=lambda: PhysicsSettings(solver_residual_threshold=1e-4))
+    physics: PhysicsSettings = field(default_factory=lambda: PhysicsSettings(
+        solver_residual_threshold=1e-4, sleeping=True, collision_only=True))
     resample_threshold: float = 0.5
     event_threshold: float = 0.5
     event_window: float = 1.0
@@ -214,6 +222,8 @@ class EstimatorConfig:
             raise ValueError(f"EstimatorConfig.particles must be an integer >= 1, got {self.particles!r}")
         if not isinstance(self.workers, int) or self.workers < 0:
             raise ValueError(f"EstimatorConfig.workers must be an integer >= 0, got {self.workers!r}")
+        if not isinstance(self.worlds, int) or self.worlds < 1:
+            raise ValueError(f"EstimatorConfig.worlds must be an integer >= 1, got {self.worlds!r}")
         if not self.event_window > 0:
             raise ValueError(f"EstimatorConfig.event_window must be > 0, got {self.event_window!r}")
         for n in ("resample_threshold", "event_threshold", "visibility_threshold",

@@ -76,7 +76,7 @@ class SceneEstimator:
         self.static = np.array([o.static for o in scene.objects], dtype=bool)
         self.hollow = np.array(scene.hollow, dtype=bool)
         self.dynamic = ~self.static
-        self.pool = WorldPool(scene, K, cfg.workers, cfg.physics)
+        self.pool = WorldPool(scene, K, cfg.workers, cfg.physics, cfg.worlds)
         try:
             self._init_state()
         except BaseException:

@@ -1,10 +1,15 @@
-"""The particle worlds, one persistent pybullet world per particle slot, held in this process or
+"""The particle worlds: one persistent copy of the scene per particle slot, the copies packed side by
+side into a few pybullet clients (:class:`~physics.group.WorldGroup`), held in this process or
 sharded over persistent worker processes. Workers and caller share the particles' input and output
 arrays in one block of shared memory; the pipes carry only commands.
 
-Slot ``k`` always lives in the same world, whatever the number of workers, and a world's history
-depends only on the arrays it is given, so results do not depend on ``workers`` (see DESIGN.md:
-contact caches survive pose resets, so a world must not be shared between particle slots).
+Memory and start-up follow the number of clients, not K: a client costs about 28 MB, a copy of a
+tabletop scene a fraction of a megabyte. The slots are split into ``worlds`` contiguous groups, one
+client each, by :func:`shard_bounds` of K alone; a worker holds whole groups. Slot ``k`` therefore
+always lives in the same copy of the same client, whatever the number of workers, and a copy's
+history depends only on the arrays it is given, so results do not depend on ``workers`` (see
+DESIGN.md: contact caches survive pose resets, so a copy must not be shared between particle
+slots).
 """
 from __future__ import annotations
 
@@ -14,9 +19,10 @@ import traceback
 
 import numpy as np
 
+from physics.group import WorldGroup
 from physics.scene import Scene
-from physics.visibility import Camera, local_sample_points, visible_fraction
-from physics.world import PhysicsSettings, World
+from physics.visibility import Camera, local_sample_points, visible_fractions
+from physics.world import PhysicsSettings
 
 from .propagate import PER_PARTICLE, BatchInput, BatchOutput, ParticleWorld, propagate_batch
 
@@ -24,16 +30,25 @@ __all__ = ["BatchInput", "BatchOutput", "WorldPool", "shard_bounds"]
 
 
 class _Shard:
-    """The worlds of slots ``[lo, hi)``; runs in a worker process or in the caller's."""
+    """The particle slots of consecutive groups ``[(lo, hi), ...]`` (one client each); runs in a
+    worker process or in the caller's."""
 
-    def __init__(self, scene: Scene, settings: PhysicsSettings, lo: int, hi: int):
-        self.worlds = [ParticleWorld(World(scene, settings)) for _ in range(lo, hi)]
+    def __init__(self, scene: Scene, settings: PhysicsSettings, groups: list[tuple[int, int]]):
+        self.groups: list[WorldGroup] = []
+        try:
+            for lo, hi in groups:
+                self.groups.append(WorldGroup(scene, settings, hi - lo))
+        except BaseException:
+            self.close()
+            raise
+        self.worlds = [ParticleWorld(w) for g in self.groups for w in g.worlds]
         self._saved: list[int] = []
         self.camera = Camera(scene.camera) if scene.camera is not None else None
         self.points = None
         if self.camera is not None:
             w = self.worlds[0].world
-            self.points = {int(i): local_sample_points(w, int(i)) for i in range(w.num_objects)}
+            self.points = {int(i): local_sample_points(w, int(i), VISIBILITY_POINTS_PER_AXIS)
+                           for i in range(w.num_objects)}
 
     def initial_params(self) -> np.ndarray:
         w = self.worlds[0].world
@@ -48,35 +63,36 @@ class _Shard:
         out = propagate_batch(self.worlds, batch, n_steps, d_sim_perc, lazy)
         q = np.flatnonzero(batch.vis_query) if batch.vis_query is not None else np.zeros(0, int)
         if self.camera is not None and len(q):
-            for k, pw in enumerate(self.worlds):
-                if out.finite[k]:
-                    out.visible[k, q] = visible_fraction(pw.world, self.camera, q, self.points, out.poses[k, q])
+            ok = np.flatnonzero(out.finite)  # exploded worlds see nothing
+            worlds = [self.worlds[k].world for k in ok]
+            out.visible[np.ix_(ok, q)] = visible_fractions(worlds, self.camera, q, self.points,
+                                                           out.poses[np.ix_(ok, q)])
         return out
 
     def bare_step(self, n_steps: int) -> None:
-        """Step every world ``n_steps`` times and nothing else (the benchmark's reference)."""
-        for pw in self.worlds:
-            pw.world.step(n_steps)
+        """Step every client ``n_steps`` times and nothing else (the benchmark's reference)."""
+        for g in self.groups:
+            g.step(n_steps)
 
     def save(self) -> None:
-        """Save every world's state in memory (replacing any state saved before)."""
+        """Save every client's state in memory (replacing any state saved before)."""
         self.drop_saved()
-        self._saved = [pw.world.save_state() for pw in self.worlds]
+        self._saved = [g.save_state() for g in self.groups]
 
     def restore(self) -> None:
-        """Return every world to the state of the last :meth:`save`, and forget it."""
-        for pw, sid in zip(self.worlds, self._saved):
-            pw.world.restore_state(sid)
+        """Return every client to the state of the last :meth:`save`, and forget it."""
+        for g, sid in zip(self.groups, self._saved):
+            g.restore_state(sid)
         self.drop_saved()
 
     def drop_saved(self) -> None:
-        for pw, sid in zip(self.worlds, self._saved):
-            pw.world.remove_state(sid)
+        for g, sid in zip(self.groups, self._saved):
+            g.remove_state(sid)
         self._saved = []
 
     def close(self) -> None:
-        for pw in self.worlds:
-            pw.world.close()
+        for g in self.groups:
+            g.close()
 
 
 class _SharedBatch:
@@ -137,10 +153,11 @@ class _SharedBatch:
 _OUTPUTS = ("poses", "velocities", "modes", "max_divergence", "aabbs", "finite", "visible")
 
 
-def _worker_main(conn, scene, settings, lo, hi, buffer, n_particles):
+def _worker_main(conn, scene, settings, groups, buffer, n_particles):
     shard = None
+    lo, hi = groups[0][0], groups[-1][1]
     try:
-        shard = _Shard(scene, settings, lo, hi)
+        shard = _Shard(scene, settings, groups)
         shared = _SharedBatch(buffer, n_particles, len(scene.objects))
         conn.send(("ok", shard.initial_params()))
         while True:
@@ -181,35 +198,52 @@ def shard_bounds(n_particles: int, n_shards: int) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
 
 
+VISIBILITY_POINTS_PER_AXIS = 2
+"""Sample points of an object for the particles' visibility test: its centre and 8 points towards
+the corners of its box (:func:`~physics.visibility.local_sample_points`; 3 would give 27, three
+times the ray tests, for a fraction that only decides whether it passes the visibility threshold)."""
+
+DEFAULT_WORLDS = 8
+"""Default number of pybullet clients the particle slots are packed into."""
+
+
 class WorldPool:
-    """K particle worlds. ``workers=0`` keeps them in this process; otherwise that many worker
-    processes each own a contiguous shard of slots. Use as a context manager or call :meth:`close`.
+    """K particle worlds, packed into ``worlds`` pybullet clients (default ``min(K, 8)``; fixed by
+    the caller, never by ``workers``, so that results do not depend on ``workers``). ``workers=0``
+    keeps them in this process; otherwise ``min(workers, worlds)`` worker processes each own a
+    contiguous run of clients. Use as a context manager or call :meth:`close`.
 
     After :meth:`run` (and :meth:`bare_step`), ``last_run_seconds`` is the wall time of the call in
     this process and ``last_worker_seconds`` the time each shard took in its worker (the benchmark's
     breakdown)."""
 
     def __init__(self, scene: Scene, n_particles: int, workers: int = 0,
-                 settings: PhysicsSettings | None = None):
+                 settings: PhysicsSettings | None = None, worlds: int | None = None):
+        if n_particles < 1:
+            raise ValueError(f"a world pool needs at least one particle, got {n_particles}")
+        if worlds is not None and worlds < 1:
+            raise ValueError(f"worlds must be >= 1, got {worlds}")
         self.n_particles = n_particles
         self.workers = workers
         settings = settings or PhysicsSettings()
+        self.groups = shard_bounds(n_particles, min(n_particles, worlds or DEFAULT_WORLDS))
         self._local: _Shard | None = None
         self.last_run_seconds = 0.0
         self.last_worker_seconds: list[float] = []
         self._procs, self._conns, self._bounds = [], [], []
         if workers <= 0:
-            self._local = _Shard(scene, settings, 0, n_particles)
+            self._local = _Shard(scene, settings, self.groups)
             self.initial_params = self._local.initial_params()
             return
         ctx = mp.get_context("spawn")
-        self._bounds = shard_bounds(n_particles, workers)
+        runs = [self.groups[a:b] for a, b in shard_bounds(len(self.groups), workers)]
+        self._bounds = [(run[0][0], run[-1][1]) for run in runs]
         buffer = ctx.RawArray("b", _SharedBatch.nbytes(n_particles, len(scene.objects)))
         self._shared = _SharedBatch(buffer, n_particles, len(scene.objects))
         try:
-            for lo, hi in self._bounds:
+            for run in runs:
                 parent, child = ctx.Pipe()
-                p = ctx.Process(target=_worker_main, args=(child, scene, settings, lo, hi, buffer, n_particles),
+                p = ctx.Process(target=_worker_main, args=(child, scene, settings, run, buffer, n_particles),
                                 daemon=True)
                 p.start()
                 child.close()

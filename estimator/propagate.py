@@ -20,9 +20,9 @@ import numpy as np
 import pybullet as pb
 
 from actions.modes import FREE, HELD
-from physics.transforms import (carry_pose, quat_conjugate, quat_from_rotvec, quat_multiply,
-                                quat_to_rotvec)
 from physics.world import World
+
+from .held import HeldObjects, depenetrate, glide_paths
 
 PARAM_NAMES = ("lateral_friction", "rolling_friction", "spinning_friction", "restitution", "mass")
 """Columns of the per-object physical parameter arrays ``(..., M, 5)`` (mass in kg)."""
@@ -148,10 +148,22 @@ def _due_steps(d: np.ndarray, v: np.ndarray, d_sim_perc: float, dt: float) -> np
     return np.maximum(1, (tau / dt).astype(np.int64))
 
 
+REST_SPEED = 0.005
+"""m/s: with sleeping enabled, a free object moving slower than this (and turning slower than
+:data:`REST_SPIN`) at the start and at the end of an update, and not moved by the update's loads, is
+put to sleep: stepping skips it until something touches it or it is reset."""
+REST_SPIN = 0.05
+"""rad/s: see :data:`REST_SPEED`."""
+
+
 def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d_sim_perc: float,
                     lazy: bool = False) -> BatchOutput:
     """Run Algorithm 1 for ``n_steps`` steps in each of the K worlds ``pws`` (all built from the same
     scene), particle ``k`` from the state in row ``k`` of ``batch``.
+
+    Worlds that share a pybullet client (copies of a :class:`~physics.group.WorldGroup`) are stepped
+    together, one ``stepSimulation`` per step for all of them; ``pws`` must then hold every copy of
+    their client (the others would be stepped too).
 
     With ``lazy=False`` the divergence of every free perceived object is tested after every step, as
     the paper does. With ``lazy=True`` an object is tested again only at the first step at which,
@@ -159,10 +171,15 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     :data:`A_MAX`, it could have crossed ``d_sim_perc``, and after the last step: exact for objects
     moving freely or resting, late by a few steps only when something hits an object hard.
 
+    With :attr:`PhysicsSettings.sleeping`, what an update moves (loads, held objects, pushes out of
+    penetration) is woken together with everything that touched it, and free objects at rest at both
+    ends of the update are put to sleep (:data:`REST_SPEED`).
+
     Array work is done once for the K worlds (frame conversions, first test steps, the finiteness
-    test); each world's loop is plain Python around direct pybullet calls. A world's result depends
-    only on its own row of ``batch``, so that sharding the particles does not change any output.
-    Returns a :class:`BatchOutput` whose ``visible`` is all zeros.
+    test); each client's loop is plain Python around direct pybullet calls. A world's result depends
+    only on its own row of ``batch`` and its own history, so that sharding whole clients over
+    processes does not change any output. Returns a :class:`BatchOutput` whose ``visible`` is all
+    zeros.
     """
     K = len(pws)
     if K == 0:
@@ -173,59 +190,65 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
         raise ValueError(f"batch.poses must have shape ({K}, {M}, 7), got {batch.poses.shape}")
     dyn = pws[0].dynamic
     dt = w0.settings.time_step
+    sleeping = w0.settings.sleeping
     n_steps = int(n_steps)
     dyn_mask = np.zeros(M, dtype=bool)
     dyn_mask[dyn] = True
     modes_out = batch.modes.copy()
-    # loads: centre-of-mass poses and velocities of the entries to reset, as nested lists
+    origins = np.array([pw.world.origin for pw in pws])[:, None, :]  # (K, 1, 3): scene -> client frame
+    # loads: centre-of-mass poses and velocities of the entries to reset, in the client frame
     reset = np.broadcast_to(dyn_mask, (K, M)) if batch.reset is None else batch.reset & dyn_mask
-    any_reset = reset.any(axis=1).tolist()
     com_p, com_v = w0.com_frame(batch.poses, batch.velocities)
-    reset_l, depen_l = reset.tolist(), (batch.depenetrate & dyn_mask).tolist()
-    held_l = ((batch.modes == HELD) & dyn_mask).tolist()
+    com_p = np.array(com_p)
+    com_p[..., :3] += origins
+    held_mask = (batch.modes == HELD) & dyn_mask
+    depen_mask = batch.depenetrate & dyn_mask
+    moved = reset | held_mask | depen_mask
+    reset_l, depen_l, held_l, moved_l = reset.tolist(), depen_mask.tolist(), held_mask.tolist(), moved.tolist()
     # watched objects and the first step at which each one needs testing
     checked = batch.check & (batch.modes == FREE) & dyn_mask
-    target_com = w0.com_frame(batch.target)[0][..., :3]
+    target_com = w0.com_frame(batch.target)[0][..., :3] + origins
     due = np.ones((K, M), dtype=np.int64)
     if lazy:
         d0 = np.linalg.norm(com_p[..., :3] - target_com, axis=-1)
         due = _due_steps(d0, np.linalg.norm(com_v[..., :3], axis=-1), d_sim_perc, dt)
     checked_l, target_l, due_l = checked.tolist(), target_com.tolist(), due.tolist()
-    # the read-back, for all K worlds: dynamic objects from the worlds, static ones fixed
-    D = len(dyn)
-    raw_p: list[float] = []
-    raw_v: list[float] = []
-    raw_b: list[float] = []
+    glides = _glides(pws, batch, held_mask, n_steps)
+    clients: dict[int, list[int]] = {}
+    for k, pw in enumerate(pws):
+        clients.setdefault(pw.world.client, []).append(k)
     tested: list[tuple[int, int, float]] = []  # (particle, object, largest divergence) of in-loop tests
     switched_at: list[tuple[int, int, float]] = []
-    for k, pw in enumerate(pws):
-        w = pw.world
-        pw.apply_params(batch.params[k])
-        if any_reset[k]:
-            rows = [i for i in dyn if reset_l[k][i]]
-            w.load_com_state(rows, com_p[k, rows].tolist(), com_v[k, rows].tolist())
-        if True in depen_l[k]:
-            depenetrate(w, [i for i in dyn if depen_l[k][i]])
-        held = _Overrider(w, batch.target[k], batch.target_vel[k], batch.contents[k], n_steps)
-        if True in held_l[k]:
-            held.glide([i for i in dyn if held_l[k][i]])
-        # [index, body id, x, y, z of the perceived centre of mass, next step to test, largest divergence]
-        watch = [[i, w.uids[i], *target_l[k][i], due_l[k][i], 0.0] for i in dyn if checked_l[k][i]]
-        switched = _simulate(w, held, watch, n_steps, d_sim_perc, lazy)
-        if switched:
-            switched_at += [(k, i, d) for i, d in switched.items()]
-        tested += [(k, item[0], item[6]) for item in watch if item[6]]
-        w.read_raw(dyn, raw_p, raw_v, raw_b)
-    poses = np.empty((K, M, 7))
-    vel = np.zeros((K, M, 6))
-    aabbs = np.empty((K, M, 2, 3))
-    st = ~dyn_mask
-    if st.any():  # static objects never move: their centre-of-mass poses and boxes from the scene
-        sp, sb = w0.static_raw()
-        poses[:, st], aabbs[:, st] = sp[st], sb[st]
-    poses[:, dyn] = np.array(raw_p).reshape(K, D, 7)
-    vel[:, dyn] = np.array(raw_v).reshape(K, D, 6)
-    aabbs[:, dyn] = np.array(raw_b).reshape(K, D, 2, 3)
+    read: list[tuple[list, list, list]] = [([], [], [])] * K
+    for client, ks in clients.items():
+        helds, watches = [], []
+        for k in ks:
+            pw = pws[k]
+            w = pw.world
+            pw.apply_params(batch.params[k])
+            rows = [i for i in dyn if moved_l[k][i]] if True in moved_l[k] else []
+            woken = rows + w.touching(rows) if sleeping and rows else []  # contacts before the reset
+            if True in reset_l[k]:
+                loads = [i for i in dyn if reset_l[k][i]]
+                w.load_com_state(loads, com_p[k, loads].tolist(), com_v[k, loads].tolist())
+            if woken:
+                w.wake(woken)
+            if True in depen_l[k]:
+                depenetrate(w, [i for i in dyn if depen_l[k][i]])
+            held = HeldObjects(w, batch.target[k], batch.target_vel[k], batch.contents[k], n_steps)
+            for h in glides.get(k, ()):
+                held.glide(*h)
+            helds.append(held)
+            # [index, body id, x, y, z of the perceived centre of mass, next step to test, largest
+            # divergence, position of the world in ks]
+            watches += [[i, w.uids[i], *target_l[k][i], due_l[k][i], 0.0, len(helds) - 1]
+                        for i in dyn if checked_l[k][i]]
+        switched = _simulate(client, dt, helds, watches, n_steps, d_sim_perc, lazy)
+        switched_at += [(ks[j], i, d) for j, i, d in switched]
+        tested += [(ks[item[7]], item[0], item[6]) for item in watches if item[6]]
+        for k in ks:
+            read[k] = pws[k].world.read_raw(dyn)
+    poses, vel, aabbs = _assemble(w0, dyn, read, origins)
     # largest divergences: from the tests in the loop and, lazily, the test after the last step on
     # the state read back (an object that diverged during the last steps is held, at the
     # perception, as in the loop)
@@ -244,40 +267,98 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
             late = np.flatnonzero(d_end[k] > d_sim_perc).tolist()
             modes_out[k, late] = HELD
             w = pws[k].world
-            _Overrider(w, batch.target[k], batch.target_vel[k], batch.contents[k], n_steps).jump(late)
-            p, v, b = w.read_raw(dyn)
-            poses[k, dyn] = np.array(p).reshape(D, 7)
-            vel[k, dyn] = np.array(v).reshape(D, 6)
-            aabbs[k, dyn] = np.array(b).reshape(D, 2, 3)
+            HeldObjects(w, batch.target[k], batch.target_vel[k], batch.contents[k], n_steps).jump(late)
+            p, v, b = _assemble(w0, dyn, [w.read_raw(dyn)], origins[k:k + 1])
+            poses[k], vel[k], aabbs[k] = p[0], v[0], b[0]
     for k, i, d in switched_at:
         max_d[k, i] = d
+    if sleeping:
+        _sleep_resting(pws, dyn_mask & (modes_out == FREE) & ~moved, com_v, vel)
     finite = (np.isfinite(poses).all(axis=(1, 2)) & np.isfinite(vel).all(axis=(1, 2))
               & (np.abs(vel[..., :3]) < MAX_SPEED).all(axis=(1, 2)))
     aabbs[~finite] = np.nan
+    poses[..., :3] -= origins
+    aabbs -= origins[:, None]
     poses, vel = w0.link_frame(poses, vel)
     return BatchOutput(poses, vel, modes_out, max_d, aabbs, finite, np.zeros((K, M)))
 
 
-def _simulate(w: World, held: "_Overrider", watch: list[list], n_steps: int, d_sim_perc: float,
-              lazy: bool) -> dict[int, float]:
-    """The step loop of one world (the hot path, plain Python). ``watch`` items are updated in
-    place; returns the objects that switched to HELD during the loop, with their largest divergence
-    (lazily, the test after the last step is left to the caller, on the state read back)."""
-    c = w.client
-    dt = w.settings.time_step
+def _glides(pws: list[ParticleWorld], batch: BatchInput, held: np.ndarray,
+            n_steps: int) -> dict[int, list[tuple]]:
+    """The glide paths (:func:`~estimator.held.glide_paths`) of all objects ``held (K, M)`` from the
+    start of the update, computed in one pass: ``{k: [(body id, com, orn, lin, ang), ...]}`` as
+    lists in the client frame. They start from the batch's poses, which the worlds hold (held
+    objects are never pushed out of penetration)."""
+    kk, ii = np.nonzero(held)
+    if len(kk) == 0:
+        return {}
+    w0 = pws[0].world
+    com, orn, lin, ang = glide_paths(w0, batch.poses[kk, ii], batch.target[kk, ii], ii, n_steps)
+    com = com + np.array([pws[k].world.origin for k in kk.tolist()])[:, None, :]
+    out: dict[int, list[tuple]] = {}
+    for h, (k, i) in enumerate(zip(kk.tolist(), ii.tolist())):
+        out.setdefault(k, []).append((pws[k].world.uids[i], com[h].tolist(), orn[h].tolist(),
+                                      lin[h].tolist(), ang[h].tolist()))
+    return out
+
+
+def _assemble(w0: World, dyn: list[int], read: list[tuple[list, list, list]],
+              origins: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Centre-of-mass poses ``(K, M, 7)``, velocities ``(K, M, 6)`` and AABBs ``(K, M, 2, 3)``, in
+    the client frame, from each world's flat read-back of its dynamic objects (static ones from the
+    scene, shifted to each world's ``origins (K, 1, 3)``)."""
+    K, M, D = len(read), w0.num_objects, len(dyn)
+    poses = np.empty((K, M, 7))
+    vel = np.zeros((K, M, 6))
+    aabbs = np.empty((K, M, 2, 3))
+    st = np.ones(M, dtype=bool)
+    st[dyn] = False
+    if st.any():  # static objects never move: their centre-of-mass poses and boxes from the scene
+        sp, sb = w0.static_raw()
+        poses[:, st] = sp[st]
+        poses[:, st, :3] += origins
+        aabbs[:, st] = sb[st] + origins[:, None]
+    poses[:, dyn] = np.array([r[0] for r in read]).reshape(K, D, 7)
+    vel[:, dyn] = np.array([r[1] for r in read]).reshape(K, D, 6)
+    aabbs[:, dyn] = np.array([r[2] for r in read]).reshape(K, D, 2, 3)
+    return poses, vel, aabbs
+
+
+def _sleep_resting(pws: list[ParticleWorld], candidates: np.ndarray, vel_in: np.ndarray,
+                   vel_out: np.ndarray) -> None:
+    """Put to sleep the ``candidates (K, M)`` at rest at both ends of the update (velocities
+    ``(K, M, 6)``) that are still awake (a sleeping body reads back exactly zero velocity)."""
+    def slow(v):
+        return ((np.linalg.norm(v[..., :3], axis=-1) < REST_SPEED)
+                & (np.linalg.norm(v[..., 3:], axis=-1) < REST_SPIN))
+    rest = candidates & slow(vel_in) & slow(vel_out) & np.any(vel_out != 0.0, axis=-1)
+    for k in np.flatnonzero(rest.any(axis=1)).tolist():
+        pws[k].world.sleep(np.flatnonzero(rest[k]).tolist())
+
+
+def _simulate(client: int, dt: float, helds: list["HeldObjects"], watch: list[list], n_steps: int,
+              d_sim_perc: float, lazy: bool) -> list[tuple[int, int, float]]:
+    """The step loop of one client (the hot path, plain Python), for its worlds' held objects
+    ``helds`` (one per world) and divergence tests ``watch`` (items updated in place). Returns the
+    objects that switched to HELD during the loop as ``(world position, object, largest
+    divergence)`` (lazily, the test after the last step is left to the caller, on the state read
+    back)."""
+    c = client
     get = pb.getBasePositionAndOrientation
     get_vel = pb.getBaseVelocity
     step = pb.stepSimulation
-    out: dict[int, float] = {}
+    out: list[tuple[int, int, float]] = []
+    moving = [h for h in helds if h.items]
     s = 0
     while s < n_steps:
         # step, with no test, up to the next step at which one is due
         stop = min(min(item[5] for item in watch), n_steps) if watch else n_steps
         if lazy and stop > n_steps - LAST_STEPS:
             stop = n_steps  # a test due in the last steps is the test after the last step
-        if held.items:
+        if moving:
             for t in range(s + 1, stop + 1):
-                held.apply(t)
+                for h in moving:
+                    h.apply(t)
                 step(physicsClientId=c)
         else:
             for _ in range(stop - s):
@@ -305,103 +386,12 @@ def _simulate(w: World, held: "_Overrider", watch: list[list], n_steps: int, d_s
             else:
                 item[5] = s + 1
         if switched:
-            held.jump([item[0] for item in switched])
-            for item in switched:
-                out[item[0]] = item[6]
+            for j in sorted({item[7] for item in switched}):
+                helds[j].jump([item[0] for item in switched if item[7] == j])
+                if helds[j] not in moving:
+                    moving.append(helds[j])
+            out += [(item[7], item[0], item[6]) for item in switched]
             watch[:] = [item for item in watch if item not in switched]
-    held.apply(n_steps + 1)  # held objects end the update exactly at their target
+    for h in helds:
+        h.apply(n_steps + 1)  # held objects end the update exactly at their target
     return out
-
-
-def depenetrate(w: World, indices: list[int], rounds: int = 2) -> None:
-    """Push objects ``indices`` out of whatever they interpenetrate, along the deepest contact's
-    normal (Bullet would otherwise shoot them out with a spurious velocity)."""
-    c = w.client
-    others = [u for u in w.uids] + ([w.floor_uid] if w.floor_uid >= 0 else [])
-    for _ in range(rounds):
-        moved = False
-        for i in indices:
-            uid = w.uids[i]
-            worst, normal = 0.0, None
-            for o in others:
-                if o == uid:
-                    continue
-                for pt in pb.getClosestPoints(uid, o, 0.0, physicsClientId=c):
-                    if pt[8] < worst:  # contact distance, negative when penetrating
-                        worst, normal = pt[8], pt[7]  # normal on B, pointing from B to A
-            if normal is not None and worst < -1e-4:
-                pos, orn = pb.getBasePositionAndOrientation(uid, physicsClientId=c)
-                shift = -worst + 1e-4
-                pb.resetBasePositionAndOrientation(uid, [pos[k] + normal[k] * shift for k in range(3)], orn,
-                                                   physicsClientId=c)
-                moved = True
-        if not moved:
-            break
-
-
-class _Overrider:
-    """Moves held objects at every step (hot path: plain lists, direct pybullet calls).
-
-    Objects held since the start of the update glide from where they were to their target, linearly
-    in position and along the shortest arc in orientation, with the matching velocity, so that the
-    contact solver moves what they carry or push (a tilted box pours its contents out). Objects that
-    become held during the update (a divergence) jump to their target at once and take their contents
-    with them rigidly, rotation included, as Algorithm 1 does.
-    """
-
-    def __init__(self, w: World, target: np.ndarray, target_vel: np.ndarray, contents: np.ndarray,
-                 n_steps: int):
-        self.w = w
-        self.target = target
-        self.tvel = target_vel
-        self.contents = contents
-        self.n = max(1, int(n_steps))
-        self.items: list[tuple] = []  # (body id, per-step com positions, per-step orientations, lin, ang)
-
-    def glide(self, indices: list[int]) -> None:
-        """Add objects held from the start of the update: interpolate from their present pose."""
-        if not indices:
-            return
-        w, n = self.w, self.n
-        start = w.get_poses(indices)
-        end = self.target[indices]
-        frac = np.arange(n + 1) / n  # pose before step s is at frac[s - 1]; after the last, at 1
-        dq = quat_multiply(end[:, 3:], quat_conjugate(start[:, 3:]))
-        rv = quat_to_rotvec(dq)  # (len, 3) shortest rotation from start to end
-        dt = n * w.settings.time_step
-        for k, i in enumerate(indices):
-            pos = start[k, :3] + frac[:, None] * (end[k, :3] - start[k, :3])
-            orn = quat_multiply(quat_from_rotvec(frac[:, None] * rv[k]), start[k, 3:])
-            com = w.com_positions(np.concatenate([pos, orn], axis=1), [i] * (n + 1))
-            lin = ((end[k, :3] - start[k, :3]) / dt).tolist()
-            ang = (rv[k] / dt).tolist()
-            self.items.append((w.uids[i], com.tolist(), orn.tolist(), lin, ang))
-
-    def jump(self, indices: list[int]) -> None:
-        """Add objects that became held now: move them (and their contents) to the target at once."""
-        w = self.w
-        before = w.get_poses(indices)
-        w.set_poses(self.target[indices], indices)
-        w.set_velocities(self.tvel[indices], indices)
-        for k, i in enumerate(indices):
-            ch = [int(j) for j in np.flatnonzero(self.contents[:, i]) if j not in indices]
-            if ch:
-                w.set_poses(carry_pose(w.get_poses(ch), before[k], self.target[i]), ch)
-                cv = w.get_velocities(ch)
-                cv[:, :3] = self.tvel[i, :3]
-                w.set_velocities(cv, ch)
-        com = w.com_positions(self.target[indices], indices)
-        for k, i in enumerate(indices):
-            v = self.tvel[i].tolist()
-            pos = [com[k].tolist()] * (self.n + 1)
-            orn = [self.target[i, 3:].tolist()] * (self.n + 1)
-            self.items.append((w.uids[i], pos, orn, v[:3], v[3:]))
-
-    def apply(self, s: int) -> None:
-        """Place the held objects where they are before step ``s`` (1-based; ``n + 1``: the end)."""
-        c = self.w.client
-        reset, reset_vel = pb.resetBasePositionAndOrientation, pb.resetBaseVelocity
-        k = min(s - 1, self.n)
-        for uid, pos, orn, lin, ang in self.items:
-            reset(uid, pos[k], orn[k], physicsClientId=c)
-            reset_vel(uid, lin, ang, physicsClientId=c)

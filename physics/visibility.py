@@ -8,10 +8,11 @@ lie on or inside spheres, cylinders and boxes alike).
 from __future__ import annotations
 
 import numpy as np
+import pybullet as pb
 
 from .scene import CameraSpec
 from .transforms import quat_rotate
-from .world import World
+from .world import MAX_RAYS_PER_BATCH, World
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -68,37 +69,67 @@ def local_sample_points(world: World, index: int, n_per_axis: int = 3) -> np.nda
 
 def visible_fraction(world: World, camera: Camera, indices, local_points: dict[int, np.ndarray],
                      poses: np.ndarray | None = None) -> np.ndarray:
-    """Fraction ``(n,)`` of each object's sample points that the camera sees.
+    """Fraction ``(n,)`` of each object's sample points that the camera sees in one world (its
+    current state); see :func:`visible_fractions`. ``poses (n, 7)``: current poses of ``indices``
+    (read from the world if None)."""
+    indices = [int(i) for i in np.atleast_1d(indices)]
+    if poses is None:
+        poses = world.get_poses(indices) if indices else np.zeros((0, 7))
+    return visible_fractions([world], camera, indices, local_points, np.asarray(poses)[None])[0]
+
+
+def visible_fractions(worlds: list[World], camera: Camera, indices, local_points: dict[int, np.ndarray],
+                      poses: np.ndarray) -> np.ndarray:
+    """Fraction ``(G, n)`` of each object's sample points that the camera sees, in each of the G
+    worlds (copies of one scene, usually sharing a client: all their rays go to pybullet in one
+    batched ray test).
 
     Args:
-        world: the world to cast rays in (its current state).
+        worlds: the G worlds to cast rays in (their current state); the camera is placed in each
+            world's scene frame.
         camera: the camera.
         indices: object indices (n,).
         local_points: sample points per object index, in the object's frame (see
             :func:`local_sample_points`).
-        poses: ``(n, 7)`` current poses of ``indices`` (read from the world if None).
+        poses: ``(G, n, 7)`` current link-frame poses of ``indices`` in each world (scene frame).
     """
     indices = [int(i) for i in np.atleast_1d(indices)]
-    if not indices:
-        return np.zeros(0)
-    if poses is None:
-        poses = world.get_poses(indices)
-    pts, owner = [], []
+    G, n = len(worlds), len(indices)
+    if n == 0 or G == 0:
+        return np.zeros((G, n))
+    counts = np.array([len(local_points[i]) for i in indices])
+    P = int(counts.max())
+    local = np.zeros((n, P, 3))
+    valid = np.zeros((n, P), dtype=bool)
     for k, i in enumerate(indices):
-        lp = local_points[i]
-        pts.append(poses[k, :3] + quat_rotate(np.broadcast_to(poses[k, 3:], (len(lp), 4)), lp))
-        owner.append(np.full(len(lp), k))
-    pts = np.vstack(pts)
-    owner = np.concatenate(owner)
-    in_view = camera.in_view(pts)
-    frac = np.zeros(len(indices))
-    if np.any(in_view):
-        sel = np.flatnonzero(in_view)
-        d = pts[sel] - camera.position
-        ends = camera.position + d * 1.05  # a little beyond the point, so the object itself is hit
-        hit, _ = world.ray_test(np.broadcast_to(camera.position, ends.shape), ends)
-        target = np.asarray(indices)[owner[sel]]
-        seen = hit == target
-        np.add.at(frac, owner[sel], seen.astype(float))
-    counts = np.bincount(owner, minlength=len(indices))
-    return frac / np.maximum(counts, 1)
+        local[k, :counts[k]] = local_points[i]
+        valid[k, :counts[k]] = True
+    poses = np.asarray(poses, dtype=float).reshape(G, n, 7)
+    q = np.broadcast_to(poses[:, :, None, 3:], (G, n, P, 4))
+    pts = poses[:, :, None, :3] + quat_rotate(q, np.broadcast_to(local, (G, n, P, 3)))  # (G, n, P, 3)
+    sel = camera.in_view(pts) & valid
+    seen = np.zeros((G, n, P), dtype=bool)
+    if sel.any():
+        g_idx, o_idx, _ = np.nonzero(sel)
+        origins = np.array([w.origin for w in worlds])[g_idx]
+        start = camera.position + origins
+        ends = start + (pts[sel] - camera.position) * 1.05  # a little beyond the point: the object is hit
+        uids = np.array([[w.uids[i] for i in indices] for w in worlds])
+        hit = np.empty(len(ends), dtype=np.int64)
+        clients = np.array([w.client for w in worlds])[g_idx]
+        for c in np.unique(clients).tolist():
+            rows = np.flatnonzero(clients == c)
+            hit[rows] = ray_bodies(c, start[rows], ends[rows])
+        seen[sel] = hit == uids[g_idx, o_idx]
+    return seen.sum(axis=2) / np.maximum(counts, 1)
+
+
+def ray_bodies(client: int, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """Body id ``(N,)`` int64 first hit by each ray ``starts -> ends`` ``(N, 3)`` (client frame; -1
+    for none), by batched ray tests."""
+    out = np.empty(len(starts), dtype=np.int64)
+    for lo in range(0, len(starts), MAX_RAYS_PER_BATCH):
+        hi = min(len(starts), lo + MAX_RAYS_PER_BATCH)
+        res = pb.rayTestBatch(starts[lo:hi].tolist(), ends[lo:hi].tolist(), physicsClientId=client)
+        out[lo:hi] = [r[0] for r in res]
+    return out

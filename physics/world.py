@@ -23,6 +23,7 @@ import pybullet as pb
 from .errors import SceneError
 from .scene import ObjectSpec, Scene
 from .transforms import pose_compose, pose_inverse, quat_rotate
+from .urdf import collision_only_urdf
 
 FLOOR = -2
 """Body index returned by ray queries for the floor plane (``-1`` means nothing was hit)."""
@@ -30,6 +31,8 @@ FLOOR = -2
 DEFAULT_PRIMITIVE_MASS = 0.1
 DEFAULT_URDF_MASS = 0.5
 PARK_DISTANCE = 50.0
+PARK_DEPTH = 25.0
+"""An object set more than this (m) below the floor is parked: it collides with nothing and sleeps."""
 MAX_RAYS_PER_BATCH = 16000
 
 
@@ -41,7 +44,12 @@ class PhysicsSettings:
     ``solver_residual_threshold`` the residual at which the solver stops earlier (pybullet's default
     1e-7; 1e-4 makes resting scenes cheaper to step);
     ``deterministic_pairs`` sorts overlapping pairs so that two identically built worlds agree bit
-    for bit. Sleeping is always disabled (a reset does not wake a sleeping body).
+    for bit. ``sleeping`` lets bodies be put to sleep (:meth:`World.sleep`; Bullet's own
+    deactivation too): a sleeping body costs almost nothing to step and wakes when an awake body
+    touches it, but NOT when it is reset, so whoever resets bodies must wake them
+    (:meth:`World.wake`; ``False``, the default, never lets a body sleep). ``collision_only`` loads
+    URDFs without their visual meshes and textures (:mod:`physics.urdf`), which physics never uses
+    (a world whose visual shapes are read, for drawing, keeps them: the default).
     """
 
     time_step: float = 1.0 / 240.0
@@ -49,6 +57,8 @@ class PhysicsSettings:
     solver_iterations: int = 50
     solver_residual_threshold: float = 1e-7
     deterministic_pairs: bool = True
+    sleeping: bool = False
+    collision_only: bool = False
 
     def __post_init__(self):
         if not (self.time_step > 0 and math.isfinite(self.time_step)):
@@ -59,21 +69,50 @@ class PhysicsSettings:
             raise ValueError(f"solver_residual_threshold must be > 0, got {self.solver_residual_threshold}")
 
 
+def connect(settings: PhysicsSettings, floor: bool) -> tuple[int, int]:
+    """A new DIRECT pybullet client set up with ``settings``; returns ``(client, floor body id)``
+    (``-1`` without a floor). The caller disconnects it."""
+    c = pb.connect(pb.DIRECT)
+    if c < 0:
+        raise RuntimeError("could not start a pybullet DIRECT client")
+    pb.setGravity(0, 0, settings.gravity, physicsClientId=c)
+    pb.setPhysicsEngineParameter(fixedTimeStep=settings.time_step, numSolverIterations=settings.solver_iterations,
+                                 solverResidualThreshold=settings.solver_residual_threshold,
+                                 deterministicOverlappingPairs=int(settings.deterministic_pairs),
+                                 physicsClientId=c)
+    floor_uid = -1
+    if floor:
+        plane = pb.createCollisionShape(pb.GEOM_PLANE, physicsClientId=c)
+        floor_uid = pb.createMultiBody(0, plane, physicsClientId=c)
+    return c, floor_uid
+
+
 class World:
     """A physics world holding the objects of ``scene`` (plus an optional floor plane at z = 0).
 
-    Objects whose scene pose is ``None`` are *parked* (far away, out of every other object's reach)
-    until the caller sets a pose; :attr:`parked_pose` gives the pose used.
+    A world owns its pybullet client, or is one of several copies of a scene side by side in a
+    shared client (:class:`~physics.group.WorldGroup`): then ``origin`` (m) is where this copy's
+    scene frame sits in the client, every method takes and returns poses in the scene frame (except
+    the raw hot-path methods, which say so), and stepping or saving the state concerns the whole
+    client.
+
+    Objects whose scene pose is ``None`` are *parked* until the caller sets a pose: far below the
+    floor, colliding with nothing and asleep, so that they stay where they are;
+    :attr:`parked_pose` gives the pose used. Setting any pose more than :data:`PARK_DEPTH` below
+    the floor parks an object, any other pose un-parks it.
     """
 
-    def __init__(self, scene: Scene, settings: PhysicsSettings | None = None):
+    def __init__(self, scene: Scene, settings: PhysicsSettings | None = None, *,
+                 client: int | None = None, origin=(0.0, 0.0, 0.0), floor_uid: int = -1):
         self.scene = scene
         self.settings = settings or PhysicsSettings()
         self.object_ids: tuple[str, ...] = scene.object_ids
         self._index = {oid: i for i, oid in enumerate(self.object_ids)}
-        self.client = pb.connect(pb.DIRECT)
-        if self.client < 0:
-            raise RuntimeError("could not start a pybullet DIRECT client")
+        self.origin = np.asarray(origin, dtype=float).reshape(3)
+        self._owns_client = client is None
+        if client is None:
+            client, floor_uid = connect(self.settings, scene.floor)
+        self.client, self.floor_uid = client, floor_uid
         try:
             self._build()
         except BaseException:
@@ -82,12 +121,14 @@ class World:
 
     # -- life cycle ---------------------------------------------------------------------------------
     def close(self) -> None:
-        """Disconnect the pybullet client. Safe to call twice."""
+        """Disconnect the pybullet client (a copy in a shared client leaves it to its group). Safe
+        to call twice."""
         if getattr(self, "client", -1) >= 0:
-            try:
-                pb.disconnect(physicsClientId=self.client)
-            except pb.error:
-                pass
+            if self._owns_client:
+                try:
+                    pb.disconnect(physicsClientId=self.client)
+                except pb.error:
+                    pass
             self.client = -1
 
     @property
@@ -103,16 +144,6 @@ class World:
     # -- building -----------------------------------------------------------------------------------
     def _build(self) -> None:
         c = self.client
-        s = self.settings
-        pb.setGravity(0, 0, s.gravity, physicsClientId=c)
-        pb.setPhysicsEngineParameter(fixedTimeStep=s.time_step, numSolverIterations=s.solver_iterations,
-                                     solverResidualThreshold=s.solver_residual_threshold,
-                                     deterministicOverlappingPairs=int(s.deterministic_pairs),
-                                     physicsClientId=c)
-        self.floor_uid = -1
-        if self.scene.floor:
-            plane = pb.createCollisionShape(pb.GEOM_PLANE, physicsClientId=c)
-            self.floor_uid = pb.createMultiBody(0, plane, physicsClientId=c)
         uids, offsets, static = [], [], []
         for i, spec in enumerate(self.scene.objects):
             uid = self._create(i, spec)
@@ -120,10 +151,10 @@ class World:
             info = pb.getDynamicsInfo(uid, -1, physicsClientId=c)
             offsets.append(list(info[3]) + list(info[4]))
             static.append(spec.static)
-            # no sleeping (a reset would not wake a body) and no air drag (Bullet's default linear
-            # damping of 0.04 would slow free falls by about 1 % per second)
-            pb.changeDynamics(uid, -1, activationState=pb.ACTIVATION_STATE_DISABLE_SLEEPING,
-                              linearDamping=0.0, physicsClientId=c)
+            # sleeping only where the settings allow it (a reset does not wake a body), and no air
+            # drag (Bullet's default linear damping of 0.04 would slow free falls by about 1 % per
+            # second)
+            pb.changeDynamics(uid, -1, activationState=self._activation, linearDamping=0.0, physicsClientId=c)
         self.uids: tuple[int, ...] = tuple(uids)
         self._uid_to_index = {u: i for i, u in enumerate(uids)}
         self.static = np.array(static, dtype=bool)
@@ -135,6 +166,7 @@ class World:
         self._inertial_inv = pose_inverse(off)
         self._num_links = [pb.getNumJoints(u, physicsClientId=c) for u in uids]
         self._static_raw: tuple[np.ndarray, np.ndarray] | None = None
+        self._parked: set[int] = set()
         self.parked_pose = np.zeros((len(uids), 7))
         self.parked_pose[:, 0] = PARK_DISTANCE + 3.0 * np.arange(len(uids))
         self.parked_pose[:, 1] = PARK_DISTANCE
@@ -148,15 +180,22 @@ class World:
         self.set_poses(initial)
         self.set_velocities(np.zeros((len(uids), 6)))
 
+    @property
+    def _activation(self) -> int:
+        return (pb.ACTIVATION_STATE_ENABLE_SLEEPING if self.settings.sleeping
+                else pb.ACTIVATION_STATE_DISABLE_SLEEPING)
+
     def _create(self, i: int, spec: ObjectSpec) -> int:
         c = self.client
         pos = list(spec.position) if spec.position is not None else [0.0, 0.0, -PARK_DISTANCE]
+        pos = (np.asarray(pos) + self.origin).tolist()
         orn = list(spec.orientation)
         if spec.shape == "urdf":
             uid = -1
+            path = collision_only_urdf(spec.urdf) if self.settings.collision_only else spec.urdf
             for _attempt in range(2):  # a transient failure (file being written) gets one retry
                 try:
-                    uid = pb.loadURDF(spec.urdf, pos, orn, useFixedBase=spec.static,
+                    uid = pb.loadURDF(path, pos, orn, useFixedBase=spec.static,
                                       globalScaling=spec.scale, physicsClientId=c)
                     break
                 except pb.error:
@@ -246,19 +285,24 @@ class World:
             p, q = get(self.uids[i], physicsClientId=c)
             flat.extend(p)
             flat.extend(q)
-        return self.link_frame(np.array(flat, dtype=float).reshape(len(idx), 7), None, idx)[0]
+        raw = np.array(flat, dtype=float).reshape(len(idx), 7)
+        raw[:, :3] -= self.origin
+        return self.link_frame(raw, None, idx)[0]
 
     def com_positions(self, poses: np.ndarray, indices) -> np.ndarray:
         """Centre-of-mass positions ``(n, 3)`` of objects ``indices`` placed at link-frame ``poses``
-        ``(n, 7)`` (pybullet reports and integrates the centre of mass)."""
+        ``(n, 7)`` (pybullet reports and integrates the centre of mass; same frame as ``poses``)."""
         idx = self._indices(indices)
         poses = np.asarray(poses, dtype=float).reshape(len(idx), 7)
         return self.com_frame(poses, None, idx)[0][:, :3].copy()
 
     def set_poses(self, poses: np.ndarray, indices=None) -> None:
-        """Teleport objects ``indices`` to link-frame ``poses`` ``(n, 7)``. Velocities are kept."""
+        """Teleport objects ``indices`` to link-frame ``poses`` ``(n, 7)``. Velocities are kept.
+        Sleeping bodies are not woken (see :meth:`wake`)."""
         idx = self._indices(indices)
-        poses = self.com_frame(np.asarray(poses, dtype=float).reshape(len(idx), 7), None, idx)[0]
+        poses = self.com_frame(np.asarray(poses, dtype=float).reshape(len(idx), 7), None, idx)[0].copy()
+        self._park(idx, poses[:, 2])
+        poses[:, :3] += self.origin
         c = self.client
         reset = pb.resetBasePositionAndOrientation
         for i, row in zip(idx, poses.tolist()):
@@ -286,23 +330,82 @@ class World:
         pass."""
         m = len(self.uids)
         flat_p, flat_v, flat_b = self.read_raw(range(m))
-        poses, vel = self.link_frame(np.array(flat_p).reshape(m, 7), np.array(flat_v).reshape(m, 6))
-        return poses, vel, np.array(flat_b).reshape(m, 2, 3)
+        raw = np.array(flat_p).reshape(m, 7)
+        raw[:, :3] -= self.origin
+        poses, vel = self.link_frame(raw, np.array(flat_v).reshape(m, 6))
+        return poses, vel, np.array(flat_b).reshape(m, 2, 3) - self.origin
 
     def load_com_state(self, indices: list[int], com_poses: list, com_vel: list) -> None:
         """Set objects ``indices`` to centre-of-mass poses and velocities given as nested lists
-        ``[[x, y, z, qx, qy, qz, qw], ...]`` and ``[[vx, vy, vz, wx, wy, wz], ...]`` (the hot load
-        path; :meth:`com_frame` converts link-frame arrays)."""
+        ``[[x, y, z, qx, qy, qz, qw], ...]`` (in the client's frame: scene frame plus
+        :attr:`origin`) and ``[[vx, vy, vz, wx, wy, wz], ...]`` (the hot load path; :meth:`com_frame`
+        converts link-frame arrays). Sleeping bodies are not woken (see :meth:`wake`)."""
         c = self.client
         reset, reset_vel = pb.resetBasePositionAndOrientation, pb.resetBaseVelocity
+        floor = self.origin[2] - PARK_DEPTH
+        if self._parked or any(p[2] < floor for p in com_poses):
+            self._park(indices, [p[2] - self.origin[2] for p in com_poses])
         for i, p, v in zip(indices, com_poses, com_vel):
             uid = self.uids[i]
             reset(uid, p[:3], p[3:], physicsClientId=c)
             reset_vel(uid, v[:3], v[3:], physicsClientId=c)
 
+    def _park(self, indices, heights) -> None:
+        """Park dynamic objects ``indices`` set at ``heights`` (m, scene frame) below
+        :data:`PARK_DEPTH` (no collisions, asleep, at rest) and un-park the others."""
+        c = self.client
+        for i, z in zip(indices, heights):
+            if self.static[i]:
+                continue
+            parked = z < -PARK_DEPTH
+            if parked == (i in self._parked):
+                continue
+            uid = self.uids[i]
+            group, mask = (0, 0) if parked else (1, -1)  # pybullet's defaults for dynamic bodies
+            for link in range(-1, self._num_links[i]):
+                pb.setCollisionFilterGroupMask(uid, link, group, mask, physicsClientId=c)
+            if parked:
+                self._parked.add(i)
+                pb.resetBaseVelocity(uid, [0, 0, 0], [0, 0, 0], physicsClientId=c)
+                pb.changeDynamics(uid, -1, activationState=pb.ACTIVATION_STATE_ENABLE_SLEEPING, physicsClientId=c)
+                pb.changeDynamics(uid, -1, activationState=pb.ACTIVATION_STATE_SLEEP, physicsClientId=c)
+            else:
+                self._parked.discard(i)
+                pb.changeDynamics(uid, -1, activationState=self._activation, physicsClientId=c)
+                pb.changeDynamics(uid, -1, activationState=pb.ACTIVATION_STATE_WAKE_UP, physicsClientId=c)
+
+    def wake(self, indices) -> None:
+        """Wake objects ``indices`` (needed after a reset when :attr:`PhysicsSettings.sleeping`)."""
+        c = self.client
+        change = pb.changeDynamics
+        for i in indices:
+            if i not in self._parked:
+                change(self.uids[i], -1, activationState=pb.ACTIVATION_STATE_WAKE_UP, physicsClientId=c)
+
+    def sleep(self, indices) -> None:
+        """Put objects ``indices`` to sleep (their velocities become zero): stepping skips them until
+        an awake body touches them or :meth:`wake` is called. Needs :attr:`PhysicsSettings.sleeping`."""
+        c = self.client
+        change = pb.changeDynamics
+        for i in indices:
+            change(self.uids[i], -1, activationState=pb.ACTIVATION_STATE_SLEEP, physicsClientId=c)
+
+    def touching(self, indices) -> list[int]:
+        """Objects (indices, sorted) in contact with any of ``indices`` after the last step, the
+        floor and ``indices`` themselves excluded (contacts of sleeping bodies are kept)."""
+        c = self.client
+        found: set[int] = set()
+        for i in indices:
+            for pt in pb.getContactPoints(bodyA=self.uids[i], physicsClientId=c):
+                j = self._uid_to_index.get(pt[2], -1)
+                if j >= 0:
+                    found.add(j)
+        return sorted(found.difference(indices))
+
     def static_raw(self) -> tuple[np.ndarray, np.ndarray]:
-        """Centre-of-mass poses ``(M, 7)`` and AABBs ``(M, 2, 3)`` of all objects, as read when first
-        asked (valid for the static objects, which never move; the other rows are NaN)."""
+        """Centre-of-mass poses ``(M, 7)`` and AABBs ``(M, 2, 3)`` of all objects in the scene frame,
+        as read when first asked (valid for the static objects, which never move; the other rows
+        are NaN)."""
         if self._static_raw is None:
             m = len(self.uids)
             st = [int(i) for i in np.flatnonzero(self.static)]
@@ -310,7 +413,8 @@ class World:
             poses = np.full((m, 7), np.nan)
             boxes = np.full((m, 2, 3), np.nan)
             poses[st] = np.array(p).reshape(len(st), 7)
-            boxes[st] = np.array(b).reshape(len(st), 2, 3)
+            poses[st, :3] -= self.origin
+            boxes[st] = np.array(b).reshape(len(st), 2, 3) - self.origin
             self._static_raw = (poses, boxes)
         return self._static_raw
 
@@ -318,7 +422,8 @@ class World:
                  flat_b: list | None = None) -> tuple[list[float], list[float], list[float]]:
         """Pybullet's own state of objects ``indices``, as flat lists (the hot read-back path: no
         numpy): centre-of-mass poses (7 floats per object), centre-of-mass velocities (6) and AABBs
-        (6: ``lo, hi``, the union over all links). :meth:`link_frame` converts the first two.
+        (6: ``lo, hi``, the union over all links), positions in the client's frame (scene frame
+        plus :attr:`origin`). :meth:`link_frame` converts the first two.
         Given lists are extended in place (and returned)."""
         c = self.client
         get, get_vel, get_box = pb.getBasePositionAndOrientation, pb.getBaseVelocity, pb.getAABB
@@ -377,7 +482,8 @@ class World:
         return com, cvel
 
     def step(self, n: int = 1) -> None:
-        """Advance the simulation by ``n`` fixed steps of :attr:`PhysicsSettings.time_step` seconds."""
+        """Advance the simulation by ``n`` fixed steps of :attr:`PhysicsSettings.time_step` seconds
+        (every copy of a shared client)."""
         c = self.client
         for _ in range(int(n)):
             pb.stepSimulation(physicsClientId=c)
@@ -418,7 +524,7 @@ class World:
                 a, b = get(self.uids[i], link, physicsClientId=c)
                 out[k, 0] = np.minimum(out[k, 0], a)
                 out[k, 1] = np.maximum(out[k, 1], b)
-        return out
+        return out - self.origin
 
     def in_contact(self, a: int, b: int | None = None) -> bool:
         """True when object ``a`` touches object ``b`` (or anything, if ``b`` is None; the floor is
@@ -435,8 +541,8 @@ class World:
         (:data:`FLOOR` for the floor, -1 for none) and the fraction of the ray's length where it hit
         (1.0 for none).
         """
-        origins = np.asarray(origins, dtype=float).reshape(-1, 3)
-        ends = np.asarray(ends, dtype=float).reshape(-1, 3)
+        origins = np.asarray(origins, dtype=float).reshape(-1, 3) + self.origin
+        ends = np.asarray(ends, dtype=float).reshape(-1, 3) + self.origin
         n = len(origins)
         hit = np.full(n, -1, dtype=int)
         frac = np.ones(n)
