@@ -1,11 +1,20 @@
 """The benchmark command: its figures are there, finite and consistent (no assertion on speed)."""
 import json
 import math
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
-from experiments.bench import bench_one, bench_scene
-from experiments.cli import main
+from experiments import bench_scenario
+from experiments.bench import StreamTiming, bench_one, bench_scene
+from experiments.cli import demo_files, main
+from experiments.scenarios import list_scenarios
+
+ROOT = Path(__file__).resolve().parents[1]
+BANNER = "pybullet build time"
 
 
 @pytest.mark.parametrize("workers", [0, 2])
@@ -19,6 +28,7 @@ def test_bench_one_reports_consistent_figures(workers):
     assert r["updates_per_s"] == pytest.approx(1e3 / r["update_ms_median"])
     assert r["update_ms_p95"] >= r["update_ms_median"]
     assert math.isfinite(r["exchange_ms_median"]) and math.isfinite(r["worker_overhead_us_per_particle"])
+    assert r["updates"] == 3 and r["startup_s"] > 0
     assert len(bench_scene(2).objects) == 3  # the table and two boxes
 
 
@@ -28,7 +38,9 @@ def test_bench_command_prints_json(capsys):
     assert out["workers"] == 0 and len(out["results"]) == 1 and out["results"][0]["particles"] == 2
     assert main(["bench", "--particles", "2", "--objects", "2", "--updates", "2", "--workers", "0",
                  "--breakdown"]) == 0
-    assert "over us/particle" in capsys.readouterr().out
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith("| K | objects |") and "worker over bare (us/particle)" in out[0]
+    assert out[1].startswith("|---|") and len(out) == 3 and out[2].startswith("| 2 | 2 |")
 
 
 def test_bench_times_a_configuration_file(tmp_path, capsys):
@@ -37,3 +49,100 @@ def test_bench_times_a_configuration_file(tmp_path, capsys):
                  "--config", str(tmp_path / "c.yaml")]) == 0
     r = json.loads(capsys.readouterr().out)["results"][0]
     assert r["particles"] == 2 and r["steps_per_update"] == 24  # the file's horizon: 0.1 s of 1/240 s steps
+
+
+def _check_scenario_row(r):
+    for name in ("update_ms_median", "update_ms_p95", "bare_step_ms_median", "ratio", "realtime_factor",
+                 "stream_s", "processing_s", "startup_s", "peak_memory_mb", "main_ms_median",
+                 "slowest_shard_ms_median"):
+        assert math.isfinite(r[name]) and r[name] > 0, name
+    assert r["ratio"] == pytest.approx(r["update_ms_median"] / r["bare_step_ms_median"], rel=1e-9)
+    assert r["realtime_factor"] == pytest.approx(r["stream_s"] / r["processing_s"], rel=1e-9)
+    assert r["update_ms_p95"] >= r["update_ms_median"]
+    # every update is in the processing time, the timed reasoning steps among them
+    assert r["processing_s"] >= r["updates"] * r["update_ms_median"] / 1e3 / 2
+    assert r["frames"] > r["updates"] and r["steps_per_update"] > 0
+
+
+def test_bench_scenario_mode_one_row_per_scenario_and_particle_count(capsys):
+    assert main(["bench", "--scenario", "static_floating", "--scenario", "stacked_tower", "--particles", "2", "3",
+                 "--updates", "3", "--workers", "0", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["mode"] == "scenario" and out["seed"] == 0 and out["workers"] == 0
+    rows = out["results"]
+    assert [(r["scenario"], r["particles"]) for r in rows] == [
+        ("static_floating", 2), ("static_floating", 3), ("stacked_tower", 2), ("stacked_tower", 3)]
+    for r in rows:
+        _check_scenario_row(r)
+        assert r["updates"] == 3 and r["workers"] == 0
+
+
+def test_bench_scenario_replays_the_whole_stream(capsys):
+    assert main(["bench", "--scenario", "static_floating", "--particles", "2", "--workers", "0",
+                 "--breakdown"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("| scenario | K | updates |") and "real-time factor" in lines[0]
+    assert "slowest shard (ms)" in lines[0] and len(lines) == 3
+    cells = [c.strip() for c in lines[2].strip("|").split("|")]
+    # 3 s at 30 frames per second, a reasoning step every third frame: 30, of which the first only
+    # places the objects
+    assert cells[:4] == ["static_floating", "2", "29", "3.00"]
+
+
+def test_bench_unknown_scenario_is_a_clear_error(capsys):
+    assert main(["bench", "--scenario", "static_floating", "--scenario", "no_such_scenario",
+                 "--particles", "2"]) == 2
+    err = capsys.readouterr().err
+    assert "no_such_scenario" in err and all(name in err for name in list_scenarios())
+
+
+def test_bench_scenario_all_expands_to_every_built_in_scenario(monkeypatch, capsys):
+    names = list_scenarios()
+    assert len(names) > 1 and "static_floating" in names
+    assert bench_scenario.resolve_scenarios(["all"]) == names
+    assert bench_scenario.resolve_scenarios(["stacked_tower", "all", "stacked_tower"]) == (
+        ["stacked_tower"] + [n for n in names if n != "stacked_tower"])
+    # the command runs one row per (scenario, K) of the expansion (nothing simulated or timed here)
+    fake = StreamTiming(startup_s=0.5, peak_memory_mb=100.0, processing_s=0.2, frame_times=[0.1, 0.2, 0.3],
+                        update_s=[0.01, 0.03], bare_s=[0.005, 0.01], steps=[24, 24], main_s=[0.001] * 2,
+                        exchange_s=[0.001] * 2, shard_s=[0.008] * 2, over_s=[1e-5] * 2)
+    monkeypatch.setattr(bench_scenario, "scenario_stream", lambda name: _NoStream())
+    monkeypatch.setattr(bench_scenario, "time_stream", lambda *a, **kw: fake)
+    assert main(["bench", "--scenario", "all", "--particles", "16", "256", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)["results"]
+    assert [(r["scenario"], r["particles"]) for r in rows] == [(n, k) for n in names for k in (16, 256)]
+    assert rows[0]["stream_s"] == pytest.approx(0.3) and rows[0]["realtime_factor"] == pytest.approx(1.5)
+    assert rows[0]["ratio"] == pytest.approx(0.02 / 0.0075) and rows[0]["updates"] == 2
+
+
+class _NoStream:
+    def __enter__(self):
+        return None, []
+
+    def __exit__(self, *exc):
+        return False
+
+
+def _cli(*args):
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.run([sys.executable, "-m", "experiments.cli", *args], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_bench_json_is_all_of_stdout_with_worker_processes():
+    res = _cli("bench", "--scenario", "static_floating", "--particles", "2", "--workers", "2", "--updates", "2",
+               "--json")
+    assert res.returncode == 0, res.stderr
+    out = json.loads(res.stdout)  # one JSON object and nothing else: no banner, no progress
+    assert [(r["scenario"], r["particles"], r["workers"]) for r in out["results"]] == [("static_floating", 2, 2)]
+    assert BANNER not in res.stdout
+
+
+@pytest.mark.parametrize("args", [("simulate", "--list"), ("config", "--particles", "4"), ("run",)])
+def test_no_pybullet_banner_on_stdout(args):
+    if args == ("run",):
+        scene, obs = demo_files()
+        args = ("run", "--scene", scene, "--observations", obs)
+    res = _cli(*args)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() and BANNER not in res.stdout

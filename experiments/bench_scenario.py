@@ -1,0 +1,83 @@
+"""``scene-estimator bench --scenario NAME``: the estimator's speed on a simulated scenario's stream.
+
+The scenario is simulated once (seed 0, :func:`experiments.simulator.simulate`), its files written to
+a temporary folder and read back as ``scene-estimator run`` reads them
+(:class:`~estimator.observations.ObservationReader`); then, for each particle count, every frame of
+the stream goes through a new estimator (:func:`experiments.bench.time_stream`). Besides the update
+and bare-stepping figures of the synthetic benchmark, a row has the stream's duration
+(``stream_s``: the frames' time span plus one frame period), the time all ``update`` calls took
+(``processing_s``, frames between reasoning steps included) and their quotient, the real-time factor
+(above 1: faster than the stream comes in). The update statistics are over the reasoning steps that
+simulated: all but the first, which only places the objects.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+import tempfile
+from typing import Iterator
+
+import numpy as np
+
+from estimator.observations import Frame, ObservationReader
+from physics.scene import Scene, load_scene
+
+from .bench import RESOURCE_COLUMNS, TIMING_COLUMNS, particle_configs, report, time_stream, timing_row
+from .scenarios import list_scenarios, load_scenario
+
+SEED = 0
+
+SCENARIO_COLUMNS = ([("scenario", "scenario", "{}"), ("particles", "K", "{}"), ("updates", "updates", "{}"),
+                     ("stream_s", "stream (s)", "{:.2f}"), ("processing_s", "processing (s)", "{:.2f}"),
+                     ("realtime_factor", "real-time factor", "{:.2f}")]
+                    + TIMING_COLUMNS + RESOURCE_COLUMNS)
+
+
+def resolve_scenarios(names: list[str]) -> list[str]:
+    """The scenarios ``names`` ask for, in order, without repeats; ``all`` stands for every built-in
+    one. Raises :class:`~physics.errors.InputError` for a name that is neither a built-in scenario nor a scenario file,
+    naming it and listing the built-in ones."""
+    out: list[str] = []
+    for name in names:
+        for n in (list_scenarios() if name == "all" else [name]):
+            if n not in out:
+                out.append(n)
+    for n in out:
+        load_scenario(n)  # all checked before anything runs
+    return out
+
+
+@contextlib.contextmanager
+def scenario_stream(name: str, seed: int = SEED) -> Iterator[tuple[Scene, list[Frame]]]:
+    """The estimator's scene and the observation frames of ``name``'s simulation (``seed``), read back
+    from the files ``scene-estimator simulate`` writes (in a temporary folder, kept while in use)."""
+    from .simulator import simulate, write_outputs
+
+    result = simulate(name, seed)
+    with tempfile.TemporaryDirectory(prefix="bench_") as tmp:
+        paths = write_outputs(result, tmp)
+        scene = load_scene(str(paths["scene.yaml"]))
+        frames = list(ObservationReader(str(paths["observations.jsonl"]), scene.object_ids))
+        yield scene, frames
+
+
+def run_scenario_bench(args) -> int:
+    names = resolve_scenarios(args.scenario)
+    configs = particle_configs(args)
+
+    def rows():
+        for name in names:
+            print(f"bench: simulating {name} (seed {SEED})", file=sys.stderr, flush=True)
+            with scenario_stream(name) as (scene, frames):
+                for k, cfg in configs:
+                    print(f"bench: {name}, K={k}: {len(frames)} frames", file=sys.stderr, flush=True)
+                    st = time_stream(scene, cfg, frames, np.random.default_rng(SEED), max_updates=args.updates)
+                    yield {"scenario": name, "particles": k, "workers": cfg.workers,
+                           "frames": len(st.frame_times), "stream_s": st.stream_s,
+                           "processing_s": st.processing_s, "realtime_factor": st.stream_s / st.processing_s,
+                           **timing_row(st)}
+
+    meta = {"mode": "scenario", "seed": SEED, "workers": args.workers, "cpu_count": os.cpu_count(),
+            "config": args.config}
+    return report(args, SCENARIO_COLUMNS, rows(), meta)
