@@ -20,6 +20,7 @@ import numpy as np
 import pybullet as pb
 
 from actions.modes import FREE, HELD
+from physics.transforms import quat_from_rotvec, quat_multiply
 from physics.world import World
 
 from .held import HeldObjects, depenetrate, glide_paths
@@ -220,8 +221,9 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     tested: list[tuple[int, int, float]] = []  # (particle, object, largest divergence) of in-loop tests
     switched_at: list[tuple[int, int, float]] = []
     read: list[tuple[list, list, list]] = [([], [], [])] * K
+    speed_l = np.any(com_v != 0.0, axis=-1).tolist()
     for client, ks in clients.items():
-        helds, watches = [], []
+        helds, watches, restart = [], [], []
         for k in ks:
             pw = pws[k]
             w = pw.world
@@ -230,6 +232,9 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
             woken = rows + w.touching(rows) if sleeping and rows else []  # contacts before the reset
             if True in reset_l[k]:
                 loads = [i for i in dyn if reset_l[k][i]]
+                if sleeping and n_steps > 0:
+                    restart += _restart(w, w.asleep([i for i in loads if speed_l[k][i]]), com_p[k], com_v[k],
+                                        dt, w0.settings.gravity)
                 w.load_com_state(loads, com_p[k, loads].tolist(), com_v[k, loads].tolist())
             if woken:
                 w.wake(woken)
@@ -243,7 +248,7 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
             # divergence, position of the world in ks]
             watches += [[i, w.uids[i], *target_l[k][i], due_l[k][i], 0.0, len(helds) - 1]
                         for i in dyn if checked_l[k][i]]
-        switched = _simulate(client, dt, helds, watches, n_steps, d_sim_perc, lazy)
+        switched = _simulate(client, dt, helds, watches, n_steps, d_sim_perc, lazy, restart)
         switched_at += [(ks[j], i, d) for j, i, d in switched]
         tested += [(ks[item[7]], item[0], item[6]) for item in watches if item[6]]
         for k in ks:
@@ -302,6 +307,22 @@ def _glides(pws: list[ParticleWorld], batch: BatchInput, held: np.ndarray,
     return out
 
 
+def _restart(w: World, rows: list[int], com_p: np.ndarray, com_v: np.ndarray, dt: float,
+             gravity: float) -> list[tuple]:
+    """For objects ``rows`` loaded with a velocity while asleep (Bullet clears a woken body's velocity
+    in its first step): the state to give them after that step, that of one free step from the
+    loaded centre-of-mass state ``com_p (M, 7)`` (client frame), ``com_v (M, 6)`` (semi-implicit
+    Euler, as Bullet integrates), as ``[(body id, position, orientation, linear, angular)]``."""
+    if not rows:
+        return []
+    v = com_v[rows].copy()
+    v[:, 2] += gravity * dt
+    pos = com_p[rows, :3] + v[:, :3] * dt
+    orn = quat_multiply(quat_from_rotvec(v[:, 3:] * dt), com_p[rows, 3:])
+    return [(w.uids[i], pos[j].tolist(), orn[j].tolist(), v[j, :3].tolist(), v[j, 3:].tolist())
+            for j, i in enumerate(rows)]
+
+
 def _assemble(w0: World, dyn: list[int], read: list[tuple[list, list, list]],
               origins: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Centre-of-mass poses ``(K, M, 7)``, velocities ``(K, M, 6)`` and AABBs ``(K, M, 2, 3)``, in
@@ -337,12 +358,12 @@ def _sleep_resting(pws: list[ParticleWorld], candidates: np.ndarray, vel_in: np.
 
 
 def _simulate(client: int, dt: float, helds: list["HeldObjects"], watch: list[list], n_steps: int,
-              d_sim_perc: float, lazy: bool) -> list[tuple[int, int, float]]:
+              d_sim_perc: float, lazy: bool, restart: list[tuple] = ()) -> list[tuple[int, int, float]]:
     """The step loop of one client (the hot path, plain Python), for its worlds' held objects
-    ``helds`` (one per world) and divergence tests ``watch`` (items updated in place). Returns the
-    objects that switched to HELD during the loop as ``(world position, object, largest
-    divergence)`` (lazily, the test after the last step is left to the caller, on the state read
-    back)."""
+    ``helds`` (one per world) and divergence tests ``watch`` (items updated in place); ``restart``
+    (see :func:`_restart`) is applied after the first step. Returns the objects that switched to
+    HELD during the loop as ``(world position, object, largest divergence)`` (lazily, the test
+    after the last step is left to the caller, on the state read back)."""
     c = client
     get = pb.getBasePositionAndOrientation
     get_vel = pb.getBaseVelocity
@@ -355,6 +376,8 @@ def _simulate(client: int, dt: float, helds: list["HeldObjects"], watch: list[li
         stop = min(min(item[5] for item in watch), n_steps) if watch else n_steps
         if lazy and stop > n_steps - LAST_STEPS:
             stop = n_steps  # a test due in the last steps is the test after the last step
+        if restart:
+            stop = 1
         if moving:
             for t in range(s + 1, stop + 1):
                 for h in moving:
@@ -364,6 +387,11 @@ def _simulate(client: int, dt: float, helds: list["HeldObjects"], watch: list[li
             for _ in range(stop - s):
                 step(physicsClientId=c)
         s = stop
+        if restart:
+            for uid, pos, orn, lin, ang in restart:
+                pb.resetBasePositionAndOrientation(uid, pos, orn, physicsClientId=c)
+                pb.resetBaseVelocity(uid, lin, ang, physicsClientId=c)
+            restart = ()
         if lazy and s == n_steps:
             break  # the caller tests after the last step, on the state it reads back
         switched = None

@@ -375,7 +375,9 @@ class World:
                 pb.changeDynamics(uid, -1, activationState=pb.ACTIVATION_STATE_WAKE_UP, physicsClientId=c)
 
     def wake(self, indices) -> None:
-        """Wake objects ``indices`` (needed after a reset when :attr:`PhysicsSettings.sleeping`)."""
+        """Wake objects ``indices`` (needed after a reset when :attr:`PhysicsSettings.sleeping`).
+        Bullet clears a woken body's velocity in the next step: a body loaded with a velocity while
+        asleep must be given it again after that step (see :func:`estimator.propagate.propagate_batch`)."""
         c = self.client
         change = pb.changeDynamics
         for i in indices:
@@ -389,6 +391,13 @@ class World:
         change = pb.changeDynamics
         for i in indices:
             change(self.uids[i], -1, activationState=pb.ACTIVATION_STATE_SLEEP, physicsClientId=c)
+
+    def asleep(self, indices) -> list[int]:
+        """Those of objects ``indices`` that are asleep (a sleeping body reads back exactly zero
+        velocity; so does an awake one at exact rest, which is then taken as asleep)."""
+        c = self.client
+        get = pb.getBaseVelocity
+        return [i for i in indices if get(self.uids[i], physicsClientId=c) == ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))]
 
     def touching(self, indices) -> list[int]:
         """Objects (indices, sorted) in contact with any of ``indices`` after the last step, the
