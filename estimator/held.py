@@ -8,6 +8,7 @@ import numpy as np
 import pybullet as pb
 
 from physics.transforms import carry_pose, quat_conjugate, quat_from_rotvec, quat_multiply, quat_to_rotvec
+from physics.sleep import touching, wake
 from physics.world import World
 
 
@@ -84,7 +85,7 @@ class HeldObjects:
         waking them and what they touched (see :attr:`PhysicsSettings.sleeping`)."""
         w = self.w
         if w.settings.sleeping:
-            w.wake(sorted(set(indices) | set(w.touching(indices)) | set(
+            wake(w, sorted(set(indices) | set(touching(w, indices)) | set(
                 int(j) for i in indices for j in np.flatnonzero(self.contents[:, i]))))
         before = w.get_poses(indices)
         w.set_poses(self.target[indices], indices)

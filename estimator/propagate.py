@@ -21,6 +21,7 @@ import pybullet as pb
 
 from actions.modes import FREE, HELD
 from physics.transforms import quat_from_rotvec, quat_multiply
+from physics.sleep import asleep, sleep, touching, wake
 from physics.world import World
 
 from .held import HeldObjects, depenetrate, glide_paths
@@ -205,7 +206,7 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     held_mask = (batch.modes == HELD) & dyn_mask
     depen_mask = batch.depenetrate & dyn_mask
     moved = reset | held_mask | depen_mask
-    reset_l, depen_l, held_l, moved_l = reset.tolist(), depen_mask.tolist(), held_mask.tolist(), moved.tolist()
+    reset_l, depen_l, moved_l = reset.tolist(), depen_mask.tolist(), moved.tolist()
     # watched objects and the first step at which each one needs testing
     checked = batch.check & (batch.modes == FREE) & dyn_mask
     target_com = w0.com_frame(batch.target)[0][..., :3] + origins
@@ -229,15 +230,15 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
             w = pw.world
             pw.apply_params(batch.params[k])
             rows = [i for i in dyn if moved_l[k][i]] if True in moved_l[k] else []
-            woken = rows + w.touching(rows) if sleeping and rows else []  # contacts before the reset
+            woken = rows + touching(w, rows) if sleeping and rows else []  # contacts before the reset
             if True in reset_l[k]:
                 loads = [i for i in dyn if reset_l[k][i]]
                 if sleeping and n_steps > 0:
-                    restart += _restart(w, w.asleep([i for i in loads if speed_l[k][i]]), com_p[k], com_v[k],
+                    restart += _restart(w, asleep(w, [i for i in loads if speed_l[k][i]]), com_p[k], com_v[k],
                                         dt, w0.settings.gravity)
                 w.load_com_state(loads, com_p[k, loads].tolist(), com_v[k, loads].tolist())
             if woken:
-                w.wake(woken)
+                wake(w, woken)
             if True in depen_l[k]:
                 depenetrate(w, [i for i in dyn if depen_l[k][i]])
             held = HeldObjects(w, batch.target[k], batch.target_vel[k], batch.contents[k], n_steps)
@@ -354,7 +355,7 @@ def _sleep_resting(pws: list[ParticleWorld], candidates: np.ndarray, vel_in: np.
                 & (np.linalg.norm(v[..., 3:], axis=-1) < REST_SPIN))
     rest = candidates & slow(vel_in) & slow(vel_out) & np.any(vel_out != 0.0, axis=-1)
     for k in np.flatnonzero(rest.any(axis=1)).tolist():
-        pws[k].world.sleep(np.flatnonzero(rest[k]).tolist())
+        sleep(pws[k].world, np.flatnonzero(rest[k]).tolist())
 
 
 def _simulate(client: int, dt: float, helds: list["HeldObjects"], watch: list[list], n_steps: int,

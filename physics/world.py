@@ -14,14 +14,12 @@ Arrays (float64):
 """
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
-
 import numpy as np
 import pybullet as pb
 
 from .errors import SceneError
 from .scene import ObjectSpec, Scene
+from .settings import PhysicsSettings, connect
 from .transforms import pose_compose, pose_inverse, quat_rotate
 from .urdf import collision_only_urdf
 
@@ -34,57 +32,6 @@ PARK_DISTANCE = 50.0
 PARK_DEPTH = 25.0
 """An object set more than this (m) below the floor is parked: it collides with nothing and sleeps."""
 MAX_RAYS_PER_BATCH = 16000
-
-
-@dataclass(frozen=True)
-class PhysicsSettings:
-    """Engine settings of a world.
-
-    ``time_step`` is the fixed step (s); ``solver_iterations`` Bullet's constraint-solver iterations,
-    ``solver_residual_threshold`` the residual at which the solver stops earlier (pybullet's default
-    1e-7; 1e-4 makes resting scenes cheaper to step);
-    ``deterministic_pairs`` sorts overlapping pairs so that two identically built worlds agree bit
-    for bit. ``sleeping`` lets bodies be put to sleep (:meth:`World.sleep`; Bullet's own
-    deactivation too): a sleeping body costs almost nothing to step and wakes when an awake body
-    touches it, but NOT when it is reset, so whoever resets bodies must wake them
-    (:meth:`World.wake`; ``False``, the default, never lets a body sleep). ``collision_only`` loads
-    URDFs without their visual meshes and textures (:mod:`physics.urdf`), which physics never uses
-    (a world whose visual shapes are read, for drawing, keeps them: the default).
-    """
-
-    time_step: float = 1.0 / 240.0
-    gravity: float = -9.81
-    solver_iterations: int = 50
-    solver_residual_threshold: float = 1e-7
-    deterministic_pairs: bool = True
-    sleeping: bool = False
-    collision_only: bool = False
-
-    def __post_init__(self):
-        if not (self.time_step > 0 and math.isfinite(self.time_step)):
-            raise ValueError(f"time_step must be > 0, got {self.time_step}")
-        if self.solver_iterations < 1:
-            raise ValueError(f"solver_iterations must be >= 1, got {self.solver_iterations}")
-        if not self.solver_residual_threshold > 0:
-            raise ValueError(f"solver_residual_threshold must be > 0, got {self.solver_residual_threshold}")
-
-
-def connect(settings: PhysicsSettings, floor: bool) -> tuple[int, int]:
-    """A new DIRECT pybullet client set up with ``settings``; returns ``(client, floor body id)``
-    (``-1`` without a floor). The caller disconnects it."""
-    c = pb.connect(pb.DIRECT)
-    if c < 0:
-        raise RuntimeError("could not start a pybullet DIRECT client")
-    pb.setGravity(0, 0, settings.gravity, physicsClientId=c)
-    pb.setPhysicsEngineParameter(fixedTimeStep=settings.time_step, numSolverIterations=settings.solver_iterations,
-                                 solverResidualThreshold=settings.solver_residual_threshold,
-                                 deterministicOverlappingPairs=int(settings.deterministic_pairs),
-                                 physicsClientId=c)
-    floor_uid = -1
-    if floor:
-        plane = pb.createCollisionShape(pb.GEOM_PLANE, physicsClientId=c)
-        floor_uid = pb.createMultiBody(0, plane, physicsClientId=c)
-    return c, floor_uid
 
 
 class World:
@@ -350,6 +297,10 @@ class World:
             reset(uid, p[:3], p[3:], physicsClientId=c)
             reset_vel(uid, v[:3], v[3:], physicsClientId=c)
 
+    def is_parked(self, index: int) -> bool:
+        """Whether object ``index`` is parked (see the class docstring)."""
+        return index in self._parked
+
     def _park(self, indices, heights) -> None:
         """Park dynamic objects ``indices`` set at ``heights`` (m, scene frame) below
         :data:`PARK_DEPTH` (no collisions, asleep, at rest) and un-park the others."""
@@ -373,43 +324,6 @@ class World:
                 self._parked.discard(i)
                 pb.changeDynamics(uid, -1, activationState=self._activation, physicsClientId=c)
                 pb.changeDynamics(uid, -1, activationState=pb.ACTIVATION_STATE_WAKE_UP, physicsClientId=c)
-
-    def wake(self, indices) -> None:
-        """Wake objects ``indices`` (needed after a reset when :attr:`PhysicsSettings.sleeping`).
-        Bullet clears a woken body's velocity in the next step: a body loaded with a velocity while
-        asleep must be given it again after that step (see :func:`estimator.propagate.propagate_batch`)."""
-        c = self.client
-        change = pb.changeDynamics
-        for i in indices:
-            if i not in self._parked:
-                change(self.uids[i], -1, activationState=pb.ACTIVATION_STATE_WAKE_UP, physicsClientId=c)
-
-    def sleep(self, indices) -> None:
-        """Put objects ``indices`` to sleep (their velocities become zero): stepping skips them until
-        an awake body touches them or :meth:`wake` is called. Needs :attr:`PhysicsSettings.sleeping`."""
-        c = self.client
-        change = pb.changeDynamics
-        for i in indices:
-            change(self.uids[i], -1, activationState=pb.ACTIVATION_STATE_SLEEP, physicsClientId=c)
-
-    def asleep(self, indices) -> list[int]:
-        """Those of objects ``indices`` that are asleep (a sleeping body reads back exactly zero
-        velocity; so does an awake one at exact rest, which is then taken as asleep)."""
-        c = self.client
-        get = pb.getBaseVelocity
-        return [i for i in indices if get(self.uids[i], physicsClientId=c) == ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))]
-
-    def touching(self, indices) -> list[int]:
-        """Objects (indices, sorted) in contact with any of ``indices`` after the last step, the
-        floor and ``indices`` themselves excluded (contacts of sleeping bodies are kept)."""
-        c = self.client
-        found: set[int] = set()
-        for i in indices:
-            for pt in pb.getContactPoints(bodyA=self.uids[i], physicsClientId=c):
-                j = self._uid_to_index.get(pt[2], -1)
-                if j >= 0:
-                    found.add(j)
-        return sorted(found.difference(indices))
 
     def static_raw(self) -> tuple[np.ndarray, np.ndarray]:
         """Centre-of-mass poses ``(M, 7)`` and AABBs ``(M, 2, 3)`` of all objects in the scene frame,

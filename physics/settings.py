@@ -1,0 +1,58 @@
+"""Engine settings of a pybullet world, and a DIRECT client set up with them."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import pybullet as pb
+
+
+@dataclass(frozen=True)
+class PhysicsSettings:
+    """Engine settings of a world.
+
+    ``time_step`` is the fixed step (s); ``solver_iterations`` Bullet's constraint-solver iterations,
+    ``solver_residual_threshold`` the residual at which the solver stops earlier (pybullet's default
+    1e-7; 1e-4 makes resting scenes cheaper to step);
+    ``deterministic_pairs`` sorts overlapping pairs so that two identically built worlds agree bit
+    for bit. ``sleeping`` lets bodies be put to sleep (:meth:`World.sleep`; Bullet's own
+    deactivation too): a sleeping body costs almost nothing to step and wakes when an awake body
+    touches it, but NOT when it is reset, so whoever resets bodies must wake them
+    (:meth:`World.wake`; ``False``, the default, never lets a body sleep). ``collision_only`` loads
+    URDFs without their visual meshes and textures (:mod:`physics.urdf`), which physics never uses
+    (a world whose visual shapes are read, for drawing, keeps them: the default).
+    """
+
+    time_step: float = 1.0 / 240.0
+    gravity: float = -9.81
+    solver_iterations: int = 50
+    solver_residual_threshold: float = 1e-7
+    deterministic_pairs: bool = True
+    sleeping: bool = False
+    collision_only: bool = False
+
+    def __post_init__(self):
+        if not (self.time_step > 0 and math.isfinite(self.time_step)):
+            raise ValueError(f"time_step must be > 0, got {self.time_step}")
+        if self.solver_iterations < 1:
+            raise ValueError(f"solver_iterations must be >= 1, got {self.solver_iterations}")
+        if not self.solver_residual_threshold > 0:
+            raise ValueError(f"solver_residual_threshold must be > 0, got {self.solver_residual_threshold}")
+
+
+def connect(settings: PhysicsSettings, floor: bool) -> tuple[int, int]:
+    """A new DIRECT pybullet client set up with ``settings``; returns ``(client, floor body id)``
+    (``-1`` without a floor). The caller disconnects it."""
+    c = pb.connect(pb.DIRECT)
+    if c < 0:
+        raise RuntimeError("could not start a pybullet DIRECT client")
+    pb.setGravity(0, 0, settings.gravity, physicsClientId=c)
+    pb.setPhysicsEngineParameter(fixedTimeStep=settings.time_step, numSolverIterations=settings.solver_iterations,
+                                 solverResidualThreshold=settings.solver_residual_threshold,
+                                 deterministicOverlappingPairs=int(settings.deterministic_pairs),
+                                 physicsClientId=c)
+    floor_uid = -1
+    if floor:
+        plane = pb.createCollisionShape(pb.GEOM_PLANE, physicsClientId=c)
+        floor_uid = pb.createMultiBody(0, plane, physicsClientId=c)
+    return c, floor_uid
