@@ -79,3 +79,64 @@ def test_a_dead_worker_is_a_clear_error():
         pool._procs[1].join()
         with pytest.raises(RuntimeError, match="worker"):
             pool.run(batch(k, m, poses), 5, 0.045)
+
+
+def _scenario_run(workers, name="cup_hidden_behind_back", seconds=4.5):
+    from estimator.config import EstimatorConfig, NoiseConfig
+    from estimator.filter import SceneEstimator
+    from estimator.observations import parse_frame
+    from experiments.simulator import simulate
+
+    res = simulate(name, 0)
+    frames = [parse_frame(o, known_ids=res.scene.object_ids) for o in res.observations if o["t"] <= seconds]
+    cfg = EstimatorConfig(particles=8, workers=workers, worlds=3, noise=NoiseConfig())
+    with SceneEstimator(res.scene, cfg, np.random.default_rng(5)) as est:
+        return [b.to_json() for b in est.run(frames)]
+
+
+def test_a_scenario_with_camera_hidden_objects_and_a_hand_gives_the_same_output_for_any_worker_count():
+    """Three clients of 3, 3 and 2 particles: in this process, in one worker, or over two."""
+    runs = [_scenario_run(w) for w in (0, 1, 2)]
+    assert runs[0] == runs[1] == runs[2]
+    held = [line["objects"]["cup"]["p_held"] for line in runs[0]]
+    assert any(0 < p < 1 for p in held)  # the particles disagreed at some point: not a trivial run
+    assert any(not line["objects"]["cup"]["perceived"] for line in runs[0])
+
+
+MEMORY_SCRIPT = """
+import os, sys, numpy as np, psutil
+from estimator.config import EstimatorConfig, NoiseConfig
+from estimator.filter import SceneEstimator
+from estimator.observations import parse_frame
+from experiments.simulator import simulate
+
+def main():
+    res = simulate("cluttered_table", 0, duration=1.0)
+    frames = [parse_frame(o, known_ids=res.scene.object_ids) for o in res.observations]
+    cfg = EstimatorConfig(particles=int(sys.argv[1]), workers=2, noise=NoiseConfig())
+    peak = 0.0
+    with SceneEstimator(res.scene, cfg, np.random.default_rng(0)) as est:
+        procs = [psutil.Process()] + [psutil.Process(p) for p in est.pool.worker_pids()]
+        for f in frames:
+            est.update(f)
+            peak = max(peak, sum(p.memory_info().rss for p in procs))
+    print(peak / 2**20)
+
+if __name__ == "__main__":
+    main()
+"""
+
+
+@pytest.mark.parametrize("k, bound_mb", [(64, 1024)])
+def test_peak_memory_of_all_processes_stays_under_the_bound(tmp_path, k, bound_mb):
+    """The heaviest built-in scene (twelve objects, URDF meshes) with its camera: the estimator's
+    process and its two workers together, in a fresh interpreter."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "memory.py"
+    script.write_text(MEMORY_SCRIPT)
+    out = subprocess.run([sys.executable, str(script), str(k)], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    peak = float(out.stdout.strip().splitlines()[-1])
+    assert 0 < peak < bound_mb
