@@ -42,10 +42,11 @@ class WorldGroup:
         self.worlds: list[World] = []
         try:
             cols = math.ceil(math.sqrt(copies))
+            shapes: dict[int, int] = {}  # the copies share their primitives' collision shapes
             for g in range(copies):
                 origin = (SPACING * (g % cols), SPACING * (g // cols), 0.0)
                 self.worlds.append(World(scene, self.settings, client=self.client, origin=origin,
-                                         floor_uid=floor_uid))
+                                         floor_uid=floor_uid, shapes=shapes))
         except BaseException:
             self.close()
             raise

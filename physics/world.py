@@ -50,13 +50,15 @@ class World:
     """
 
     def __init__(self, scene: Scene, settings: PhysicsSettings | None = None, *,
-                 client: int | None = None, origin=(0.0, 0.0, 0.0), floor_uid: int = -1):
+                 client: int | None = None, origin=(0.0, 0.0, 0.0), floor_uid: int = -1,
+                 shapes: dict[int, int] | None = None):
         self.scene = scene
         self.settings = settings or PhysicsSettings()
         self.object_ids: tuple[str, ...] = scene.object_ids
         self._index = {oid: i for i, oid in enumerate(self.object_ids)}
         self.origin = np.asarray(origin, dtype=float).reshape(3)
         self._owns_client = client is None
+        self._shapes = {} if shapes is None else shapes  # collision shape per object, shared by copies
         if client is None:
             client, floor_uid = connect(self.settings, scene.floor)
         self.client, self.floor_uid = client, floor_uid
@@ -159,7 +161,9 @@ class World:
                 if mass is not None:
                     pb.changeDynamics(uid, -1, mass=mass, physicsClientId=c)
         else:
-            shape = self._collision_shape(spec)
+            if i not in self._shapes:
+                self._shapes[i] = self._collision_shape(spec)
+            shape = self._shapes[i]
             mass = 0.0 if spec.static else (spec.mass if spec.mass is not None else DEFAULT_PRIMITIVE_MASS)
             uid = pb.createMultiBody(mass, shape, -1, pos, orn, physicsClientId=c)
         self._apply_dynamics(uid, spec.friction, spec.rolling_friction, spec.spinning_friction,
