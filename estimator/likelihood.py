@@ -1,0 +1,226 @@
+"""The terms of a particle's log-weight, one pure array function each, and the terms as objects.
+
+K particles, M objects; positions in metres, quaternions ``(x, y, z, w)``, angles in radians. Every
+function returns log-likelihoods (natural log, float64) and needs no estimator object.
+
+* :func:`position_log_likelihood`: heavy-tailed (Gaussian plus uniform outliers) position likelihood;
+* :func:`orientation_log_likelihood`: heavy-tailed orientation likelihood;
+* :func:`detection_log_likelihood`: both, summed over the detected objects;
+* :func:`negative_evidence_log_likelihood`: undetected objects a particle puts in plain view;
+* :func:`mode_switch_log_prior`: the prior cost of the evidence-triggered mode switches;
+* :func:`exploded_log_likelihood`: zero weight for particles whose simulation exploded.
+
+The scene model (:class:`~estimator.model.SceneModel`) weighs a particle with a tuple of *terms*:
+callables ``term(evidence) -> (K,)`` that read what they need from one :class:`Evidence` (the
+per-update arrays) and call one of the functions above. A new term (a search look, a tracker
+pseudo-measurement) is a new function here, a term object calling it, and one entry in the tuple
+:meth:`SceneModel.log_weight_terms` returns; data it needs that :class:`Evidence` does not hold yet
+becomes a new field of it (filled in :meth:`SceneModel.evidence`). Terms are added one after the other
+to the previous log-weights, in the order of that tuple; exploded particles get -inf whatever the
+terms say.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from actions.modes import HELD, ModePriors
+from physics.transforms import quat_angle
+
+
+def _with_outliers(log_density: np.ndarray, outlier_prob: float) -> np.ndarray:
+    """``log((1 - eps) * exp(log_density) + eps)``: the mixture with a uniform outlier component of
+    unit density (``eps = outlier_prob``; 0 leaves ``log_density`` as it is)."""
+    if outlier_prob > 0:
+        return np.logaddexp(math.log1p(-outlier_prob) + log_density, math.log(outlier_prob))
+    return log_density
+
+
+def position_log_likelihood(positions: np.ndarray, detected: np.ndarray, std: np.ndarray,
+                            outlier_prob: float) -> np.ndarray:
+    """Log-likelihood ``(K, N)`` float64 of N detected positions under each particle.
+
+    Args:
+        positions: ``(K, N, 3)`` the particles' positions of the N detected objects (m).
+        detected: ``(N, 3)`` the detected positions (m).
+        std: ``(N,)`` standard deviation of each detection, per axis (m; isotropic Gaussian).
+        outlier_prob: weight ``eps`` in [0, 1) of a uniform outlier density of 1 per m^3: the
+            likelihood is ``(1 - eps) N(x; mu, std^2 I) + eps`` (heavy tails: one wild detection
+            does not kill every particle).
+    """
+    e2 = np.sum((positions - detected) ** 2, axis=-1)
+    log_n = -0.5 * e2 / std**2 - 1.5 * np.log(2 * math.pi * std**2)
+    return _with_outliers(log_n, outlier_prob)
+
+
+def orientation_log_likelihood(orientations: np.ndarray, detected: np.ndarray, orientation_std: float,
+                               outlier_prob: float) -> np.ndarray:
+    """Log-likelihood ``(K, N)`` float64 of N detected orientations under each particle.
+
+    Args:
+        orientations: ``(K, N, 4)`` unit quaternions (x, y, z, w) of the particles' objects.
+        detected: ``(N, 4)`` detected unit quaternions (x, y, z, w).
+        orientation_std: standard deviation of the rotation angle between them (rad, > 0).
+        outlier_prob: weight ``eps`` of the outlier component, as :func:`position_log_likelihood`.
+
+    The log-density is ``-0.5 (angle / std)^2``, unnormalised (the constant is the same for every
+    particle), mixed with the outlier floor: ``log((1 - eps) exp(-0.5 (angle / std)^2) + eps)``.
+    """
+    ang = quat_angle(orientations, detected)
+    return _with_outliers(-0.5 * (ang / orientation_std) ** 2, outlier_prob)
+
+
+def detection_log_likelihood(poses: np.ndarray, detected: np.ndarray, has_orientation: np.ndarray,
+                             position_std: np.ndarray, orientation_std: float,
+                             outlier_prob: float) -> np.ndarray:
+    """Log-likelihood ``(K,)`` float64 of N detections: per object, the position term plus, for
+    detections with an orientation (when ``orientation_std > 0``), the orientation term; summed.
+
+    Args:
+        poses: ``(K, N, 7)`` the particles' poses (position m, quaternion x, y, z, w) of the objects.
+        detected: ``(N, 7)`` the detected poses (the quaternion is read only where ``has_orientation``).
+        has_orientation: ``(N,)`` bool, detections that came with an orientation.
+        position_std: ``(N,)`` m, see :func:`position_log_likelihood`.
+        orientation_std: rad; 0 ignores orientations.
+        outlier_prob: see :func:`position_log_likelihood`.
+    """
+    ll = position_log_likelihood(poses[..., :3], detected[:, :3], position_std, outlier_prob)
+    if orientation_std > 0 and np.any(has_orientation):
+        ll[:, has_orientation] += orientation_log_likelihood(
+            poses[:, has_orientation, 3:], detected[has_orientation, 3:], orientation_std, outlier_prob)
+    return ll.sum(axis=1)
+
+
+def negative_evidence_log_likelihood(visible: np.ndarray, modes: np.ndarray, queried: np.ndarray,
+                                     in_tracked_hand: np.ndarray, miss_prob: float,
+                                     visibility_threshold: float) -> np.ndarray:
+    """Log-likelihood ``(K,)`` float64 of *not* detecting the ``queried`` objects.
+
+    A particle pays ``log(miss_prob)`` for each queried object it puts in view of the camera (visible
+    fraction at least ``visibility_threshold``), nothing for the others. An object HELD in a particle
+    whose hand is tracked pays nothing: the hand or the person, which the particle worlds do not
+    contain, may hide it.
+
+    Args:
+        visible: ``(K, M)`` float, fraction of each object's sample points the camera sees (0..1).
+        modes: ``(K, M)`` int8, FREE / HELD.
+        queried: ``(M,)`` bool, the known, dynamic, undetected objects whose visibility was computed.
+        in_tracked_hand: ``(M,)`` bool, objects whose hand (when last detected) is tracked now.
+        miss_prob: probability in (0, 1] that the camera misses an object in plain view.
+        visibility_threshold: fraction of points in view for an object to count as visible.
+    """
+    if not np.any(queried):
+        return np.zeros(len(visible))
+    in_hand = (modes == HELD) & np.asarray(in_tracked_hand, dtype=bool)[None, :]
+    seen = (visible >= visibility_threshold) & ~in_hand
+    return math.log(miss_prob) * seen[:, queried].sum(axis=1)
+
+
+def mode_switch_log_prior(priors: ModePriors, previous: np.ndarray, new: np.ndarray,
+                          perceived: np.ndarray) -> np.ndarray:
+    """Log-prior ``(K,)`` float64 of the Pick / Place switches of an update, summed over objects
+    (:meth:`ModePriors.log_prior_cost`: ``log(p)`` for a switch, ``log(1 - p)`` for an object that
+    could have switched and did not, 0 for unperceived objects; -inf for a switch of prior 0).
+
+    Args:
+        priors: the switch probabilities.
+        previous, new: ``(K, M)`` int8 modes before and after the update.
+        perceived: ``(M,)`` bool, objects perceived in this update.
+    """
+    return priors.log_prior_cost(previous, new, np.asarray(perceived, dtype=bool)[None, :]).sum(axis=1)
+
+
+def exploded_log_likelihood(finite: np.ndarray) -> np.ndarray:
+    """``(K,)`` float64: 0 for particles whose simulation stayed finite, -inf (zero weight) for those
+    that exploded (NaN or runaway velocities; ``finite (K,)`` bool from the pool)."""
+    return np.where(finite, 0.0, -np.inf)
+
+
+# -- the terms the scene model evaluates ------------------------------------------------------------
+@dataclass(frozen=True)
+class Evidence:
+    """What the terms of one update read (K particles, M objects).
+
+    * ``poses (K, M, 7)``: the particles after physics; ``predicted (K, M, 7)``: before the update's
+      teleports (a teleported object is scored where the particle expected it, not where it was put).
+    * ``previous_modes``, ``modes`` ``(K, M)`` int8: modes at the previous update and now.
+    * ``detected (M,)``: dynamic objects detected since the previous update; ``teleported (M,)``;
+      ``perceived (M,)``: dynamic objects seen within ``t_perceived``.
+    * ``detected_poses (M, 7)``: latest detection per object (m; quaternion x, y, z, w);
+      ``has_orientation (M,)``; ``detection_std (M,)`` m, the detector's position std (NaN: unknown).
+    * ``visible (K, M)``: visible fractions from the pool (0 where not queried); ``queried (M,)``:
+      objects whose visibility was computed; ``in_tracked_hand (M,)``: objects whose hand is tracked.
+    * ``finite (K,)``: particles whose simulation stayed finite.
+    """
+
+    poses: np.ndarray
+    predicted: np.ndarray
+    previous_modes: np.ndarray
+    modes: np.ndarray
+    detected: np.ndarray
+    teleported: np.ndarray
+    perceived: np.ndarray
+    detected_poses: np.ndarray
+    has_orientation: np.ndarray
+    detection_std: np.ndarray
+    visible: np.ndarray
+    queried: np.ndarray
+    in_tracked_hand: np.ndarray
+    finite: np.ndarray
+
+
+LogWeightTerm = Callable[[Evidence], np.ndarray]
+"""A term of the log-weight: ``term(evidence) -> (K,)`` float64."""
+
+
+@dataclass(frozen=True)
+class DetectionTerm:
+    """The detections of this update (:func:`detection_log_likelihood`). A detection without a std
+    uses ``max(default_std, 1e-3)`` m."""
+
+    default_std: float
+    orientation_std: float
+    outlier_prob: float
+
+    def __call__(self, ev: Evidence) -> np.ndarray:
+        idx = np.flatnonzero(ev.detected)
+        if len(idx) == 0:
+            return np.zeros(len(ev.poses))
+        src = np.where(ev.teleported[idx][None, :, None], ev.predicted[:, idx], ev.poses[:, idx])
+        std = ev.detection_std[idx]
+        std = np.where(np.isfinite(std), std, max(self.default_std, 1e-3))
+        return detection_log_likelihood(src, ev.detected_poses[idx], ev.has_orientation[idx], std,
+                                        self.orientation_std, self.outlier_prob)
+
+
+@dataclass(frozen=True)
+class NegativeEvidenceTerm:
+    """Undetected objects in view (:func:`negative_evidence_log_likelihood`)."""
+
+    miss_prob: float
+    visibility_threshold: float
+
+    def __call__(self, ev: Evidence) -> np.ndarray:
+        return negative_evidence_log_likelihood(ev.visible, ev.modes, ev.queried, ev.in_tracked_hand,
+                                                self.miss_prob, self.visibility_threshold)
+
+
+@dataclass(frozen=True)
+class ModeSwitchTerm:
+    """The prior cost of Pick / Place (:func:`mode_switch_log_prior`)."""
+
+    priors: ModePriors
+
+    def __call__(self, ev: Evidence) -> np.ndarray:
+        return mode_switch_log_prior(self.priors, ev.previous_modes, ev.modes, ev.perceived)
+
+
+def add_terms(log_weights: np.ndarray, terms: tuple[LogWeightTerm, ...], ev: Evidence) -> np.ndarray:
+    """``log_weights (K,)`` plus every term, added one after the other in the order given."""
+    out = log_weights.copy()
+    for term in terms:
+        out += term(ev)
+    return out

@@ -1,0 +1,400 @@
+"""The scene model: how a particle moves between two updates, and how it is weighed.
+
+K particles, M objects; positions in metres, quaternions ``(x, y, z, w)``, times in seconds. The
+model reads the :class:`~estimator.perception_memory.PerceptionMemory` and knows the scene and the
+configuration; the particle filter (:class:`~estimator.filter.SceneEstimator`) owns the particles
+and the worlds and calls, at each update:
+
+1. :meth:`SceneModel.move`: teleports (Alg. 2) with contents carried, releases of held objects that
+   are not perceived, targets of held objects (the perception, the tracked hand, or a drift),
+   process noise on unperceived free objects, and what the physics must check and report;
+2. :meth:`SceneModel.batch`: the pool's input for the move (physics itself is the pool's, Alg. 1);
+3. :meth:`SceneModel.settle`: relations after physics, Place (a held object perceived at rest on
+   a support) and Release in view (perceived falling), the update's event codes;
+4. :meth:`SceneModel.evidence` and :meth:`SceneModel.log_weight`: the terms of
+   :mod:`estimator.likelihood` (:attr:`SceneModel.terms`);
+5. after resampling, :meth:`SceneModel.regularise`: kernel jitter of hidden free objects and
+   Liu-West shrinkage of the physical parameters.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from actions.modes import FREE, HELD, merge_events, switch_events
+from physics.scene import Scene
+from physics.transforms import carry_pose, quat_from_rotvec, quat_multiply
+
+from .belief import pose_stats
+from .config import EstimatorConfig
+from .likelihood import (DetectionTerm, Evidence, LogWeightTerm, ModeSwitchTerm, NegativeEvidenceTerm, add_terms,
+                         exploded_log_likelihood)
+from .observations import Frame
+from .perception_memory import PerceptionMemory
+from .pool import BatchInput, BatchOutput
+from .relations import relations_and_support
+from .state import ParticleState
+
+
+def initial_poses(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """Initial poses ``(M, 7)`` of the scene's objects and which are known ``(M,)`` bool: objects
+    without a pose are parked far away (at ``(50 + 3 m, 50, -50)``) until first perceived."""
+    M = len(scene.objects)
+    poses = np.zeros((M, 7))
+    poses[:, 6] = 1.0
+    known = np.zeros(M, dtype=bool)
+    for i, o in enumerate(scene.objects):
+        if o.position is not None:
+            poses[i, :3] = o.position
+            poses[i, 3:] = o.orientation
+            known[i] = True
+        else:
+            poses[i, :3] = [50.0 + 3.0 * i, 50.0, -50.0]  # parked until first perceived
+    return poses, known
+
+
+@dataclass(frozen=True)
+class Move:
+    """A particle's motion before physics in one update (K particles, M objects).
+
+    ``poses (K, M, 7)`` / ``velocities (K, M, 6)``: the state handed to physics;
+    ``predicted (K, M, 7)``: the poses before the teleports (what each particle expected);
+    ``previous_modes`` / ``modes`` ``(K, M)`` int8: at the last update and after the releases;
+    ``release_codes (K, M)`` int8: event codes of those releases; ``teleported (M,)`` bool;
+    ``target (K, M, 7)`` / ``target_vel (K, M, 6)``: where held objects go and perceived objects
+    are checked against; ``check (K, M)``: free objects to test for divergence; ``depenetrate (K, M)``:
+    objects displaced without physics; ``vis_query (M,)``: objects whose visibility is wanted.
+    """
+
+    poses: np.ndarray
+    velocities: np.ndarray
+    predicted: np.ndarray
+    previous_modes: np.ndarray
+    modes: np.ndarray
+    release_codes: np.ndarray
+    teleported: np.ndarray
+    target: np.ndarray
+    target_vel: np.ndarray
+    check: np.ndarray
+    depenetrate: np.ndarray
+    vis_query: np.ndarray
+
+
+@dataclass(frozen=True)
+class Settled:
+    """The particles after physics and the Place / Release rules: ``poses (K, M, 7)``, ``velocities
+    (K, M, 6)``, ``modes (K, M)``, ``on_top (K, M, M+1)``, ``is_in (K, M, M)``, ``supported (K, M)``,
+    ``codes (K, M)`` (event codes of the whole update) and ``tick_vel (M, 3)`` (perceived velocity
+    over the reasoning period, m/s)."""
+
+    poses: np.ndarray
+    velocities: np.ndarray
+    modes: np.ndarray
+    on_top: np.ndarray
+    is_in: np.ndarray
+    supported: np.ndarray
+    codes: np.ndarray
+    tick_vel: np.ndarray
+
+
+class SceneModel:
+    """How the particles of ``scene`` move and are weighed (see the module docstring).
+
+    Args:
+        scene: the scene. config: the estimator's configuration.
+        memory: the perception memory the model reads (and whose velocities teleports reset).
+        base_params: ``(M, 5)`` the scene's physical parameters (the worlds' initial ones).
+
+    ``known (M,)``: objects with an initial pose or perceived since; ``terms``: the log-weight terms.
+    """
+
+    def __init__(self, scene: Scene, config: EstimatorConfig, memory: PerceptionMemory,
+                 base_params: np.ndarray):
+        self.scene = scene
+        self.config = config
+        self.memory = memory
+        self.K, self.M = config.particles, len(scene.objects)
+        self.static = np.array([o.static for o in scene.objects], dtype=bool)
+        self.dynamic = ~self.static
+        self.hollow = np.array(scene.hollow, dtype=bool)
+        self.known = initial_poses(scene)[1]
+        self.base_params = base_params
+        self.param_bounds = param_bounds(config)
+        self._just_initialised = np.zeros(self.M, dtype=bool)
+        self.terms: tuple[LogWeightTerm, ...] = self.log_weight_terms()
+
+    def log_weight_terms(self) -> tuple[LogWeightTerm, ...]:
+        """The terms a particle's log-weight is the sum of. A new term goes here."""
+        nz, cfg = self.config.noise, self.config
+        return (DetectionTerm(nz.position_std, nz.orientation_std, nz.outlier_prob),
+                NegativeEvidenceTerm(nz.miss_prob, cfg.visibility_threshold),
+                ModeSwitchTerm(cfg.priors))
+
+    # -- the prior ------------------------------------------------------------------------------------
+    def initial_state(self, rng: np.random.Generator) -> ParticleState:
+        """K particles at the scene's poses, with physical parameters drawn from their priors and the
+        positions of known dynamic objects perturbed by ``position_std``."""
+        K, M, nz = self.K, self.M, self.config.noise
+        poses = np.repeat(initial_poses(self.scene)[0][None], K, axis=0)
+        base = self.base_params
+        params = np.repeat(base[None], K, axis=0)
+        dyn = np.flatnonzero(self.dynamic)
+        ranges = [nz.friction_range, nz.rolling_friction_range, nz.spinning_friction_range,
+                  nz.restitution_range]
+        for col, r in enumerate(ranges):
+            if r is not None:
+                params[:, dyn, col] = rng.uniform(r[0], r[1], size=(K, len(dyn)))
+        if nz.mass_scale_range is not None:
+            lo, hi = nz.mass_scale_range
+            params[:, dyn, 4] = base[dyn, 4] * rng.uniform(lo, hi, size=(K, len(dyn)))
+        if nz.position_std > 0:
+            known_dyn = np.flatnonzero(self.dynamic & self.known)
+            poses[:, known_dyn, :3] += rng.normal(0, nz.position_std, (K, len(known_dyn), 3))
+            self._just_initialised[known_dyn] = True
+        return ParticleState(poses=poses, velocities=np.zeros((K, M, 6)), params=params,
+                             modes=np.zeros((K, M), dtype=np.int8), log_weights=np.zeros(K),
+                             on_top=np.zeros((K, M, M + 1), dtype=bool), is_in=np.zeros((K, M, M), dtype=bool),
+                             event_t=np.full((K, M, 3), -np.inf), supported=np.zeros((K, M), dtype=bool),
+                             last_motion=np.zeros((K, M)), jolted=np.zeros((K, M), dtype=bool))
+
+    # -- the move -------------------------------------------------------------------------------------
+    def move(self, state: ParticleState, frame: Frame, detected: np.ndarray, perceived: np.ndarray,
+             dt: float, rng: np.random.Generator) -> Move:
+        """Everything before physics, for ``dt`` seconds since the last update: ``detected (M,)`` since
+        the last update, ``perceived (M,)`` now. Updates :attr:`known` and the memory's velocities."""
+        cfg, mem = self.config, self.memory
+        poses, vel = state.poses.copy(), state.velocities.copy()
+        prev_modes = state.modes.copy()
+        predicted = poses.copy()  # before teleports: what each particle expected
+        # teleports and first sightings
+        newly_known = perceived & ~self.known
+        tele = perceived & (~mem.perceived_prev | mem.jumped() | newly_known)
+        mem.perc_vel[tele] = 0.0  # a finite difference across a jump or a gap is no velocity
+        if np.any(tele):
+            self.teleport(poses, vel, np.flatnonzero(tele), newly_known, state.is_in, rng)
+        self.known |= perceived
+        modes, release_codes = self.release(prev_modes, perceived, state.supported, rng)
+        target, target_vel = self.held_targets(frame, poses, modes, detected, perceived, dt, rng)
+        jolted = self.process_noise(poses, modes, perceived, state.supported, state.last_motion, dt, rng)
+        # what physics checks and reports
+        vis_query = self.known & self.dynamic & ~detected
+        if not (cfg.negative_evidence and self.scene.camera is not None):
+            vis_query = np.zeros(self.M, dtype=bool)
+        fresh = detected if cfg.fresh_checks else perceived
+        check = np.broadcast_to(perceived & fresh, (self.K, self.M)).copy()
+        placed = tele | self._just_initialised
+        self._just_initialised = np.zeros(self.M, dtype=bool)
+        depen = (np.broadcast_to(placed & (cfg.noise.position_std > 0), (self.K, self.M)) | jolted
+                 | state.jolted) & (modes == FREE)
+        return Move(poses, vel, predicted, prev_modes, modes, release_codes, tele, target, target_vel, check,
+                    depen, vis_query)
+
+    def teleport(self, poses: np.ndarray, vel: np.ndarray, idx: np.ndarray, newly_known: np.ndarray,
+                 is_in: np.ndarray, rng: np.random.Generator) -> None:
+        """Alg. 2, in place: put objects ``idx`` at their perceived pose (plus perception noise per
+        particle) with the perceived velocity; the contents of each (``is_in (K, M, M)`` at the last
+        update, per particle; not for ``newly_known (M,)`` objects) are carried rigidly, rotation
+        included, and given the container's velocity."""
+        nz, mem, K = self.config.noise, self.memory, self.K
+        new = poses[:, idx].copy()
+        new[..., :3] = mem.last_pose[idx, :3]
+        if nz.position_std > 0:
+            new[..., :3] += rng.normal(0.0, nz.position_std, new[..., :3].shape)
+        has_q = mem.last_has_orientation[idx]
+        new[:, has_q, 3:] = mem.last_pose[idx[has_q], 3:]
+        if nz.orientation_std > 0 and np.any(has_q):
+            dq = quat_from_rotvec(rng.normal(0.0, nz.orientation_std / 4, (K, int(has_q.sum()), 3)))
+            new[:, has_q, 3:] = quat_multiply(dq, new[:, has_q, 3:])
+        moved = set(int(i) for i in idx)
+        for j, b in enumerate(idx):
+            if newly_known[b]:
+                continue
+            for k in range(K):
+                children = [a for a in np.flatnonzero(is_in[k, :, b]) if a not in moved]
+                if children:
+                    poses[k, children] = carry_pose(poses[k, children], poses[k, b], new[k, j])
+                    vel[k, children, :3] = mem.perc_vel[b, :3]
+        poses[:, idx] = new
+        vel[:, idx] = 0.0
+        vel[:, idx, :3] = mem.perc_vel[idx, :3]
+
+    def release(self, modes: np.ndarray, perceived: np.ndarray, supported: np.ndarray,
+                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """Releases of held objects that are not perceived: with probability ``release_on_loss`` when
+        they were perceived at the last update, ``release`` after. Returns the new modes ``(K, M)``
+        and the event codes of the switches ``(K, M)`` (``supported (K, M)``: Place or Release)."""
+        priors, K, M = self.config.priors, self.K, self.M
+        new = modes.copy()
+        lost = self.memory.perceived_prev & ~perceived
+        u = rng.random((K, M))
+        held_unseen = (new == HELD) & ~perceived[None, :]
+        p_rel = np.where(lost[None, :], priors.release_on_loss, priors.release)
+        new[held_unseen & (u < p_rel)] = FREE
+        return new, switch_events(modes, new, supported)
+
+    def held_targets(self, frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: np.ndarray,
+                     perceived: np.ndarray, dt: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """Targets ``(K, M, 7)`` and target velocities ``(K, M, 6)``: perceived objects at their
+        perception (no noise: it would shake what a held object carries); held objects not detected
+        in this update follow the hand that held them when last detected, if it is tracked, else stay
+        where they were perceived (while perceived) or where the particle has them, drifting by
+        ``held_drift_std`` (m per sqrt(s)) when not perceived. Others: their pose in ``poses``."""
+        mem, nz = self.memory, self.config.noise
+        target = poses.copy()
+        target_vel = np.zeros((self.K, self.M, 6))
+        pidx = np.flatnonzero(perceived)
+        if len(pidx):
+            target[:, pidx, :3] = mem.last_pose[pidx, :3]
+            has_q = mem.last_has_orientation[pidx]
+            target[:, pidx[has_q], 3:] = mem.last_pose[pidx[has_q], 3:]
+            target_vel[:, pidx, :3] = mem.perc_vel[pidx, :3]
+        held = (modes == HELD) & ~detected[None, :]
+        for m in np.flatnonzero(held.any(axis=0)):
+            rows = held[:, m]
+            hand = mem.hand_target(frame, m)
+            if hand is not None:
+                target[rows, m, :3] = hand
+            elif not perceived[m] and nz.held_drift_std > 0:
+                target[rows, m, :3] += rng.normal(0.0, nz.held_drift_std * math.sqrt(dt), (int(rows.sum()), 3))
+        return target, target_vel
+
+    def process_noise(self, poses: np.ndarray, modes: np.ndarray, perceived: np.ndarray, supported: np.ndarray,
+                      last_motion: np.ndarray, dt: float, rng: np.random.Generator) -> np.ndarray:
+        """Process noise, in place, on the free, unperceived, known dynamic objects: a random walk of
+        ``process_position_std`` / ``process_orientation_std`` per sqrt(s), plus model error of
+        ``motion_noise`` times the distance ``last_motion (K, M)`` an object moved on or in its support
+        (``supported (K, M)``) in the last update (rolling and sliding are chaotic; flight is not),
+        capped at ``max_jitter_std``. Returns the objects moved by more than 2 mm std ``(K, M)``."""
+        nz, K, M = self.config.noise, self.K, self.M
+        free_unseen = (modes == FREE) & (~perceived & self.dynamic & self.known)[None, :]
+        jolted = np.zeros((K, M), dtype=bool)
+        if (nz.process_position_std > 0 or nz.motion_noise > 0) and np.any(free_unseen):
+            rolling = np.where(supported, last_motion, 0.0)
+            s = np.sqrt(nz.process_position_std ** 2 * dt + (nz.motion_noise * rolling) ** 2)
+            s = np.minimum(s, nz.max_jitter_std)  # never through a wall
+            poses[..., :3] += np.where(free_unseen[..., None], rng.normal(0.0, 1.0, (K, M, 3)) * s[..., None], 0.0)
+            jolted = free_unseen & (s > 0.002)
+        if nz.process_orientation_std > 0 and np.any(free_unseen):
+            s = nz.process_orientation_std * math.sqrt(dt)
+            dq = quat_from_rotvec(rng.normal(0.0, s, (K, M, 3)))
+            rotated = quat_multiply(dq, poses[..., 3:])
+            poses[..., 3:] = np.where(free_unseen[..., None], rotated, poses[..., 3:])
+        return jolted
+
+    def batch(self, move: Move, state: ParticleState, reset: np.ndarray) -> BatchInput:
+        """The pool's input for ``move``; ``reset (K, M)``: entries the worlds must load."""
+        return BatchInput(poses=move.poses, velocities=move.velocities, params=state.params, modes=move.modes,
+                          check=move.check, target=move.target, target_vel=move.target_vel, contents=state.is_in,
+                          depenetrate=move.depenetrate, reset=reset, vis_query=move.vis_query)
+
+    # -- after physics --------------------------------------------------------------------------------
+    def settle(self, state: ParticleState, move: Move, out: BatchOutput, t: float, dt: float,
+               detected: np.ndarray, perceived: np.ndarray) -> Settled:
+        """Relations of the particles ``out`` gives (their exploded ones already reset); Place: a held
+        object perceived at rest on a support is put down; Release in view: a held object perceived
+        falling (fast, or accelerating down with nothing under it) was let go."""
+        hr, cfg, mem = self.config.reasoner, self.config, self.memory
+        new_modes = out.modes
+        valid = np.broadcast_to(self.known, (self.K, self.M))
+        on_top, is_in, supported = relations_and_support(
+            out.aabbs, valid, static=self.static, floor=self.scene.floor, config=cfg.relations,
+            previous=(state.on_top, state.is_in), z_gap=hr.place_gap, hollow=self.hollow)
+        rested = mem.at_rest(t)
+        vel = mem.tick_velocity()
+        accel = mem.vertical_acceleration(vel, dt)
+        # fast enough, it is let go whatever is under it; accelerating down, only if nothing is
+        falling = (vel[:, 2] < -hr.release_speed)[None, :] | (
+            ((accel < -hr.release_accel) & (vel[:, 2] < -0.3))[None, :] & ~supported)
+        held_seen = (new_modes == HELD) & perceived[None, :]
+        after_physics = new_modes.copy()
+        new_modes[held_seen & ((rested[None, :] & supported) | falling)] = FREE
+        codes = merge_events(move.release_codes,
+                             switch_events(move.modes, after_physics, supported),
+                             switch_events(after_physics, new_modes, supported))
+        return Settled(out.poses, out.velocities, new_modes, on_top, is_in, supported, codes, vel)
+
+    # -- the weights ----------------------------------------------------------------------------------
+    def evidence(self, move: Move, settled: Settled, out: BatchOutput, frame: Frame, detected: np.ndarray,
+                 perceived: np.ndarray) -> Evidence:
+        """What the log-weight terms read for this update."""
+        mem = self.memory
+        return Evidence(poses=settled.poses, predicted=move.predicted, previous_modes=move.previous_modes,
+                        modes=settled.modes, detected=detected & self.dynamic, teleported=move.teleported,
+                        perceived=perceived, detected_poses=mem.last_pose,
+                        has_orientation=mem.last_has_orientation, detection_std=mem.last_std,
+                        visible=out.visible, queried=move.vis_query,
+                        in_tracked_hand=mem.following_hand(frame), finite=out.finite)
+
+    def log_weight(self, previous: np.ndarray, ev: Evidence) -> np.ndarray:
+        """New log-weights ``(K,)``: ``previous (K,)`` plus every term of :attr:`terms` (one particle
+        has nothing to be weighed against: no terms), and -inf for exploded particles."""
+        logw = add_terms(previous, self.terms, ev) if self.K > 1 else previous.copy()
+        return logw + exploded_log_likelihood(ev.finite)
+
+    def reseed(self, poses: np.ndarray, vel: np.ndarray, detected: np.ndarray, rng: np.random.Generator) -> None:
+        """Recovery when every particle has zero weight, in place: detected objects ``(M,)`` are put at
+        their perceived position (plus ``position_std`` noise), at rest."""
+        idx = np.flatnonzero(detected & self.dynamic)
+        if len(idx):
+            poses[:, idx, :3] = self.memory.last_pose[idx, :3]
+            if self.config.noise.position_std > 0:
+                poses[:, idx, :3] += rng.normal(0.0, self.config.noise.position_std, (self.K, len(idx), 3))
+            vel[:, idx] = 0.0
+
+    # -- after resampling -----------------------------------------------------------------------------
+    def regularisation_kernels(self, poses: np.ndarray, weights: np.ndarray,
+                               hidden: np.ndarray) -> dict[int, np.ndarray]:
+        """Per hidden object m (``hidden (M,)``) with a spread, the Cholesky factor ``(3, 3)`` (m) of the
+        jitter kernel: bandwidth ``regularisation`` times the weighted covariance of ``poses (K, M, 7)``
+        under ``weights (K,)``, scaled down so that its largest std is at most ``max_jitter_std``."""
+        nz = self.config.noise
+        h = nz.regularisation
+        kernels = {}
+        if h > 0:
+            _, covs, _, _ = pose_stats(poses, weights)
+            for m in np.flatnonzero(hidden):
+                cov = covs[m]
+                if np.trace(cov) > 1e-10:
+                    chol = np.linalg.cholesky(cov * h * h + 1e-12 * np.eye(3))
+                    largest = np.sqrt(np.max(np.linalg.eigvalsh(cov)) * h * h)
+                    kernels[int(m)] = chol * min(1.0, nz.max_jitter_std / largest)
+        return kernels
+
+    def regularise(self, state: ParticleState, kernels: dict[int, np.ndarray], rng: np.random.Generator) -> None:
+        """In place, after resampling: jitter the free copies of each hidden object with its kernel (a
+        regularised particle filter: copies of one particle must not leave a hidden object with no
+        spread), then the physical parameters (Liu-West shrinkage, :func:`shrink_params`)."""
+        for m, chol in kernels.items():
+            free = state.modes[:, m] == FREE
+            noise = rng.standard_normal((self.K, 3)) @ chol.T
+            state.poses[free, m, :3] += noise[free]
+            state.jolted[free, m] = True
+        h = self.config.noise.param_jitter
+        if h > 0:
+            dyn = np.flatnonzero(self.dynamic)
+            state.params[:, dyn] = shrink_params(state.params[:, dyn], h, self.param_bounds, rng)
+
+
+def param_bounds(config: EstimatorConfig) -> np.ndarray:
+    """Bounds ``(5, 2)`` (low, high) of the physical parameters: their prior ranges where perturbed,
+    else ``[0, inf)``; masses at least 0.1 g."""
+    nz = config.noise
+    b = np.zeros((5, 2))
+    for col, r in enumerate([nz.friction_range, nz.rolling_friction_range,
+                             nz.spinning_friction_range, nz.restitution_range]):
+        b[col] = r if r is not None else (0.0, np.inf)
+    b[4] = (1e-4, np.inf)
+    return b
+
+
+def shrink_params(p: np.ndarray, h: float, bounds: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Liu-West shrinkage of parameters ``p (K, N, 5)``: ``a p + (1 - a) mean + h std eps`` with
+    ``a = sqrt(1 - h^2)`` (mean and std over the K particles; keeps both while avoiding collapse),
+    clipped to ``bounds (5, 2)``."""
+    a = math.sqrt(1.0 - h * h)
+    mean = np.mean(p, axis=0)
+    std = np.std(p, axis=0)
+    p = a * p + (1 - a) * mean + h * std * rng.standard_normal(p.shape)
+    return np.clip(p, bounds[:, 0], bounds[:, 1])

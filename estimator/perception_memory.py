@@ -1,0 +1,180 @@
+"""The perception memory: what the detector said about each object, shared by all particles.
+
+M objects; positions in metres, quaternions ``(x, y, z, w)``, times and durations in seconds,
+velocities in m/s. The memory holds the latest detection of each object (pose, time, std, and
+velocity by finite differences), the tracked hand nearest to it, a short history of detections (for
+the Place rule) and the perception at the previous reasoning step (for teleports and for the
+velocity over a reasoning period).
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import numpy as np
+
+from physics.scene import Scene
+
+from .config import ReasonerConfig
+from .observations import Frame
+
+HAND_RADIUS = 0.3
+"""A tracked hand within this distance (m) of a detected object is taken to be the one holding it."""
+
+
+class PerceptionMemory:
+    """Latest perception of each object of ``scene`` (see the module docstring).
+
+    Args:
+        scene: the scene (object ids; static objects' detections are ignored).
+        poses: ``(M, 7)`` initial poses (known objects at their scene pose, the others parked).
+        reasoner: ``t_perceived``, ``d_perc_prev`` and the Place rule's parameters.
+        follow_hands: whether held objects follow the tracked hand (:meth:`following_hand`).
+
+    Arrays (all ``(M, ...)``): ``last_pose (M, 7)``, ``last_has_orientation`` bool, ``last_seen``
+    (s; -inf: never), ``last_std`` (m; NaN: the detector gave none), ``perc_vel (M, 6)`` (linear part
+    from finite differences, m/s; angular part 0), ``pose_at_tick (M, 7)`` (``last_pose`` at the
+    previous reasoning step), ``perceived_prev`` bool (perceived at the previous step),
+    ``hold_hand`` (name of the tracked hand near each object when last detected, or None) and
+    ``hold_offset (M, 3)`` (object minus hand position then, m).
+    """
+
+    def __init__(self, scene: Scene, poses: np.ndarray, reasoner: ReasonerConfig, follow_hands: bool):
+        M = len(scene.objects)
+        self.scene = scene
+        self.reasoner = reasoner
+        self.follow_hands = follow_hands
+        self.static = np.array([o.static for o in scene.objects], dtype=bool)
+        self.last_pose = poses.copy()
+        self.last_has_orientation = np.zeros(M, dtype=bool)
+        self.last_seen = np.full(M, -np.inf)
+        self.last_std = np.full(M, np.nan)
+        self.perc_vel = np.zeros((M, 6))
+        self.pose_at_tick = poses.copy()
+        self.perceived_prev = np.zeros(M, dtype=bool)
+        self.hold_hand: list[str | None] = [None] * M
+        self.hold_offset = np.zeros((M, 3))
+        self._prev_tick_vel = np.zeros((M, 3))
+        self._t_seen_at_tick = np.full(M, -np.inf)
+        self._history: list[deque] = [deque() for _ in range(M)]
+
+    @property
+    def M(self) -> int:
+        return len(self.static)
+
+    # -- a frame --------------------------------------------------------------------------------------
+    def record(self, frame: Frame) -> np.ndarray:
+        """Store the frame's detections; returns the detected mask ``(M,)`` (dynamic objects only).
+        Raises ValueError for an object id the scene does not have."""
+        detected = np.zeros(self.M, dtype=bool)
+        hr = self.reasoner
+        for oid, det in frame.objects.items():
+            try:
+                m = self.scene.index(oid)
+            except KeyError:
+                raise ValueError(f"frame at t={frame.t}: unknown object id {oid!r}") from None
+            if self.static[m]:
+                continue
+            detected[m] = True
+            gap = frame.t - self.last_seen[m]
+            if 0 < gap <= hr.t_perceived:
+                self.perc_vel[m, :3] = (det.position - self.last_pose[m, :3]) / gap
+            else:
+                self.perc_vel[m, :3] = 0.0  # first sighting: no velocity (never NaN)
+            self.last_pose[m, :3] = det.position
+            if det.orientation is not None:
+                self.last_pose[m, 3:] = det.orientation
+            self.last_has_orientation[m] = det.orientation is not None
+            self.last_std[m] = det.position_std if det.position_std is not None else np.nan
+            self.last_seen[m] = frame.t
+            hist = self._history[m]
+            hist.append((frame.t, tuple(det.position.tolist()),
+                         None if det.orientation is None else tuple(det.orientation.tolist())))
+            while hist and hist[0][0] < frame.t - 2.0 * hr.place_dwell - 0.1:
+                hist.popleft()
+            self._nearest_hand(frame, m)
+        return detected
+
+    def _nearest_hand(self, frame: Frame, m: int) -> None:
+        """Remember the tracked hand nearest to object m (within :data:`HAND_RADIUS`) and the offset."""
+        self.hold_hand[m] = None
+        if not frame.hands:
+            return
+        names = list(frame.hands)
+        hp = np.array([frame.hands[n] for n in names])
+        d = np.linalg.norm(hp - self.last_pose[m, :3], axis=1)
+        best = int(np.argmin(d))
+        if d[best] < HAND_RADIUS:
+            self.hold_hand[m] = names[best]
+            self.hold_offset[m] = self.last_pose[m, :3] - hp[best]
+
+    # -- queries at a reasoning step ------------------------------------------------------------------
+    def perceived(self, t: float) -> np.ndarray:
+        """Dynamic objects ``(M,)`` seen within ``t_perceived`` of ``t``."""
+        return ~self.static & (t - self.last_seen <= self.reasoner.t_perceived + 1e-9)
+
+    def jumped(self) -> np.ndarray:
+        """Objects ``(M,)`` whose perceived position moved by more than ``d_perc_prev`` since the
+        previous reasoning step."""
+        return np.linalg.norm(self.last_pose[:, :3] - self.pose_at_tick[:, :3], axis=1) > self.reasoner.d_perc_prev
+
+    def following_hand(self, frame: Frame) -> np.ndarray:
+        """Objects ``(M,)`` whose hand (when last detected) is tracked in ``frame`` (none when hands
+        are not followed)."""
+        if not self.follow_hands:
+            return np.zeros(self.M, dtype=bool)
+        return np.array([h is not None and h in frame.hands for h in self.hold_hand])
+
+    def hand_target(self, frame: Frame, m: int) -> np.ndarray | None:
+        """Where object m is, ``(3,)`` m, if it follows its tracked hand in ``frame``; else None."""
+        hand = self.hold_hand[m]
+        if hand is not None and hand in frame.hands and self.follow_hands:
+            return np.asarray(frame.hands[hand]) + self.hold_offset[m]
+        return None
+
+    def tick_velocity(self) -> np.ndarray:
+        """Perceived velocity ``(M, 3)`` (m/s) over the last reasoning period (smoother than
+        frame-to-frame differences): from the detections used at the previous step to the latest."""
+        ok = np.isfinite(self.last_seen) & np.isfinite(self._t_seen_at_tick)
+        gap = np.where(ok, self.last_seen - np.where(ok, self._t_seen_at_tick, 0.0), 0.0)
+        ok &= gap > 1e-6
+        vel = np.zeros((self.M, 3))
+        vel[ok] = (self.last_pose[ok, :3] - self.pose_at_tick[ok, :3]) / gap[ok, None]
+        return vel
+
+    def vertical_acceleration(self, vel: np.ndarray, dt: float) -> np.ndarray:
+        """Vertical acceleration ``(M,)`` (m/s^2) from the tick velocity ``vel (M, 3)`` of the previous
+        step (0 for objects not detected then) to ``vel``, ``dt`` seconds later."""
+        return (vel[:, 2] - self._prev_tick_vel[:, 2]) / max(dt, 1e-9)
+
+    def at_rest(self, t: float) -> np.ndarray:
+        """Objects ``(M,)`` whose detections over the last ``place_dwell`` seconds moved less than
+        ``place_speed * place_dwell`` and turned less than ``place_spin * place_dwell``."""
+        hr = self.reasoner
+        out = np.zeros(self.M, dtype=bool)
+        horizon = t - hr.place_dwell + 1e-9
+        for m, hist in enumerate(self._history):
+            if not hist or t - hist[-1][0] > hr.place_dwell:
+                continue
+            old = next((h for h in reversed(hist) if h[0] <= horizon), None)  # the latest one old enough
+            if old is None:
+                continue
+            t0, p0, q0 = old
+            t1, p1, q1 = hist[-1]
+            span = max(t1 - t0, hr.place_dwell)
+            moved = math.dist(p0, p1) < hr.place_speed * span
+            turned = True
+            if q0 is not None and q1 is not None:
+                dot = min(1.0, abs(sum(a * b for a, b in zip(q0, q1))))
+                turned = 2.0 * math.acos(dot) < hr.place_spin * span
+            out[m] = moved and turned
+        return out
+
+    # -- end of a reasoning step ----------------------------------------------------------------------
+    def end_tick(self, perceived: np.ndarray, detected: np.ndarray, tick_vel: np.ndarray) -> None:
+        """Remember this step's perception: ``perceived (M,)``, and the tick velocity ``(M, 3)`` of the
+        ``detected (M,)`` objects (for the next :meth:`vertical_acceleration`)."""
+        self._prev_tick_vel = np.where(detected[:, None], tick_vel, 0.0)
+        self.perceived_prev = perceived
+        self.pose_at_tick = self.last_pose.copy()
+        self._t_seen_at_tick = self.last_seen.copy()

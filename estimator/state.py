@@ -1,0 +1,43 @@
+"""The particles: a structure of arrays, K particles by M objects."""
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+
+@dataclass
+class ParticleState:
+    """The state of K particles over M objects (positions in metres, quaternions x, y, z, w).
+
+    * ``poses (K, M, 7)``, ``velocities (K, M, 6)`` (linear m/s, angular rad/s);
+    * ``params (K, M, 5)``: lateral / rolling / spinning friction, restitution, mass (kg);
+    * ``modes (K, M)`` int8, FREE / HELD (:mod:`actions.modes`);
+    * ``log_weights (K,)``: unnormalised, the largest finite one 0;
+    * ``on_top (K, M, M+1)``, ``is_in (K, M, M)`` bool: relations at the last update (column M of
+      ``on_top`` is the floor);
+    * ``event_t (K, M, 3)``: time (s) of each particle's latest Pick / Place / Release per object
+      (-inf: none; see :func:`actions.events.record_event_times`);
+    * ``supported (K, M)`` bool: resting on or in something at the last update;
+    * ``last_motion (K, M)``: distance (m) each object moved in the last update;
+    * ``jolted (K, M)`` bool: objects displaced without physics since the worlds last saw them (to
+      be pushed out of anything they interpenetrate before stepping).
+    """
+
+    poses: np.ndarray
+    velocities: np.ndarray
+    params: np.ndarray
+    modes: np.ndarray
+    log_weights: np.ndarray
+    on_top: np.ndarray
+    is_in: np.ndarray
+    event_t: np.ndarray
+    supported: np.ndarray
+    last_motion: np.ndarray
+    jolted: np.ndarray
+
+    def take(self, ancestors: np.ndarray) -> "ParticleState":
+        """The particles ``ancestors (K,)`` (indices, repeats allowed), copied, equally weighted."""
+        out = ParticleState(*(getattr(self, f.name)[ancestors].copy() for f in fields(self)))
+        out.log_weights = np.zeros(len(ancestors))
+        return out

@@ -1,0 +1,161 @@
+"""The log-weight terms, one at a time, on hand-built particle arrays, against answers written out here."""
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from actions.modes import FREE, HELD, ModePriors
+from estimator.likelihood import (DetectionTerm, Evidence, ModeSwitchTerm, NegativeEvidenceTerm, add_terms,
+                                  detection_log_likelihood, exploded_log_likelihood, mode_switch_log_prior,
+                                  negative_evidence_log_likelihood, orientation_log_likelihood,
+                                  position_log_likelihood)
+
+
+def gauss3(d, s):
+    """Isotropic 3-D Gaussian density at distance d (m) from its mean, std s (m), by hand."""
+    return (2 * math.pi * s * s) ** -1.5 * math.exp(-d * d / (2 * s * s))
+
+
+def yaw(angle):
+    return np.array([0.0, 0.0, math.sin(angle / 2), math.cos(angle / 2)])
+
+
+DET = np.array([[0.3, -0.2, 0.7]])
+
+
+def test_position_without_outliers_is_the_gaussian_log_density():
+    s = 0.01
+    at = DET[None] + 0.0                        # exactly at the detection
+    two_sigma = DET[None] + [[0.0, 2 * s, 0.0]]  # 2 sigma away along y
+    ll = position_log_likelihood(np.concatenate([at, two_sigma]), DET, np.array([s]), 0.0)
+    assert ll.shape == (2, 1) and ll.dtype == np.float64
+    assert ll[0, 0] == pytest.approx(math.log(gauss3(0.0, s)), rel=1e-12)
+    assert ll[1, 0] == pytest.approx(math.log(gauss3(2 * s, s)), rel=1e-12)
+    assert ll[0, 0] - ll[1, 0] == pytest.approx(2.0, rel=1e-12)  # (2 sigma)^2 / 2
+
+
+def test_position_with_outliers_is_the_mixture_and_a_far_particle_gets_the_floor():
+    s, eps = 0.02, 0.05
+    pos = DET[None] + np.array([[[0.0, 0.0, 0.0]], [[0.0, 0.0, s]], [[1.0, 0.0, 0.0]]])
+    ll = position_log_likelihood(pos, DET, np.array([s]), eps)
+    for k, d in enumerate([0.0, s, 1.0]):
+        assert ll[k, 0] == pytest.approx(math.log((1 - eps) * gauss3(d, s) + eps), rel=1e-12)
+    assert ll[2, 0] == pytest.approx(math.log(eps), abs=1e-12)  # 50 sigma: the outlier floor
+    assert position_log_likelihood(pos, DET, np.array([s]), 0.0)[2, 0] < -1000  # no floor without outliers
+
+
+def test_position_std_is_per_detection():
+    dets = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    pos = dets[None] + [[0.0, 0.0, 0.01], [0.0, 0.0, 0.01]]
+    ll = position_log_likelihood(pos, dets, np.array([0.01, 0.005]), 0.0)
+    assert ll[0, 0] == pytest.approx(math.log(gauss3(0.01, 0.01)))
+    assert ll[0, 1] == pytest.approx(math.log(gauss3(0.01, 0.005)))
+
+
+def test_orientation_term_by_hand_and_sign_invariant():
+    s, eps = 0.2, 0.05
+    det = yaw(0.3)[None]
+    q = np.stack([yaw(0.3), yaw(0.3 + 2 * s), -yaw(0.3 + 2 * s), yaw(0.3 + math.pi)])[:, None]
+    lo = orientation_log_likelihood(q, det, s, 0.0)
+    assert lo[0, 0] == pytest.approx(0.0, abs=1e-12)
+    assert lo[1, 0] == pytest.approx(-2.0, rel=1e-9)  # 2 sigma: -0.5 * 2^2
+    assert lo[2, 0] == pytest.approx(lo[1, 0], rel=1e-12)  # q and -q are one rotation
+    lo = orientation_log_likelihood(q, det, s, eps)
+    assert lo[1, 0] == pytest.approx(math.log((1 - eps) * math.exp(-2.0) + eps), rel=1e-9)
+    assert lo[3, 0] == pytest.approx(math.log((1 - eps) * math.exp(-0.5 * (math.pi / s) ** 2) + eps), rel=1e-9)
+
+
+def test_detection_sums_position_and_orientation_only_where_measured():
+    s, so, eps = 0.01, 0.2, 0.1
+    det = np.array([[0.0, 0.0, 0.0, *yaw(0.0)], [1.0, 0.0, 0.0, *yaw(1.0)]])
+    has_q = np.array([True, False])
+    poses = det[None].copy()
+    poses[0, 0, :3] += [s, 0.0, 0.0]
+    poses[0, 0, 3:] = yaw(so)          # 1 sigma off in angle
+    poses[0, 1, 3:] = yaw(2.5)         # not measured: must not count
+    ll = detection_log_likelihood(poses, det, has_q, np.array([s, s]), so, eps)
+    expect = (math.log((1 - eps) * gauss3(s, s) + eps) + math.log((1 - eps) * math.exp(-0.5) + eps)
+              + math.log((1 - eps) * gauss3(0.0, s) + eps))
+    assert ll.shape == (1,) and ll[0] == pytest.approx(expect, rel=1e-9)
+    no_q = detection_log_likelihood(poses, det, has_q, np.array([s, s]), 0.0, eps)  # orientation_std 0: ignored
+    assert no_q[0] == pytest.approx(math.log((1 - eps) * gauss3(s, s) + eps) + math.log((1 - eps) * gauss3(0, s) + eps))
+
+
+def test_negative_evidence_per_visible_undetected_object():
+    miss = 0.1
+    visible = np.array([[0.9, 0.0, 0.8],    # objects 0 and 2 in view
+                        [0.1, 0.0, 0.0],    # nothing in view (0.1 < threshold)
+                        [0.5, 0.9, 0.5]])   # 0 in view; 1 in view but not queried; 2 in view but held
+    modes = np.array([[FREE, FREE, FREE], [FREE, FREE, FREE], [FREE, FREE, HELD]], dtype=np.int8)
+    queried = np.array([True, False, True])
+    in_tracked_hand = np.array([False, False, True])
+    ll = negative_evidence_log_likelihood(visible, modes, queried, in_tracked_hand, miss, 0.3)
+    assert ll.dtype == np.float64
+    assert ll == pytest.approx([2 * math.log(miss), 0.0, math.log(miss)], abs=1e-15)
+    # held but its hand is not tracked: it could be seen, it pays
+    ll = negative_evidence_log_likelihood(visible, modes, queried, np.zeros(3, bool), miss, 0.3)
+    assert ll[2] == pytest.approx(2 * math.log(miss))
+    # in a tracked hand but FREE in that particle: it pays too
+    ll = negative_evidence_log_likelihood(visible, np.zeros((3, 3), np.int8), queried, in_tracked_hand, miss, 0.3)
+    assert ll[2] == pytest.approx(2 * math.log(miss))
+    assert np.all(negative_evidence_log_likelihood(visible, modes, np.zeros(3, bool), in_tracked_hand, miss, 0.3) == 0)
+
+
+def test_mode_switch_prior_values():
+    pr = ModePriors(pick=0.02, place=0.2)
+    previous = np.array([[FREE, HELD, FREE, HELD]] * 3, dtype=np.int8)
+    new = np.array([[HELD, FREE, FREE, HELD],     # Pick, Place, stays free, stays held
+                    [FREE, HELD, HELD, FREE],     # stays free, stays held, Pick (unperceived), release (unperceived)
+                    [FREE, FREE, FREE, HELD]], dtype=np.int8)
+    perceived = np.array([True, True, False, False])
+    lp = mode_switch_log_prior(pr, previous, new, perceived)
+    assert lp.shape == (3,)
+    assert lp[0] == pytest.approx(math.log(0.02) + math.log(0.2))
+    assert lp[1] == pytest.approx(math.log(0.98) + math.log(0.8))  # unperceived objects pay nothing
+    assert lp[2] == pytest.approx(math.log(0.98) + math.log(0.2))
+    assert mode_switch_log_prior(ModePriors(pick=0.0), previous[:1], new[:1], perceived)[0] == -np.inf
+
+
+def test_exploded_particles_get_minus_infinity():
+    out = exploded_log_likelihood(np.array([True, False, True]))
+    assert out.dtype == np.float64 and out[0] == 0.0 and out[2] == 0.0 and out[1] == -np.inf
+
+
+def _evidence(K=2, M=2):
+    """Nothing detected, nothing queried, everything FREE and finite; tests replace fields."""
+    return Evidence(poses=np.zeros((K, M, 7)), predicted=np.zeros((K, M, 7)),
+                    previous_modes=np.zeros((K, M), np.int8), modes=np.zeros((K, M), np.int8),
+                    detected=np.zeros(M, bool), teleported=np.zeros(M, bool), perceived=np.zeros(M, bool),
+                    detected_poses=np.zeros((M, 7)), has_orientation=np.zeros(M, bool),
+                    detection_std=np.full(M, np.nan), visible=np.zeros((K, M)), queried=np.zeros(M, bool),
+                    in_tracked_hand=np.zeros(M, bool), finite=np.ones(K, bool))
+
+
+def test_detection_term_scores_a_teleported_object_where_the_particle_predicted_it():
+    poses = np.zeros((2, 2, 7))
+    predicted = np.zeros((2, 2, 7))
+    predicted[1, 0, :3] = [0.02, 0.0, 0.0]  # particle 1 expected object 0 2 cm away; it was then teleported
+    poses[:, 1, :3] = [0.0, 0.0, 0.01]      # object 1 not teleported: scored where it is
+    ev = replace(_evidence(), poses=poses, predicted=predicted, detected=np.array([True, True]),
+                 teleported=np.array([True, False]), detection_std=np.array([np.nan, 0.005]))
+    term = DetectionTerm(default_std=0.01, orientation_std=0.0, outlier_prob=0.0)
+    ll = term(ev)
+    d0 = [math.log(gauss3(0.0, 0.01)), math.log(gauss3(0.02, 0.01))]  # no std given: the default 0.01
+    d1 = math.log(gauss3(0.01, 0.005))
+    assert ll == pytest.approx([d0[0] + d1, d0[1] + d1], rel=1e-12)
+    assert np.all(term(_evidence()) == 0)  # nothing detected: no information
+    tiny = DetectionTerm(default_std=0.0, orientation_std=0.0, outlier_prob=0.0)(ev)  # floored at 1 mm
+    assert tiny[1] - tiny[0] == pytest.approx(-0.5 * 0.02 ** 2 / 0.001 ** 2)
+
+
+def test_terms_are_added_in_order_to_the_previous_log_weights():
+    visible = np.array([[1.0, 0.0], [1.0, 1.0]])
+    ev = replace(_evidence(), visible=visible, queried=np.array([True, True]), perceived=np.array([True, False]),
+                 modes=np.array([[HELD, FREE], [FREE, FREE]], np.int8))
+    terms = (NegativeEvidenceTerm(miss_prob=0.5, visibility_threshold=0.3), ModeSwitchTerm(ModePriors(pick=0.1)))
+    out = add_terms(np.array([0.0, -1.0]), terms, ev)
+    assert out == pytest.approx([math.log(0.5) + math.log(0.1), -1.0 + 2 * math.log(0.5) + math.log(0.9)])
+    prev = np.array([0.0, -1.0])
+    add_terms(prev, terms, ev)
+    assert list(prev) == [0.0, -1.0]  # not modified in place

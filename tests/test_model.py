@@ -1,0 +1,263 @@
+"""The scene model's pieces alone, on hand-built particle arrays (no worlds)."""
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from actions.modes import FREE, HELD, PLACE, RELEASE
+from estimator.config import EstimatorConfig, NoiseConfig
+from estimator.likelihood import Evidence
+from estimator.model import SceneModel, initial_poses, param_bounds, shrink_params
+from estimator.observations import Detection, Frame
+from estimator.perception_memory import PerceptionMemory
+from estimator.pool import BatchOutput
+from physics.scene import scene_from_dict
+from physics.transforms import pose_compose, pose_inverse
+
+TABLE, CRATE, BALL, CUP, MYSTERY = range(5)
+YAW90 = np.array([0.0, 0.0, math.sin(math.pi / 4), math.cos(math.pi / 4)])
+
+
+def scene():
+    return scene_from_dict({"objects": [
+        {"id": "table", "static": True, "box": {"size": [1.0, 1.0, 0.1]}, "pose": {"position": [0, 0, 0.05]}},
+        {"id": "crate", "container": {"size": [0.3, 0.2, 0.12], "wall": 0.01}, "pose": {"position": [0, 0, 0.16]}},
+        {"id": "ball", "sphere": {"radius": 0.03}, "pose": {"position": [0.08, 0.0, 0.14]}},
+        {"id": "cup", "cylinder": {"radius": 0.03, "height": 0.08}, "pose": {"position": [0.3, 0.3, 0.14]}},
+        {"id": "mystery", "sphere": {"radius": 0.02}}]})  # no pose: unknown until perceived
+
+
+def make(config):
+    sc = scene()
+    memory = PerceptionMemory(sc, initial_poses(sc)[0], config.reasoner, config.follow_hands)
+    base = np.tile([0.5, 0.0, 0.0, 0.1, 0.2], (len(sc.objects), 1))
+    return SceneModel(sc, config, memory, base)
+
+
+def test_initial_state_parks_unknown_objects_and_draws_parameters_from_their_priors():
+    nz = NoiseConfig(position_std=0.01)
+    model = make(EstimatorConfig(particles=64, noise=nz))
+    st = model.initial_state(np.random.default_rng(0))
+    assert list(model.known) == [True, True, True, True, False]
+    assert np.all(st.poses[:, MYSTERY, :3] == [50.0 + 3.0 * MYSTERY, 50.0, -50.0])
+    assert np.all(st.poses[:, TABLE, :3] == [0, 0, 0.05])  # static: never perturbed
+    spread = st.poses[:, BALL, :3] - [0.08, 0.0, 0.14]
+    assert 0.006 < spread.std() < 0.014 and np.all(spread != 0)
+    fr = st.params[:, 1:, 0]
+    assert np.all((fr >= 0.3) & (fr <= 1.0)) and fr.std() > 0.1
+    assert np.all(st.params[:, TABLE] == [0.5, 0.0, 0.0, 0.1, 0.2])
+    mass = st.params[:, 1:, 4] / 0.2
+    assert np.all((mass >= 0.8) & (mass <= 1.25))
+    assert st.modes.dtype == np.int8 and np.all(st.modes == FREE) and np.all(st.log_weights == 0)
+
+
+def test_teleport_carries_contents_with_rotation():
+    model = make(EstimatorConfig(particles=2, noise=NoiseConfig.off()))
+    st = model.initial_state(np.random.default_rng(0))
+    mem = model.memory
+    mem.last_pose[CRATE] = [0.2, 0.1, 0.16, *YAW90]
+    mem.last_has_orientation[CRATE] = True
+    mem.perc_vel[CRATE, :3] = [0.1, 0.0, 0.0]
+    is_in = np.zeros((2, 5, 5), dtype=bool)
+    is_in[0, BALL, CRATE] = True  # only particle 0 has the ball in the crate
+    poses, vel = st.poses.copy(), st.velocities.copy()
+    model.teleport(poses, vel, np.array([CRATE]), np.zeros(5, bool), is_in, np.random.default_rng(0))
+    assert np.allclose(poses[:, CRATE], [0.2, 0.1, 0.16, *YAW90])
+    assert np.allclose(vel[:, CRATE, :3], [0.1, 0.0, 0.0])
+    # the ball's offset (0.08, 0, -0.02) turned by 90 degrees about z: (0, 0.08, -0.02)
+    assert np.allclose(poses[0, BALL], [0.2, 0.18, 0.14, *YAW90])
+    assert np.allclose(vel[0, BALL, :3], [0.1, 0.0, 0.0])
+    assert np.all(poses[1, BALL] == st.poses[1, BALL]) and np.all(vel[1, BALL] == 0)
+    # a container perceived for the first time carries nothing
+    poses2, vel2 = st.poses.copy(), st.velocities.copy()
+    newly = np.zeros(5, bool)
+    newly[CRATE] = True
+    model.teleport(poses2, vel2, np.array([CRATE]), newly, is_in, np.random.default_rng(0))
+    assert np.all(poses2[0, BALL] == st.poses[0, BALL])
+
+
+def test_teleport_with_perception_noise_keeps_the_contents_rigidly_attached():
+    model = make(EstimatorConfig(particles=16, noise=NoiseConfig(position_std=0.01, orientation_std=0.4)))
+    st = model.initial_state(np.random.default_rng(1))
+    mem = model.memory
+    mem.last_pose[CRATE] = [0.2, 0.1, 0.16, *YAW90]
+    mem.last_has_orientation[CRATE] = True
+    is_in = np.zeros((16, 5, 5), dtype=bool)
+    is_in[:, BALL, CRATE] = True
+    before = pose_compose(pose_inverse(st.poses[:, CRATE]), st.poses[:, BALL])  # ball in the crate's frame
+    poses, vel = st.poses.copy(), st.velocities.copy()
+    model.teleport(poses, vel, np.array([CRATE]), np.zeros(5, bool), is_in, np.random.default_rng(2))
+    after = pose_compose(pose_inverse(poses[:, CRATE]), poses[:, BALL])
+    assert np.allclose(after[:, :3], before[:, :3], atol=1e-9)
+    assert np.allclose(np.abs(np.sum(after[:, 3:] * before[:, 3:], axis=-1)), 1.0, atol=1e-9)
+    assert poses[:, CRATE, 0].std() > 0.004  # every particle its own noisy teleport
+    assert np.all(np.abs(poses[:, CRATE, :3] - [0.2, 0.1, 0.16]) < 0.06)
+
+
+def test_move_teleports_a_first_sighting_and_makes_it_known():
+    model = make(EstimatorConfig(particles=3, noise=NoiseConfig(position_std=0.01)))
+    st = model.initial_state(np.random.default_rng(0))
+    frame = Frame(0.5, {"mystery": Detection(np.array([0.1, -0.1, 0.2]))})
+    detected = model.memory.record(frame)
+    perceived = model.memory.perceived(0.5)
+    mv = model.move(st, frame, detected, perceived, 0.0, np.random.default_rng(3))
+    assert list(mv.teleported) == [False, False, False, False, True] and model.known[MYSTERY]
+    assert np.all(np.abs(mv.poses[:, MYSTERY, :3] - [0.1, -0.1, 0.2]) < 0.05)
+    assert np.all(mv.predicted[:, MYSTERY, :3] == [50.0 + 3.0 * MYSTERY, 50.0, -50.0])
+    assert np.all(mv.depenetrate[:, MYSTERY]) and np.all(mv.check[:, MYSTERY])
+    assert np.all(mv.target[:, MYSTERY, :3] == [0.1, -0.1, 0.2])  # checked against the perception itself
+
+
+def test_held_targets_follow_the_tracked_hand_or_drift():
+    frame = Frame(1.0, {}, {"human/right": np.array([1.0, 0.0, 1.0])})
+    for follow in (True, False):
+        model = make(EstimatorConfig(particles=3, noise=NoiseConfig(held_drift_std=0.05), follow_hands=follow))
+        st = model.initial_state(np.random.default_rng(0))
+        model.memory.hold_hand[CUP] = "human/right"
+        model.memory.hold_offset[CUP] = [0.0, 0.0, -0.05]
+        modes = st.modes.copy()
+        modes[:2, CUP] = HELD  # held in particles 0 and 1, free in 2
+        none = np.zeros(5, bool)
+        target, target_vel = model.held_targets(frame, st.poses, modes, none, none, 0.25, np.random.default_rng(7))
+        if follow:
+            assert np.allclose(target[:2, CUP, :3], [1.0, 0.0, 0.95])
+        else:  # no hand to follow: a drift of held_drift_std * sqrt(dt), the same draws as here
+            drift = np.random.default_rng(7).normal(0.0, 0.05 * math.sqrt(0.25), (2, 3))
+            assert np.allclose(target[:2, CUP, :3], st.poses[:2, CUP, :3] + drift)
+        assert np.all(target[2, CUP] == st.poses[2, CUP]) and np.all(target_vel == 0)
+
+
+def test_held_target_of_a_perceived_object_is_its_perception_without_drift():
+    model = make(EstimatorConfig(particles=2, noise=NoiseConfig(held_drift_std=0.05), follow_hands=False))
+    st = model.initial_state(np.random.default_rng(0))
+    model.memory.record(Frame(0.0, {"cup": Detection(np.array([0.3, 0.3, 0.3]))}))
+    model.memory.record(Frame(0.1, {"cup": Detection(np.array([0.3, 0.3, 0.4]))}))
+    modes = st.modes.copy()
+    modes[:, CUP] = HELD
+    perceived = model.memory.perceived(0.4)
+    target, target_vel = model.held_targets(Frame(0.4), st.poses, modes, np.zeros(5, bool), perceived, 0.3,
+                                            np.random.default_rng(0))
+    assert np.all(target[:, CUP, :3] == [0.3, 0.3, 0.4])
+    assert np.allclose(target_vel[:, CUP, :3], [0.0, 0.0, 1.0])  # finite difference, m/s
+
+
+def test_process_noise_touches_only_unperceived_free_known_dynamic_objects():
+    nz = NoiseConfig(process_position_std=0.01, process_orientation_std=0.1, motion_noise=0.5)
+    model = make(EstimatorConfig(particles=4, noise=nz))
+    st = model.initial_state(np.random.default_rng(0))
+    poses = st.poses.copy()
+    modes = st.modes.copy()
+    modes[:, CUP] = HELD    # held: moved by its hand, not by noise
+    modes[3, BALL] = HELD   # the ball is held in particle 3 only
+    perceived = np.zeros(5, bool)
+    perceived[CRATE] = True
+    supported = np.ones((4, 5), bool)
+    last_motion = np.zeros((4, 5))
+    last_motion[0, BALL] = 0.1  # rolled 10 cm: large model error, capped
+    jolted = model.process_noise(poses, modes, perceived, supported, last_motion, 0.5, np.random.default_rng(4))
+    changed = np.any(poses != st.poses, axis=-1)
+    expect = np.zeros((4, 5), bool)
+    expect[:3, BALL] = True  # not the static table, the perceived crate, the held cup, the unknown mystery
+    assert np.array_equal(changed, expect)
+    assert np.all(np.any(poses[:3, BALL, 3:] != st.poses[:3, BALL, 3:], axis=-1))  # orientations too
+    assert np.allclose(np.linalg.norm(poses[..., 3:], axis=-1), 1.0)
+    # std: sqrt(0.01^2 * 0.5 + (0.5 * rolled)^2) capped at max_jitter_std (0.01); jolted above 2 mm
+    assert np.array_equal(jolted, expect)
+    assert np.all(np.abs(poses[0, BALL, :3] - st.poses[0, BALL, :3]) < 5 * nz.max_jitter_std)
+
+
+def test_release_on_loss_and_later_releases():
+    from actions.modes import ModePriors
+    model = make(EstimatorConfig(particles=2, noise=NoiseConfig(), priors=ModePriors(release_on_loss=1.0, release=0.0)))
+    model.memory.perceived_prev[CUP] = True  # the cup was perceived at the last update, no longer
+    modes = np.zeros((2, 5), np.int8)
+    modes[:, [BALL, CUP, CRATE]] = HELD
+    perceived = np.zeros(5, bool)
+    perceived[CRATE] = True  # perceived and held: never released here (Place is decided after physics)
+    supported = np.array([[False] * 5, [True] * 5])
+    new, codes = model.release(modes, perceived, supported, np.random.default_rng(0))
+    assert list(new[:, CUP]) == [FREE, FREE] and list(codes[:, CUP]) == [RELEASE, PLACE]
+    assert list(new[:, BALL]) == [HELD, HELD] and list(new[:, CRATE]) == [HELD, HELD]
+    assert np.all(modes[:, CUP] == HELD)  # input untouched
+
+
+def test_place_a_held_object_perceived_at_rest_on_a_support():
+    model = make(EstimatorConfig(particles=2, noise=NoiseConfig()))
+    st = model.initial_state(np.random.default_rng(0))
+    for i in range(13):  # 0.4 s at rest on the table
+        model.memory.record(Frame(i / 30, {"cup": Detection(np.array([0.3, 0.3, 0.14]))}))
+    t = 12 / 30
+    perceived = model.memory.perceived(t)
+    mv = model.move(st, Frame(t), perceived, perceived, 0.0, np.random.default_rng(0))
+    modes = np.zeros((2, 5), np.int8)
+    modes[:, CUP] = HELD
+    aabbs = np.zeros((2, 5, 2, 3))
+    aabbs[:, TABLE] = [[-0.5, -0.5, 0.0], [0.5, 0.5, 0.1]]
+    aabbs[:, CRATE] = [[-0.15, -0.1, 0.1], [0.15, 0.1, 0.22]]
+    aabbs[:, BALL] = [[0.05, -0.03, 0.11], [0.11, 0.03, 0.17]]
+    aabbs[0, CUP] = [[0.27, 0.27, 0.1], [0.33, 0.33, 0.18]]    # particle 0: the cup sits on the table
+    aabbs[1, CUP] = [[0.27, 0.27, 0.3], [0.33, 0.33, 0.38]]    # particle 1: 20 cm above it
+    out = BatchOutput(st.poses.copy(), st.velocities.copy(), modes, np.zeros((2, 5)), aabbs, np.ones(2, bool),
+                      np.zeros((2, 5)))
+    s = model.settle(st, replace(mv, modes=modes.copy()), out, t, 0.08, perceived, perceived)
+    assert list(s.modes[:, CUP]) == [FREE, HELD] and list(s.codes[:, CUP]) == [PLACE, 0]
+    assert s.on_top[0, CUP, TABLE] and s.supported[0, CUP] and not s.supported[1, CUP]
+
+
+def test_log_weight_of_one_particle_is_only_the_explosion_mask():
+    model = make(EstimatorConfig(particles=1, noise=NoiseConfig()))
+    z = np.zeros((1, 5, 7))
+    ev = Evidence(poses=z + 5.0, predicted=z, previous_modes=np.zeros((1, 5), np.int8),
+                  modes=np.ones((1, 5), np.int8), detected=np.ones(5, bool), teleported=np.zeros(5, bool),
+                  perceived=np.ones(5, bool), detected_poses=np.zeros((5, 7)), has_orientation=np.zeros(5, bool),
+                  detection_std=np.full(5, 0.01), visible=np.ones((1, 5)), queried=np.ones(5, bool),
+                  in_tracked_hand=np.zeros(5, bool), finite=np.ones(1, bool))
+    assert model.log_weight(np.zeros(1), ev)[0] == 0.0
+    assert model.log_weight(np.zeros(1), replace(ev, finite=np.zeros(1, bool)))[0] == -np.inf
+    two = make(EstimatorConfig(particles=2, noise=NoiseConfig()))
+    ev2 = replace(ev, poses=np.concatenate([z, z + 5.0]), predicted=np.concatenate([z, z]),
+                  previous_modes=np.zeros((2, 5), np.int8), modes=np.zeros((2, 5), np.int8),
+                  visible=np.zeros((2, 5)), finite=np.ones(2, bool))
+    lw = two.log_weight(np.zeros(2), ev2)
+    assert lw[0] > lw[1] and np.all(np.isfinite(lw))  # with two, the detections weigh
+    assert lw[0] == pytest.approx(sum(term(ev2)[0] for term in two.terms))
+
+
+def test_regularisation_jitters_only_free_copies_of_hidden_objects():
+    nz = NoiseConfig(regularisation=0.5, max_jitter_std=0.01, param_jitter=0.1)
+    model = make(EstimatorConfig(particles=400, noise=nz))
+    rng = np.random.default_rng(5)
+    st = model.initial_state(rng)
+    st.poses[:, BALL, :3] += rng.normal(0.0, 0.004, (400, 3))  # a spread to regularise
+    st.modes[:50, BALL] = HELD
+    w = np.full(400, 1 / 400)
+    hidden = np.zeros(5, bool)
+    hidden[[BALL, CUP]] = True
+    kernels = model.regularisation_kernels(st.poses, w, hidden)
+    assert set(kernels) == {BALL, CUP}
+    hidden_ball = np.zeros(5, bool)
+    hidden_ball[BALL] = True
+    kernels = model.regularisation_kernels(st.poses, w, hidden_ball)
+    cov = kernels[BALL] @ kernels[BALL].T
+    assert np.sqrt(np.max(np.linalg.eigvalsh(cov))) <= 0.01 + 1e-12
+    before = st.poses.copy()
+    params = st.params.copy()
+    model.regularise(st, kernels, np.random.default_rng(6))
+    moved = np.any(st.poses != before, axis=-1)
+    assert np.all(moved[50:, BALL]) and not moved[:50].any() and not moved[:, [CRATE, CUP]].any()
+    assert np.array_equal(st.jolted[:, BALL], ~np.isin(np.arange(400), np.arange(50)))
+    lo, hi = param_bounds(model.config)[:, 0], param_bounds(model.config)[:, 1]
+    assert np.all((st.params >= lo) & (st.params <= hi)) and np.any(st.params != params)
+    assert np.all(st.params[:, TABLE] == params[:, TABLE])
+
+
+def test_liu_west_shrinkage_keeps_mean_and_spread():
+    rng = np.random.default_rng(8)
+    p = rng.uniform(0.3, 1.0, (4000, 1, 5))
+    q = shrink_params(p, 0.1, np.array([[0.0, np.inf]] * 5), np.random.default_rng(9))
+    assert np.allclose(q.mean(axis=0), p.mean(axis=0), atol=4 * 0.1 * p.std() / math.sqrt(4000))
+    assert np.allclose(q.std(axis=0) / p.std(axis=0), 1.0, atol=0.03)
+    assert np.all(np.abs(q - p) < 0.25) and np.any(q != p)
+    clipped = shrink_params(p, 0.5, np.array([[0.4, 0.9]] * 5), np.random.default_rng(9))
+    assert clipped.min() >= 0.4 and clipped.max() <= 0.9

@@ -1,0 +1,114 @@
+"""The perception memory: detections, velocities, hands, the Place rule's rest test, tick velocities."""
+import math
+
+import numpy as np
+import pytest
+
+from estimator.config import ReasonerConfig
+from estimator.model import initial_poses
+from estimator.observations import Detection, Frame
+from estimator.perception_memory import PerceptionMemory
+from physics.scene import scene_from_dict
+
+TABLE, CUP, BALL = range(3)
+
+
+def memory(follow_hands=True, reasoner=ReasonerConfig()):
+    sc = scene_from_dict({"objects": [
+        {"id": "table", "static": True, "box": {"size": [1.0, 1.0, 0.1]}, "pose": {"position": [0, 0, 0.05]}},
+        {"id": "cup", "cylinder": {"radius": 0.03, "height": 0.08}, "pose": {"position": [0.3, 0.3, 0.14]}},
+        {"id": "ball", "sphere": {"radius": 0.03}}]})
+    return PerceptionMemory(sc, initial_poses(sc)[0], reasoner, follow_hands)
+
+
+def det(p, q=None, std=None):
+    return Detection(np.asarray(p, float), None if q is None else np.asarray(q, float), std)
+
+
+def test_record_detections_velocity_and_std():
+    mem = memory()
+    d = mem.record(Frame(0.0, {"cup": det([0.3, 0.3, 0.14]), "table": det([9, 9, 9])}))
+    assert list(d) == [False, True, False]  # static objects' detections are ignored
+    assert np.all(mem.last_pose[TABLE, :3] == [0, 0, 0.05])
+    assert np.all(mem.perc_vel[CUP] == 0)  # first sighting: no velocity
+    mem.record(Frame(0.1, {"cup": det([0.32, 0.3, 0.14], (0, 0, 1, 0), std=0.004)}))
+    assert np.allclose(mem.perc_vel[CUP, :3], [0.2, 0.0, 0.0])  # 2 cm in 0.1 s
+    assert np.all(mem.last_pose[CUP, 3:] == [0, 0, 1, 0]) and mem.last_has_orientation[CUP]
+    assert mem.last_std[CUP] == 0.004 and mem.last_seen[CUP] == 0.1
+    mem.record(Frame(1.0, {"cup": det([0.5, 0.3, 0.14])}))  # after a gap longer than t_perceived
+    assert np.all(mem.perc_vel[CUP] == 0) and np.isnan(mem.last_std[CUP]) and not mem.last_has_orientation[CUP]
+    assert np.all(mem.last_pose[CUP, 3:] == [0, 0, 1, 0])  # no orientation measured: the last one kept
+    with pytest.raises(ValueError, match="unknown object id 'mug'"):
+        mem.record(Frame(1.1, {"mug": det([0, 0, 0])}))
+
+
+def test_perceived_within_t_perceived_and_jumps():
+    mem = memory(reasoner=ReasonerConfig(t_perceived=0.5, d_perc_prev=0.03))
+    mem.record(Frame(0.0, {"cup": det([0.3, 0.3, 0.14]), "ball": det([0.0, 0.0, 0.2])}))
+    assert list(mem.perceived(0.5)) == [False, True, True]
+    assert list(mem.perceived(0.51)) == [False, False, False]
+    # the ball was parked (unknown): its first perception is a jump; the cup moved 2 cm, less than 3
+    mem.record(Frame(0.1, {"cup": det([0.32, 0.3, 0.14])}))
+    assert list(mem.jumped()) == [False, False, True]
+    mem.end_tick(mem.perceived(0.1), np.array([False, True, True]), np.zeros((3, 3)))
+    mem.record(Frame(0.2, {"cup": det([0.36, 0.3, 0.14])}))
+    assert list(mem.jumped()) == [False, True, False]  # 4 cm since the last tick
+
+
+def test_nearest_tracked_hand_within_30_cm():
+    mem = memory()
+    hands = {"human/left": np.array([1.0, 0.0, 1.0]), "human/right": np.array([0.3, 0.3, 0.34])}
+    mem.record(Frame(0.0, {"cup": det([0.3, 0.3, 0.14])}, hands))
+    assert mem.hold_hand[CUP] == "human/right" and np.allclose(mem.hold_offset[CUP], [0, 0, -0.2])
+    assert list(mem.following_hand(Frame(0.1, {}, hands))) == [False, True, False]
+    assert list(mem.following_hand(Frame(0.1, {}, {"human/left": hands["human/left"]}))) == [False] * 3
+    assert np.allclose(mem.hand_target(Frame(0.1, {}, {"human/right": np.array([0.0, 0.0, 1.0])}), CUP),
+                       [0.0, 0.0, 0.8])
+    mem.record(Frame(0.2, {"cup": det([0.3, 0.3, 0.14])}, {"human/right": np.array([0.3, 0.3, 0.45])}))
+    assert mem.hold_hand[CUP] is None  # 31 cm away: not holding it
+    off = memory(follow_hands=False)
+    off.record(Frame(0.0, {"cup": det([0.3, 0.3, 0.14])}, hands))
+    assert off.hold_hand[CUP] == "human/right"
+    assert not off.following_hand(Frame(0.1, {}, hands)).any() and off.hand_target(Frame(0.1, {}, hands), CUP) is None
+
+
+def _frames(mem, positions, quats=None, hz=30.0):
+    for i, p in enumerate(positions):
+        mem.record(Frame(i / hz, {"cup": det(p, None if quats is None else quats[i])}))
+    return (len(positions) - 1) / hz
+
+
+def test_at_rest_needs_a_dwell_of_slow_detections():
+    hr = ReasonerConfig(place_dwell=0.3, place_speed=0.15, place_spin=1.0)
+    mem = memory(reasoner=hr)
+    t = _frames(mem, [[0.3, 0.3, 0.14]] * 13)  # 0.4 s still
+    assert list(mem.at_rest(t)) == [False, True, False]
+    assert not mem.at_rest(t + 0.31)[CUP]  # not seen for longer than the dwell
+    short = memory(reasoner=hr)
+    assert not short.at_rest(_frames(short, [[0.3, 0.3, 0.14]] * 5))[CUP]  # 0.13 s: none old enough
+    moving = memory(reasoner=hr)  # 0.2 m/s > place_speed
+    assert not moving.at_rest(_frames(moving, [[0.3 + 0.2 * i / 30, 0.3, 0.14] for i in range(13)]))[CUP]
+    slow = memory(reasoner=hr)  # 0.1 m/s < place_speed
+    assert slow.at_rest(_frames(slow, [[0.3 + 0.1 * i / 30, 0.3, 0.14] for i in range(13)]))[CUP]
+    turning = memory(reasoner=hr)  # 2 rad/s about z > place_spin
+    qs = [[0, 0, math.sin(i / 30), math.cos(i / 30)] for i in range(13)]
+    assert not turning.at_rest(_frames(turning, [[0.3, 0.3, 0.14]] * 13, qs))[CUP]
+
+
+def test_tick_velocity_and_vertical_acceleration():
+    mem = memory()
+    mem.record(Frame(0.0, {"cup": det([0.3, 0.3, 0.5])}))
+    assert np.all(mem.tick_velocity() == 0)  # no previous tick
+    mem.end_tick(mem.perceived(0.0), np.array([False, True, False]), mem.tick_velocity())
+    mem.record(Frame(0.05, {"cup": det([0.3, 0.3, 0.49])}))
+    mem.record(Frame(0.1, {"cup": det([0.3, 0.3, 0.46])}))
+    v = mem.tick_velocity()
+    assert np.allclose(v[CUP], [0.0, 0.0, -0.4]) and np.all(v[[TABLE, BALL]] == 0)
+    assert mem.vertical_acceleration(v, 0.1)[CUP] == pytest.approx(-4.0)
+    mem.end_tick(mem.perceived(0.1), np.array([False, True, False]), v)
+    mem.record(Frame(0.2, {"cup": det([0.3, 0.3, 0.36])}))
+    v2 = mem.tick_velocity()
+    assert v2[CUP, 2] == pytest.approx(-1.0)
+    assert mem.vertical_acceleration(v2, 0.1)[CUP] == pytest.approx(-6.0)
+    mem.end_tick(mem.perceived(0.2), np.zeros(3, bool), v2)  # not detected: its velocity is forgotten
+    assert mem.vertical_acceleration(v2, 0.1)[CUP] == pytest.approx(-10.0)

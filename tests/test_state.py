@@ -1,0 +1,27 @@
+"""The particle state: taking ancestors copies every per-particle array and resets the weights."""
+import numpy as np
+
+from estimator.state import ParticleState
+
+
+def state(K=3, M=2):
+    rng = np.random.default_rng(0)
+    return ParticleState(poses=rng.normal(size=(K, M, 7)), velocities=rng.normal(size=(K, M, 6)),
+                         params=rng.uniform(size=(K, M, 5)), modes=rng.integers(0, 2, (K, M)).astype(np.int8),
+                         log_weights=np.array([0.0, -1.0, -2.0]), on_top=rng.uniform(size=(K, M, M + 1)) > 0.5,
+                         is_in=rng.uniform(size=(K, M, M)) > 0.5, event_t=rng.normal(size=(K, M, 3)),
+                         supported=rng.uniform(size=(K, M)) > 0.5, last_motion=rng.uniform(size=(K, M)),
+                         jolted=rng.uniform(size=(K, M)) > 0.5)
+
+
+def test_take_follows_the_ancestors_and_equalises_the_weights():
+    s = state()
+    anc = np.array([2, 2, 0])
+    t = s.take(anc)
+    for name in ("poses", "velocities", "params", "modes", "on_top", "is_in", "event_t", "supported",
+                 "last_motion", "jolted"):
+        a, b = getattr(t, name), getattr(s, name)
+        assert a.dtype == b.dtype and np.array_equal(a, b[anc]), name
+    assert np.all(t.log_weights == 0) and len(t.log_weights) == 3
+    t.poses[0, 0, 0] = 99.0
+    assert s.poses[2, 0, 0] != 99.0 and t.poses[1, 0, 0] != 99.0  # copies, not views
