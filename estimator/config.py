@@ -93,6 +93,9 @@ class NoiseConfig:
       initialising or overriding a particle's pose from perception and in the likelihood.
     * ``process_position_std`` (m per sqrt(s)) / ``process_orientation_std`` (rad per sqrt(s)):
       random-walk noise added to unperceived free objects at each update.
+    * ``rest_speed`` (m/s): in a particle, an unperceived free object on a support and moving slower
+      than this is at rest and gets no random walk: a resting object does not wander by itself (and,
+      untouched, sleeps in its world, which makes resting scenes cheap to simulate).
     * ``motion_noise``: unperceived free objects resting on or in something also get position noise
       with a standard deviation of this fraction of the distance they moved in the last update
       (rolling and sliding are chaotic: the model error grows with motion; flight is not noised).
@@ -121,6 +124,7 @@ class NoiseConfig:
     process_position_std: float = 0.003
     process_orientation_std: float = 0.01
     motion_noise: float = 0.3
+    rest_speed: float = 0.01
     covariance_floor_std: float = 0.005
     held_drift_std: float = 0.05
     friction_range: tuple[float, float] | None = (0.3, 1.0)
@@ -137,7 +141,7 @@ class NoiseConfig:
     def __post_init__(self):
         _check_nonneg(self, "position_std", "orientation_std", "process_position_std",
                       "process_orientation_std", "held_drift_std", "param_jitter", "outlier_prob", "miss_prob",
-                      "motion_noise", "covariance_floor_std", "regularisation", "max_jitter_std")
+                      "motion_noise", "rest_speed", "covariance_floor_std", "regularisation", "max_jitter_std")
         if self.param_jitter >= 1:
             raise ValueError("NoiseConfig.param_jitter must be < 1")
         if self.outlier_prob >= 1 or not 0 < self.miss_prob <= 1:

@@ -106,6 +106,9 @@ class SceneEstimator:
         # what each slot's world holds (None: not loaded yet), to load only what changed
         self._world_poses: np.ndarray | None = None
         self._world_vel: np.ndarray | None = None
+        # the particles as the worlds produced them (rows follow resampling), to load settled
+        # states asleep
+        self._produced: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def known(self) -> np.ndarray:
@@ -148,7 +151,8 @@ class SceneEstimator:
         perceived = self.memory.perceived(t)
         # move (model), propagate (pool), settle (model)
         move = model.move(self.state, frame, detected, perceived, dt, self.rng)
-        batch = model.batch(move, self.state, self._changed_slots(move.poses, move.velocities))
+        batch = model.batch(move, self.state, self._changed_slots(move.poses, move.velocities),
+                            self._settled_entries(move.poses, move.velocities))
         out = self.pool.run(batch, n_steps, cfg.reasoner.d_sim_perc, cfg.lazy_checks)
         bad = self._reset_exploded(out, move.poses, move.modes, t)
         settled = model.settle(self.state, move, out, t, dt, detected, perceived)
@@ -185,6 +189,14 @@ class SceneEstimator:
             return np.ones((self.K, self.M), dtype=bool)
         return np.any(poses != self._world_poses, axis=-1) | np.any(vel != self._world_vel, axis=-1)
 
+    def _settled_entries(self, poses: np.ndarray, vel: np.ndarray) -> np.ndarray | None:
+        """Entries ``(K, M)`` at rest (zero velocity: asleep) exactly as a world produced them: a
+        resampled particle's resting objects, which its new world may load asleep."""
+        if self._produced is None:
+            return None
+        p, v = self._produced
+        return np.all(vel == 0.0, axis=-1) & np.all(poses == p, axis=-1) & np.all(vel == v, axis=-1)
+
     @staticmethod
     def _reset_exploded(out: BatchOutput, poses: np.ndarray, modes: np.ndarray, t: float) -> np.ndarray:
         """Particles ``(K,)`` whose simulation exploded get back their state before physics, at rest
@@ -210,6 +222,7 @@ class SceneEstimator:
         s = self.state
         last_motion = np.linalg.norm(settled.poses[..., :3] - move.poses[..., :3], axis=-1)
         self._world_poses, self._world_vel = settled.poses.copy(), settled.velocities.copy()
+        self._produced = (self._world_poses.copy(), self._world_vel)
         if np.any(bad):  # exploded worlds must be reloaded from the arrays
             self._world_poses[bad] = np.nan
         self.state = ParticleState(
@@ -224,6 +237,8 @@ class SceneEstimator:
         anc = systematic_resample(weights, self.rng)
         kernels = self.model.regularisation_kernels(self.state.poses, weights, hidden)
         self.state = self.state.take(anc)
+        if self._produced is not None:
+            self._produced = (self._produced[0][anc], self._produced[1][anc])
         self.model.regularise(self.state, kernels, self.rng)
 
     def _update_timeline(self, t: float, belief: Belief) -> None:

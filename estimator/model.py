@@ -177,7 +177,9 @@ class SceneModel:
         self.known |= perceived
         modes, release_codes = self.release(prev_modes, perceived, state.supported, rng)
         target, target_vel = self.held_targets(frame, poses, modes, detected, perceived, dt, rng)
-        jolted = self.process_noise(poses, modes, perceived, state.supported, state.last_motion, dt, rng)
+        resting = state.supported & (np.linalg.norm(state.velocities[..., :3], axis=-1)
+                                     < self.config.noise.rest_speed)
+        jolted = self.process_noise(poses, modes, perceived, state.supported, resting, state.last_motion, dt, rng)
         # what physics checks and reports
         vis_query = self.known & self.dynamic & ~detected
         if not (cfg.negative_evidence and self.scene.camera is not None):
@@ -261,14 +263,17 @@ class SceneModel:
         return target, target_vel
 
     def process_noise(self, poses: np.ndarray, modes: np.ndarray, perceived: np.ndarray, supported: np.ndarray,
-                      last_motion: np.ndarray, dt: float, rng: np.random.Generator) -> np.ndarray:
-        """Process noise, in place, on the free, unperceived, known dynamic objects: a random walk of
-        ``process_position_std`` / ``process_orientation_std`` per sqrt(s), plus model error of
-        ``motion_noise`` times the distance ``last_motion (K, M)`` an object moved on or in its support
-        (``supported (K, M)``) in the last update (rolling and sliding are chaotic; flight is not),
-        capped at ``max_jitter_std``. Returns the objects moved by more than 2 mm std ``(K, M)``."""
+                      resting: np.ndarray, last_motion: np.ndarray, dt: float,
+                      rng: np.random.Generator) -> np.ndarray:
+        """Process noise, in place, on the free, unperceived, known dynamic objects that are not
+        ``resting (K, M)`` (on a support and slower than ``rest_speed``: a resting object does not
+        wander, and, untouched, sleeps in its world): a random walk of ``process_position_std`` /
+        ``process_orientation_std`` per sqrt(s), plus model error of ``motion_noise`` times the
+        distance ``last_motion (K, M)`` an object moved on or in its support (``supported (K, M)``)
+        in the last update (rolling and sliding are chaotic; flight is not), capped at
+        ``max_jitter_std``. Returns the objects moved by more than 2 mm std ``(K, M)``."""
         nz, K, M = self.config.noise, self.K, self.M
-        free_unseen = (modes == FREE) & (~perceived & self.dynamic & self.known)[None, :]
+        free_unseen = (modes == FREE) & (~perceived & self.dynamic & self.known)[None, :] & ~resting
         jolted = np.zeros((K, M), dtype=bool)
         if (nz.process_position_std > 0 or nz.motion_noise > 0) and np.any(free_unseen):
             rolling = np.where(supported, last_motion, 0.0)
@@ -283,11 +288,12 @@ class SceneModel:
             poses[..., 3:] = np.where(free_unseen[..., None], rotated, poses[..., 3:])
         return jolted
 
-    def batch(self, move: Move, state: ParticleState, reset: np.ndarray) -> BatchInput:
-        """The pool's input for ``move``; ``reset (K, M)``: entries the worlds must load."""
+    def batch(self, move: Move, state: ParticleState, reset: np.ndarray, settled: np.ndarray | None) -> BatchInput:
+        """The pool's input for ``move``; ``reset (K, M)``: entries the worlds must load; ``settled
+        (K, M)``: those that a world produced at rest, unchanged since (see :class:`BatchInput`)."""
         return BatchInput(poses=move.poses, velocities=move.velocities, params=state.params, modes=move.modes,
                           check=move.check, target=move.target, target_vel=move.target_vel, contents=state.is_in,
-                          depenetrate=move.depenetrate, reset=reset, vis_query=move.vis_query)
+                          depenetrate=move.depenetrate, reset=reset, settled=settled, vis_query=move.vis_query)
 
     # -- after physics --------------------------------------------------------------------------------
     def settle(self, state: ParticleState, move: Move, out: BatchOutput, t: float, dt: float,

@@ -40,6 +40,9 @@ class StepInput:
     contents ``(M, M)`` bool: ``contents[a, b]`` = a is in b (a moves with b when b is overridden).
     reset ``(M,)`` bool or None: objects whose pose and velocity must be loaded into the world (the
     others already hold the state the world left them in); None loads all.
+    settled ``(M,)`` bool or None: objects whose loaded state is one a world produced at rest (zero
+    velocity) and nothing changed since (a resampled particle's): with sleeping on, they are loaded
+    asleep, not woken (what the particle's other objects do may still wake them).
     depenetrate ``(M,)`` bool: objects just placed with perturbed poses, to be pushed out of anything
     they interpenetrate before stepping (a perturbation must not start a box inside the table).
     """
@@ -54,6 +57,7 @@ class StepInput:
     contents: np.ndarray
     depenetrate: np.ndarray
     reset: np.ndarray | None = None
+    settled: np.ndarray | None = None
 
 
 @dataclass
@@ -80,7 +84,7 @@ class BatchInput(StepInput):
 
 
 PER_PARTICLE = ("poses", "velocities", "params", "modes", "check", "target", "target_vel", "contents",
-                "depenetrate", "reset")
+                "depenetrate", "reset", "settled")
 """The fields of :class:`BatchInput` with a leading particle axis."""
 
 
@@ -206,6 +210,8 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     held_mask = (batch.modes == HELD) & dyn_mask
     depen_mask = batch.depenetrate & dyn_mask
     moved = reset | held_mask | depen_mask
+    if batch.settled is not None:  # a settled state loaded asleep stays asleep
+        moved &= ~(batch.settled & ~held_mask & ~depen_mask)
     reset_l, depen_l, moved_l = reset.tolist(), depen_mask.tolist(), moved.tolist()
     # watched objects and the first step at which each one needs testing
     checked = batch.check & (batch.modes == FREE) & dyn_mask

@@ -48,17 +48,22 @@ class Camera:
         return ok
 
 
-def local_sample_points(world: World, index: int, n_per_axis: int = 3) -> np.ndarray:
-    """Sample points ``(P, 3)`` in the frame of object ``index`` (computed from its AABB at identity)."""
+def local_box(world: World, index: int) -> tuple[np.ndarray, np.ndarray]:
+    """Centre ``(3,)`` and half extents ``(3,)`` (m) of object ``index``'s bounding box in its own
+    frame (its world AABB at identity orientation). The object lies within ``|half|`` of the centre."""
     pose0 = world.get_poses([index])
     ident = pose0.copy()
     ident[0, 3:] = [0.0, 0.0, 0.0, 1.0]
     world.set_poses(ident, [index])
     lo, hi = world.aabbs([index])[0]
     world.set_poses(pose0, [index])
-    centre_world = 0.5 * (lo + hi)
-    centre = centre_world - ident[0, :3]
-    half = 0.5 * (hi - lo)
+    return 0.5 * (lo + hi) - ident[0, :3], 0.5 * (hi - lo)
+
+
+def local_sample_points(world: World, index: int, n_per_axis: int = 3) -> np.ndarray:
+    """Sample points ``(P, 3)`` in the frame of object ``index`` (computed from its AABB at identity);
+    the first one is the box's centre."""
+    centre, half = local_box(world, index)
     g = np.linspace(-1.0, 1.0, n_per_axis)
     grid = np.array(np.meshgrid(g, g, g, indexing="ij")).reshape(3, -1).T
     norms = np.linalg.norm(grid, axis=1)
@@ -78,8 +83,24 @@ def visible_fraction(world: World, camera: Camera, indices, local_points: dict[i
     return visible_fractions([world], camera, indices, local_points, np.asarray(poses)[None])[0]
 
 
+def rays_clear_of(camera: Camera, centres: np.ndarray, radii: np.ndarray, others: np.ndarray,
+                  other_radii: np.ndarray) -> np.ndarray:
+    """Whether the rays from the camera to objects within ``radii (n,)`` of ``centres (n, 3)`` stay
+    clear of every body within ``other_radii (m,)`` of ``others (m, 3)``: bool ``(n,)``. Such a body
+    cannot occlude the object (conservative: the rays lie within the object's radius of the segment
+    from the camera to its centre)."""
+    if len(others) == 0:
+        return np.ones(len(centres), dtype=bool)
+    seg = centres - camera.position  # (n, 3)
+    rel = others[None, :, :] - camera.position  # (1, m, 3)
+    u = np.clip(np.einsum("nmk,nk->nm", rel, seg) / np.maximum(np.einsum("nk,nk->n", seg, seg), 1e-12)[:, None],
+                0.0, 1.0)
+    d = np.linalg.norm(rel - u[..., None] * seg[:, None, :], axis=-1)  # (n, m) distance to the segment
+    return np.all(d > radii[:, None] + other_radii[None, :], axis=1)
+
+
 def visible_fractions(worlds: list[World], camera: Camera, indices, local_points: dict[int, np.ndarray],
-                      poses: np.ndarray) -> np.ndarray:
+                      poses: np.ndarray, need: np.ndarray | None = None) -> np.ndarray:
     """Fraction ``(G, n)`` of each object's sample points that the camera sees, in each of the G
     worlds (copies of one scene, usually sharing a client: all their rays go to pybullet in one
     batched ray test).
@@ -92,6 +113,7 @@ def visible_fractions(worlds: list[World], camera: Camera, indices, local_points
         local_points: sample points per object index, in the object's frame (see
             :func:`local_sample_points`).
         poses: ``(G, n, 7)`` current link-frame poses of ``indices`` in each world (scene frame).
+        need: ``(G, n)`` bool, the fractions wanted (None: all); the others are returned as 0.
     """
     indices = [int(i) for i in np.atleast_1d(indices)]
     G, n = len(worlds), len(indices)
@@ -108,6 +130,8 @@ def visible_fractions(worlds: list[World], camera: Camera, indices, local_points
     q = np.broadcast_to(poses[:, :, None, 3:], (G, n, P, 4))
     pts = poses[:, :, None, :3] + quat_rotate(q, np.broadcast_to(local, (G, n, P, 3)))  # (G, n, P, 3)
     sel = camera.in_view(pts) & valid
+    if need is not None:
+        sel &= np.asarray(need, dtype=bool)[:, :, None]
     seen = np.zeros((G, n, P), dtype=bool)
     if sel.any():
         g_idx, o_idx, _ = np.nonzero(sel)

@@ -153,14 +153,17 @@ def test_process_noise_touches_only_unperceived_free_known_dynamic_objects():
     perceived = np.zeros(5, bool)
     perceived[CRATE] = True
     supported = np.ones((4, 5), bool)
+    resting = np.zeros((4, 5), bool)
+    resting[2, BALL] = True  # at rest on its support in particle 2: a resting object does not wander
     last_motion = np.zeros((4, 5))
     last_motion[0, BALL] = 0.1  # rolled 10 cm: large model error, capped
-    jolted = model.process_noise(poses, modes, perceived, supported, last_motion, 0.5, np.random.default_rng(4))
+    jolted = model.process_noise(poses, modes, perceived, supported, resting, last_motion, 0.5,
+                                 np.random.default_rng(4))
     changed = np.any(poses != st.poses, axis=-1)
     expect = np.zeros((4, 5), bool)
-    expect[:3, BALL] = True  # not the static table, the perceived crate, the held cup, the unknown mystery
+    expect[:2, BALL] = True  # not the static table, the perceived crate, the held cup, the unknown mystery
     assert np.array_equal(changed, expect)
-    assert np.all(np.any(poses[:3, BALL, 3:] != st.poses[:3, BALL, 3:], axis=-1))  # orientations too
+    assert np.all(np.any(poses[:2, BALL, 3:] != st.poses[:2, BALL, 3:], axis=-1))  # orientations too
     assert np.allclose(np.linalg.norm(poses[..., 3:], axis=-1), 1.0)
     # std: sqrt(0.01^2 * 0.5 + (0.5 * rolled)^2) capped at max_jitter_std (0.01); jolted above 2 mm
     assert np.array_equal(jolted, expect)

@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 
 from estimator.pool import BatchInput, WorldPool, shard_bounds
+from physics.visibility import visible_fractions
 
 from helpers import TABLE_TOP, table_scene
 
@@ -140,3 +141,33 @@ def test_peak_memory_of_all_processes_stays_under_the_bound(tmp_path, k, bound_m
     assert out.returncode == 0, out.stderr
     peak = float(out.stdout.strip().splitlines()[-1])
     assert 0 < peak < bound_mb
+
+
+def test_visibility_kept_from_the_last_ray_tests_equals_fresh_ray_tests():
+    cam = {"position": [1.5, 0.0, 1.0], "target": [0.0, 0.0, 0.7]}
+    scene = table_scene({"id": "ball", "sphere": {"radius": 0.03}, "pose": {"position": [0.0, 0.0, TABLE_TOP + 0.03]}},
+                        {"id": "block", "box": {"size": [0.05, 0.05, 0.05]},
+                         "pose": {"position": [0.0, -0.4, TABLE_TOP + 0.025]}},
+                        {"id": "far", "box": {"size": [0.05, 0.05, 0.05]}, "pose": {"position": [-0.5, 0.4, TABLE_TOP + 0.025]}},
+                        camera=cam)
+    k, m = 4, 4
+    with WorldPool(scene, k, 0, worlds=2) as cached:
+        start = np.repeat(cached._local.worlds[0].world.get_poses()[None], k, axis=0)
+        first = batch(k, m, start)
+        first.vis_query = np.array([False, True, False, False])
+        out = cached.run(first, 5, 0.045)
+        assert np.all(out.visible[:, 1] > 0.8)  # the ball in plain view everywhere
+        poses = out.poses.copy()
+        poses[0, 2, :3] = [0.07, 0.0, TABLE_TOP + 0.025]  # particle 0: the block moved in front of the ball
+        poses[1, 1, :3] = [0.0, 0.3, TABLE_TOP + 0.03]   # particle 1: the ball itself moved
+        poses[2, 3, :3] = [-0.5, 0.3, TABLE_TOP + 0.025]  # particle 2: something far from the line of sight moved
+        second = batch(k, m, poses)                       # particle 3: nothing moved
+        second.velocities = out.velocities
+        second.vis_query = first.vis_query
+        second.reset = np.any(poses != out.poses, axis=-1)
+        again = cached.run(second, 5, 0.045)
+        shard = cached._local  # fresh ray tests in the same worlds, in the same state
+        ref = visible_fractions([pw.world for pw in shard.worlds], shard.camera, [1], shard.points,
+                                again.poses[:, [1]])
+    assert np.array_equal(again.visible[:, 1], ref[:, 0])
+    assert again.visible[0, 1] < out.visible[0, 1]  # the block hides part of the ball now

@@ -90,7 +90,8 @@ def test_a_batch_of_worlds_gives_each_particle_what_it_gets_alone():
     for inp in rows:
         with World(SCENE) as w:
             alone.append(propagate(ParticleWorld(w), inp, 30, 0.045, lazy=True))
-    batch = BatchInput(*(np.stack([getattr(r, f) for r in rows]) for f in PER_PARTICLE), np.zeros(3, bool))
+    batch = BatchInput(*(None if getattr(rows[0], f) is None else np.stack([getattr(r, f) for r in rows])
+                         for f in PER_PARTICLE), np.zeros(3, bool))
     worlds = [World(SCENE) for _ in range(3)]
     try:
         out = propagate_batch([ParticleWorld(w) for w in worlds], batch, 30, 0.045, lazy=True)
@@ -196,3 +197,19 @@ def test_a_resting_stack_stays_put_when_reloaded_every_update():
     assert creep[True, False] < 1e-6
     assert creep[True, True] < creep[False, False] + 2e-4
     assert creep[False, False] < 5e-3
+
+
+def test_a_settled_state_is_loaded_asleep_and_an_edited_one_awake():
+    """After resampling, a particle's world takes another's resting state: loaded as settled it stays
+    asleep (stepping skips it); loaded as an edit it is woken (and reads back a velocity)."""
+    with World(STACK, PhysicsSettings(sleeping=True)) as donor, World(STACK, PhysicsSettings(sleeping=True)) as w:
+        _, rest = _settled(donor)
+        pw, _ = _settled(w)
+        poses = rest.poses.copy()
+        poses[1:3, 0] += 0.1  # the donor's stack, 10 cm along
+        for settled, asleep in ((True, True), (False, False)):
+            inp = inputs(w, poses=poses, velocities=np.zeros((4, 6)), reset=np.array([False, True, True, False]),
+                         settled=np.full(4, settled))
+            out = propagate(pw, inp, 19, 0.045)
+            assert np.all(out.velocities[1:3] == 0.0) == asleep
+            assert np.allclose(out.poses[1:3, :3], poses[1:3, :3], atol=1e-3)  # a resting stack either way

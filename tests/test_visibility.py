@@ -1,7 +1,9 @@
 import numpy as np
 
 from physics.scene import CameraSpec
-from physics.visibility import Camera, local_sample_points, visible_fraction
+from physics.group import WorldGroup
+from physics.visibility import (Camera, local_box, local_sample_points, rays_clear_of, visible_fraction,
+                                 visible_fractions)
 from physics.world import World
 
 from helpers import TABLE_TOP, table_scene
@@ -26,3 +28,39 @@ def test_occlusion_by_a_box_and_by_container_walls():
         pts = {i: local_sample_points(w, i) for i in range(w.num_objects)}
         frac = visible_fraction(w, cam, [1, 2, 3], pts)
     assert frac[0] > 0.8 and frac[1] < 0.05 and frac[2] > 0.8
+
+
+def test_rays_clear_of_bodies_away_from_the_line_of_sight():
+    cam = Camera(CameraSpec(position=(0, 0, 0), target=(1, 0, 0)))
+    centres = np.array([[2.0, 0, 0], [2.0, 1.0, 0]])
+    radii = np.array([0.1, 0.1])
+    # a body on the first line of sight, one on the second, one 0.5 m beside the first (0.89 m from
+    # the second), one behind the camera, one beyond the objects
+    others = np.array([[1.0, 0.05, 0], [1.0, 0.5, 0], [1.0, -0.5, 0], [-0.5, 0, 0], [3.0, 0, 0]])
+    other_radii = np.full(5, 0.1)
+    clear = [rays_clear_of(cam, centres, radii, others[[j]], other_radii[[j]]).tolist() for j in range(5)]
+    assert clear == [[False, True], [True, False], [True, True], [True, True], [True, True]]
+    assert rays_clear_of(cam, centres, radii, others[[2]], np.array([0.45])).tolist() == [False, True]
+    assert rays_clear_of(cam, centres, radii, others, other_radii).tolist() == [False, False]
+    assert rays_clear_of(cam, centres, radii, np.zeros((0, 3)), np.zeros(0)).all()
+
+
+def test_visible_fractions_of_copies_in_one_client_match_each_world_alone():
+    scene = table_scene(
+        {"id": "wall", "box": {"size": [0.05, 0.4, 0.3]}, "pose": {"position": [0.3, 0.0, TABLE_TOP + 0.15]}},
+        {"id": "ball", "sphere": {"radius": 0.03}, "pose": {"position": [0.0, 0.0, TABLE_TOP + 0.03]}},
+        camera=CAM)
+    cam = Camera(scene.camera)
+    with WorldGroup(scene, copies=3) as g, World(scene) as alone:
+        pts = {i: local_sample_points(alone, i, 2) for i in range(alone.num_objects)}
+        assert np.allclose(local_box(alone, 2)[1], 0.03, atol=2e-3)  # a sphere's box: its radius, plus margin
+        g.worlds[1].set_poses([[0.0, 0.3, TABLE_TOP + 0.03, 0, 0, 0, 1]], [2])  # out from behind the wall
+        poses = np.stack([w.get_poses([2]) for w in g.worlds])
+        frac = visible_fractions(g.worlds, cam, [2], pts, poses)
+        need = np.array([[True], [False], [True]])
+        partial = visible_fractions(g.worlds, cam, [2], pts, poses, need)
+        for k in range(3):
+            alone.set_poses(poses[k], [2])
+            assert frac[k, 0] == visible_fraction(alone, cam, [2], pts)[0]
+        assert frac[0, 0] < 0.05 and frac[1, 0] > 0.8 and frac[2, 0] < 0.05
+        assert partial[1, 0] == 0.0 and partial[0, 0] == frac[0, 0]
