@@ -56,21 +56,20 @@ class WorldGroup:
         """Origins ``(G, 3)`` (m) of the copies' scene frames in the client."""
         return np.array([w.origin for w in self.worlds])
 
+    # the client's stepping and state are every copy's: its first copy's methods serve for all
     def step(self, n: int = 1) -> None:
         """Advance every copy by ``n`` fixed steps."""
-        c = self.client
-        for _ in range(int(n)):
-            pb.stepSimulation(physicsClientId=c)
+        self.worlds[0].step(n)
 
     def save_state(self) -> int:
         """Save the state of every copy; returns an id for :meth:`restore_state`."""
-        return pb.saveState(physicsClientId=self.client)
+        return self.worlds[0].save_state()
 
     def restore_state(self, state_id: int) -> None:
-        pb.restoreState(stateId=state_id, physicsClientId=self.client)
+        self.worlds[0].restore_state(state_id)
 
     def remove_state(self, state_id: int) -> None:
-        pb.removeState(state_id, physicsClientId=self.client)
+        self.worlds[0].remove_state(state_id)
 
     def close(self) -> None:
         """Disconnect the client. Safe to call twice."""
