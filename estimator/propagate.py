@@ -21,7 +21,7 @@ import pybullet as pb
 
 from actions.modes import FREE, HELD
 from physics.transforms import quat_from_rotvec, quat_multiply
-from physics.sleep import asleep, sleep, touching, wake
+from physics.sleep import asleep, near, sleep, touching, wake
 from physics.world import World
 
 from .held import HeldObjects, depenetrate, glide_paths
@@ -160,6 +160,10 @@ REST_SPEED = 0.005
 put to sleep: stepping skips it until something touches it or it is reset."""
 REST_SPIN = 0.05
 """rad/s: see :data:`REST_SPEED`."""
+SETTLED_REACH = 0.03
+"""m: a settled object loaded asleep (:class:`StepInput` ``settled``) is woken when an object of its
+particle that the update moves ends within this distance of it (boxes): three times the largest
+regularisation jitter, so that an object whose support was jittered away does not float."""
 
 
 def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d_sim_perc: float,
@@ -210,9 +214,12 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     held_mask = (batch.modes == HELD) & dyn_mask
     depen_mask = batch.depenetrate & dyn_mask
     moved = reset | held_mask | depen_mask
-    if batch.settled is not None:  # a settled state loaded asleep stays asleep
-        moved &= ~(batch.settled & ~held_mask & ~depen_mask)
+    settled = np.zeros((K, M), dtype=bool)
+    if batch.settled is not None:  # a settled state loaded asleep stays asleep...
+        settled = batch.settled & moved & ~held_mask & ~depen_mask
+        moved &= ~settled
     reset_l, depen_l, moved_l = reset.tolist(), depen_mask.tolist(), moved.tolist()
+    settled_l = settled.tolist()
     # watched objects and the first step at which each one needs testing
     checked = batch.check & (batch.modes == FREE) & dyn_mask
     target_com = w0.com_frame(batch.target)[0][..., :3] + origins
@@ -247,6 +254,8 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
                 wake(w, woken)
             if True in depen_l[k]:
                 depenetrate(w, [i for i in dyn if depen_l[k][i]])
+            if rows and True in settled_l[k]:  # ...unless something moved is (or was) near it
+                wake(w, [i for i in near(w, rows, SETTLED_REACH) if settled_l[k][i]])
             held = HeldObjects(w, batch.target[k], batch.target_vel[k], batch.contents[k], n_steps)
             for h in glides.get(k, ()):
                 held.glide(*h)

@@ -52,3 +52,21 @@ def touching(world: World, indices) -> list[int]:
             if j >= 0:
                 found.add(j)
     return sorted(found.difference(indices))
+
+
+def near(world: World, indices, margin: float = 0.01) -> list[int]:
+    """Objects (indices, sorted) whose bounding boxes come within ``margin`` (m) of those of objects
+    ``indices`` as they are now (the broadphase's answer; ``indices`` themselves excluded): what a
+    body just moved may touch once stepped, when no contact of it is known yet."""
+    c = world.client
+    found: set[int] = set()
+    for i in indices:
+        uid = world.uids[i]
+        lo, hi = pb.getAABB(uid, -1, physicsClientId=c)
+        lo = [x - margin for x in lo]
+        hi = [x + margin for x in hi]
+        for o, _ in pb.getOverlappingObjects(lo, hi, physicsClientId=c) or ():
+            j = world.index_of_uid(o)
+            if j >= 0:
+                found.add(j)
+    return sorted(found.difference(indices))

@@ -213,3 +213,31 @@ def test_a_settled_state_is_loaded_asleep_and_an_edited_one_awake():
             out = propagate(pw, inp, 19, 0.045)
             assert np.all(out.velocities[1:3] == 0.0) == asleep
             assert np.allclose(out.poses[1:3, :3], poses[1:3, :3], atol=1e-3)  # a resting stack either way
+
+
+def test_a_settled_object_whose_support_was_moved_is_woken():
+    """A resampled particle's resting stack, its bottom block then jittered 2 cm aside: the top block
+    (settled, loaded asleep) must not float where its support was."""
+    with World(STACK, PhysicsSettings(sleeping=True)) as donor, World(STACK, PhysicsSettings(sleeping=True)) as w, \
+            World(STACK, PhysicsSettings(sleeping=False)) as never:
+        _, rest = _settled(donor)
+        poses = rest.poses.copy()
+        poses[1:3, 0] += 0.1   # the donor's stack, 10 cm along
+        poses[1, 0] += 0.06    # its bottom block jittered 6 cm further: the top one has nothing under it
+        res = []
+        for world, settled in ((w, np.array([False, False, True, False])), (never, None)):
+            pw, out = _settled(world)
+            apart = out.poses.copy()  # the world's own particle had the two blocks apart, asleep
+            apart[2, :3] = [-0.3, -0.2, TABLE_TOP + 0.025]
+            for load in (True, False, False):
+                out = propagate(pw, inputs(world, poses=apart, velocities=out.velocities,
+                                           reset=np.array([False, load, load, False])), 19, 0.045)
+                apart = out.poses
+            if settled is not None:
+                assert np.all(out.velocities[1:3] == 0.0)  # asleep
+            inp = inputs(world, poses=poses, velocities=np.zeros((4, 6)), reset=np.array([False, True, True, False]),
+                         settled=settled)
+            res.append(propagate(pw, inp, 12, 0.045).poses)  # 50 ms: falling 12 mm
+        assert res[0][2, 2] < TABLE_TOP + 0.075 - 0.008  # falling, not floating
+        # as in a world that never slept, but for the step a woken body spends still (g t dt: 2 mm)
+        assert np.allclose(res[0][:, :3], res[1][:, :3], atol=3e-3)
