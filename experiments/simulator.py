@@ -49,7 +49,8 @@ from estimator.relations import relation_list, relation_masks
 from physics.errors import InputError
 from physics.scene import Scene, scene_to_dict
 from physics.transforms import pose_compose, pose_inverse, quat_from_axis_angle, quat_multiply, quat_normalize
-from physics.world import DEFAULT_PRIMITIVE_MASS, PhysicsSettings, World
+from physics.bodies import DEFAULT_PRIMITIVE_MASS
+from physics.world import PhysicsSettings, World
 
 from .camera import SyntheticCamera
 from .perception import PerceptionModel

@@ -17,17 +17,14 @@ from __future__ import annotations
 import numpy as np
 import pybullet as pb
 
-from .errors import SceneError
+from .bodies import apply_dynamics, create_body
 from .scene import ObjectSpec, Scene
 from .settings import PhysicsSettings, connect
 from .transforms import pose_compose, pose_inverse, quat_rotate
-from .urdf import collision_only_urdf
 
 FLOOR = -2
 """Body index returned by ray queries for the floor plane (``-1`` means nothing was hit)."""
 
-DEFAULT_PRIMITIVE_MASS = 0.1
-DEFAULT_URDF_MASS = 0.5
 PARK_DISTANCE = 50.0
 PARK_DEPTH = 25.0
 """An object set more than this (m) below the floor is parked: it collides with nothing and sleeps."""
@@ -135,75 +132,9 @@ class World:
                 else pb.ACTIVATION_STATE_DISABLE_SLEEPING)
 
     def _create(self, i: int, spec: ObjectSpec) -> int:
-        c = self.client
         pos = list(spec.position) if spec.position is not None else [0.0, 0.0, -PARK_DISTANCE]
-        pos = (np.asarray(pos) + self.origin).tolist()
-        orn = list(spec.orientation)
-        if spec.shape == "urdf":
-            uid = -1
-            path = collision_only_urdf(spec.urdf) if self.settings.collision_only else spec.urdf
-            for _attempt in range(2):  # a transient failure (file being written) gets one retry
-                try:
-                    uid = pb.loadURDF(path, pos, orn, useFixedBase=spec.static,
-                                      globalScaling=spec.scale, physicsClientId=c)
-                    break
-                except pb.error:
-                    uid = -1
-            if uid < 0:
-                raise SceneError(f"pybullet could not load URDF {spec.urdf}", path=self.scene.source,
-                                 field=f"objects[{i}].urdf")
-            if spec.static:
-                pb.changeDynamics(uid, -1, mass=0.0, physicsClientId=c)
-            else:
-                mass = spec.mass
-                if mass is None and pb.getDynamicsInfo(uid, -1, physicsClientId=c)[0] <= 0:
-                    mass = DEFAULT_URDF_MASS
-                if mass is not None:
-                    pb.changeDynamics(uid, -1, mass=mass, physicsClientId=c)
-        else:
-            if i not in self._shapes:
-                self._shapes[i] = self._collision_shape(spec)
-            shape = self._shapes[i]
-            mass = 0.0 if spec.static else (spec.mass if spec.mass is not None else DEFAULT_PRIMITIVE_MASS)
-            uid = pb.createMultiBody(mass, shape, -1, pos, orn, physicsClientId=c)
-        self._apply_dynamics(uid, spec.friction, spec.rolling_friction, spec.spinning_friction,
-                             spec.restitution)
-        return uid
-
-    def _collision_shape(self, spec: ObjectSpec) -> int:
-        c = self.client
-        if spec.shape == "box":
-            return pb.createCollisionShape(pb.GEOM_BOX, halfExtents=[0.5 * v for v in spec.size],
-                                           physicsClientId=c)
-        if spec.shape == "sphere":
-            return pb.createCollisionShape(pb.GEOM_SPHERE, radius=spec.radius, physicsClientId=c)
-        if spec.shape == "cylinder":
-            return pb.createCollisionShape(pb.GEOM_CYLINDER, radius=spec.radius, height=spec.height,
-                                           physicsClientId=c)
-        # open-top container: floor + four walls, frame at the centre of the outer box
-        sx, sy, sz = spec.size
-        w = spec.wall
-        half = [[sx / 2, sy / 2, w / 2],
-                [w / 2, sy / 2, sz / 2], [w / 2, sy / 2, sz / 2],
-                [sx / 2 - w, w / 2, sz / 2], [sx / 2 - w, w / 2, sz / 2]]
-        centres = [[0, 0, -sz / 2 + w / 2],
-                   [sx / 2 - w / 2, 0, 0], [-sx / 2 + w / 2, 0, 0],
-                   [0, sy / 2 - w / 2, 0], [0, -sy / 2 + w / 2, 0]]
-        return pb.createCollisionShapeArray([pb.GEOM_BOX] * 5, halfExtents=half,
-                                            collisionFramePositions=centres, physicsClientId=c)
-
-    def _apply_dynamics(self, uid, friction, rolling, spinning, restitution) -> None:
-        kw = {}
-        if friction is not None:
-            kw["lateralFriction"] = float(friction)
-        if rolling is not None:
-            kw["rollingFriction"] = float(rolling)
-        if spinning is not None:
-            kw["spinningFriction"] = float(spinning)
-        if restitution is not None:
-            kw["restitution"] = float(restitution)
-        if kw:
-            pb.changeDynamics(uid, -1, physicsClientId=self.client, **kw)
+        return create_body(self.client, spec, (np.asarray(pos) + self.origin).tolist(), self._shapes, i,
+                           collision_only=self.settings.collision_only, source=self.scene.source)
 
     # -- named access -------------------------------------------------------------------------------
     @property
@@ -421,7 +352,7 @@ class World:
                      restitution: float | None = None, mass: float | None = None) -> None:
         """Change physical parameters of object ``index``; ``None`` leaves a parameter unchanged."""
         uid = self.uids[index]
-        self._apply_dynamics(uid, lateral_friction, rolling_friction, spinning_friction, restitution)
+        apply_dynamics(self.client, uid, lateral_friction, rolling_friction, spinning_friction, restitution)
         if mass is not None and not self.static[index]:
             pb.changeDynamics(uid, -1, mass=float(mass), physicsClientId=self.client)
 

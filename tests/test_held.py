@@ -1,0 +1,30 @@
+import numpy as np
+import pytest
+
+from estimator.held import depenetrate, glide_paths
+from physics.transforms import quat_angle, quat_from_rotvec
+from physics.world import World
+
+from helpers import TABLE_TOP, table_scene
+
+SCENE = table_scene({"id": "box", "box": {"size": [0.1, 0.1, 0.1]}, "pose": {"position": [0, 0, TABLE_TOP + 0.05]}})
+
+
+def test_glide_paths_run_straight_along_the_shortest_arc_at_constant_velocity():
+    with World(SCENE) as w:
+        start = np.array([[0.0, 0.0, 1.0, 0, 0, 0, 1]])
+        end = np.concatenate([[[0.19, 0.0, 1.0]], quat_from_rotvec(np.array([[0, 0, 0.5]]))], axis=1)
+        com, orn, lin, ang = glide_paths(w, start, end, np.array([1]), 19)
+        assert com.shape == (1, 20, 3) and orn.shape == (1, 20, 4)
+        assert np.allclose(com[0, 0], start[0, :3]) and np.allclose(com[0, -1], end[0, :3])
+        assert np.allclose(np.diff(com[0, :, 0]), 0.01)  # equal steps
+        assert quat_angle(orn[0, -1], end[0, 3:]) == pytest.approx(0.0, abs=1e-6)
+        dt = 19 * w.settings.time_step
+        assert np.allclose(lin[0], [0.19 / dt, 0, 0]) and np.allclose(ang[0], [0, 0, 0.5 / dt])
+
+
+def test_depenetrate_pushes_a_sunk_box_out_of_the_table():
+    with World(SCENE) as w:
+        w.set_poses([[0.0, 0.0, TABLE_TOP + 0.03, 0, 0, 0, 1]], [1])  # 2 cm into the table top
+        depenetrate(w, [1])
+        assert w.get_poses([1])[0, 2] == pytest.approx(TABLE_TOP + 0.05, abs=2e-3)
