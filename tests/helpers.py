@@ -42,3 +42,21 @@ def write_jsonl(path, rows):
     with open(path, "w") as fh:
         for r in rows:
             fh.write((r if isinstance(r, str) else json.dumps(r)) + "\n")
+
+
+# -- property-based tests of the readers: arbitrary JSON-like values, reproducible (derandomized) -------
+
+def json_values():
+    """A hypothesis strategy of arbitrary JSON-like values (NaN and infinities included)."""
+    from hypothesis import strategies as st
+    leaf = st.one_of(st.none(), st.booleans(), st.integers(-10**20, 10**20),
+                     st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=8))
+    return st.recursive(leaf, lambda c: st.one_of(st.lists(c, max_size=5),
+                                                  st.dictionaries(st.text(max_size=8), c, max_size=5)),
+                        max_leaves=20)
+
+
+def fuzz_settings(n: int = 300):
+    """Hypothesis settings for the readers' property tests: ``n`` examples, the same on every run."""
+    from hypothesis import HealthCheck, settings
+    return settings(max_examples=n, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))

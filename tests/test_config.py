@@ -75,3 +75,23 @@ def test_missing_or_unparsable_configuration_file(tmp_path):
     (tmp_path / "broken.yaml").write_text("noise: {position_std: [\n")
     with pytest.raises(ConfigError, match="invalid YAML"):
         load_config(tmp_path / "broken.yaml")
+
+
+# -- property-based: any configuration data gives a configuration or a ConfigError ------------------------
+
+from hypothesis import given  # noqa: E402
+
+from estimator.config import config_from_dict  # noqa: E402
+
+from helpers import fuzz_settings, json_values  # noqa: E402
+
+
+@fuzz_settings(300)
+@given(json_values())
+def test_any_configuration_data_gives_a_configuration_or_a_config_error(data):
+    try:
+        cfg = config_from_dict(data)
+    except ConfigError as exc:
+        assert str(exc)
+        return
+    assert isinstance(cfg, EstimatorConfig) and cfg.particles >= 1

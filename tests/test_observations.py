@@ -65,3 +65,44 @@ def test_missing_file_and_non_object():
         parse_frame([1, 2], known_ids=IDS)
     f = parse_frame(json.loads('{"t": 1, "objects": {"cup": {"position": [1, 2, 3]}}}'))
     assert f.objects["cup"].position.tolist() == [1, 2, 3]
+
+
+# -- property-based: any content gives frames of finite numbers or an ObservationError with its line ------
+
+from hypothesis import given, strategies as st  # noqa: E402
+
+from helpers import fuzz_settings, json_values  # noqa: E402
+
+_IDS = ["cup", "box"]
+_DETECTION = st.fixed_dictionaries(
+    {"position": st.one_of(st.lists(st.floats(allow_nan=True, allow_infinity=True), min_size=2, max_size=4),
+                           json_values())},
+    optional={"orientation": st.one_of(st.lists(st.floats(-2, 2), min_size=3, max_size=5), json_values()),
+              "position_std": json_values()})
+_FRAME = st.fixed_dictionaries(
+    {"t": st.one_of(st.floats(allow_nan=True, allow_infinity=True), json_values())},
+    optional={"objects": st.one_of(st.dictionaries(st.sampled_from(_IDS + ["unknown"]), _DETECTION, max_size=3),
+                                   json_values()),
+              "hands": st.one_of(st.dictionaries(st.text(max_size=4), st.lists(st.floats(), min_size=3, max_size=3),
+                                                 max_size=2), json_values())})
+_LINE = st.one_of(_FRAME.map(json.dumps), st.text(max_size=30), json_values().map(json.dumps))
+
+
+@fuzz_settings(300)
+@given(st.lists(_LINE, min_size=1, max_size=6), st.booleans())
+def test_any_stream_gives_finite_frames_or_a_located_error(tmp_path_factory, lines, skip):
+    path = tmp_path_factory.mktemp("fuzz") / "o.jsonl"
+    path.write_text("\n".join(lines) + "\n")
+    reader = ObservationReader(str(path), _IDS, skip_bad_frames=skip)
+    try:
+        frames = list(reader)
+    except ObservationError as exc:
+        assert not skip and str(path) in str(exc) and ":" in str(exc)
+        return
+    assert len(frames) + reader.skipped <= len(path.read_text().splitlines())
+    assert all(b.t > a.t for a, b in zip(frames, frames[1:]))
+    for f in frames:
+        assert np.isfinite(f.t) and set(f.objects) <= set(_IDS)
+        for d in f.objects.values():
+            assert np.isfinite(d.position).all()
+            assert d.orientation is None or np.isclose(np.linalg.norm(d.orientation), 1.0)

@@ -87,3 +87,27 @@ def test_relative_urdf_and_other_errors(tmp_path):
                         ({"objects": [{"id": "a", "container": {"size": [0.1, 0.1, 0.1], "wall": 0.06}}]}, "too thick")]:
         with pytest.raises(SceneError, match=words):
             scene_from_dict(data)
+
+
+# -- property-based: any scene data gives a scene or a SceneError -----------------------------------------
+
+from hypothesis import given, strategies as st  # noqa: E402
+
+from helpers import fuzz_settings, json_values  # noqa: E402
+
+_OBJECT = st.fixed_dictionaries({"id": json_values()}, optional={
+    k: json_values() for k in ("box", "sphere", "cylinder", "container", "mass", "pose", "static", "hollow",
+                               "friction", "urdf")})
+
+
+@fuzz_settings(300)
+@given(st.one_of(json_values(), st.fixed_dictionaries({}, optional={
+    "objects": st.one_of(st.lists(_OBJECT, max_size=3), json_values()), "camera": json_values(),
+    "floor": json_values(), "name": json_values(), "version": json_values()})))
+def test_any_scene_data_gives_a_scene_or_a_scene_error(data):
+    try:
+        scene = scene_from_dict(data)
+    except SceneError as exc:
+        assert str(exc)
+        return
+    assert all(isinstance(o.id, str) for o in scene.objects)
