@@ -111,6 +111,11 @@ class SceneEstimator:
         self._produced: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
+    def rejected_detections(self) -> int:
+        """Detections and hands dropped so far for lying outside the scene's workspace."""
+        return self.memory.rejected
+
+    @property
     def known(self) -> np.ndarray:
         return self.model.known
 
@@ -130,6 +135,7 @@ class SceneEstimator:
         """Process one perception frame; returns the belief if a reasoning step ran, else None."""
         if self.t_frame is not None and not frame.t > self.t_frame:
             raise ValueError(f"frame time must increase: {frame.t} after {self.t_frame}")
+        frame = self.memory.admit(frame)  # detections outside the workspace are outliers
         detected = self.memory.record(frame)
         self.t_frame = frame.t
         self._detected_since_tick |= detected

@@ -57,10 +57,30 @@ class PerceptionMemory:
         self._prev_tick_vel = np.zeros((M, 3))
         self._t_seen_at_tick = np.full(M, -np.inf)
         self._history: list[deque] = [deque() for _ in range(M)]
+        self.workspace = scene.workspace_bounds()
+        self.rejected = 0
 
     @property
     def M(self) -> int:
         return len(self.static)
+
+    def admit(self, frame: Frame) -> Frame:
+        """The frame without the detections and hands outside the scene's workspace
+        (:meth:`~physics.scene.Scene.workspace_bounds`: a position of 1e308 m, or 50 m under the
+        floor, is an outlier, never a belief); each one dropped is counted in :attr:`rejected`."""
+        lo, hi = self.workspace
+
+        def inside(p) -> bool:
+            return bool(np.all(p >= lo) and np.all(p <= hi))
+
+        ids = self.scene.object_ids  # an unknown id is left for record() to report
+        objects = {oid: d for oid, d in frame.objects.items() if oid not in ids or inside(d.position)}
+        hands = {h: p for h, p in frame.hands.items() if inside(np.asarray(p))}
+        dropped = len(frame.objects) - len(objects) + len(frame.hands) - len(hands)
+        if not dropped:
+            return frame
+        self.rejected += dropped
+        return Frame(frame.t, objects, hands, frame.line)
 
     # -- a frame --------------------------------------------------------------------------------------
     def record(self, frame: Frame) -> np.ndarray:

@@ -22,7 +22,6 @@ from estimator.config import (EstimatorConfig, NoiseConfig, ReasonerConfig, conf
                               default_config, read_config_file)
 from estimator.filter import SceneEstimator
 from estimator.observations import ObservationReader
-from physics.errors import InputError
 from physics.scene import load_scene
 
 
@@ -98,7 +97,7 @@ def run_stream(scene_path: str, observations_path: str, config: EstimatorConfig,
             "seconds": time.perf_counter() - t_start,
             "update_ms_median": 1e3 * float(np.median(times)) if times else None,
             "timeline": est.timeline.to_json(), "last_belief": est.last_belief,
-            "recoveries": est.recoveries}
+            "recoveries": est.recoveries, "rejected": est.rejected_detections}
 
 
 def _add_run_arguments(p: argparse.ArgumentParser) -> None:
@@ -138,6 +137,8 @@ def print_summary(summary: dict, stream=None) -> None:
     tl = summary["timeline"]
     print(f"{summary['frames']} frames read, {summary['skipped']} skipped, {summary['estimates']} "
           f"reasoning steps in {summary['seconds']:.2f} s", file=stream)
+    if summary.get("rejected"):
+        print(f"{summary['rejected']} detection(s) outside the scene's workspace rejected as outliers", file=stream)
     print("\nEvents:", file=stream)
     for e in tl["events"]:
         print(f"  t={e['t']:7.3f}  {e['action']:<8} {e['subject']:<14} p={e['p']:.2f}", file=stream)

@@ -79,15 +79,39 @@ class CameraSpec:
     far: float = 4.0
 
 
+WORKSPACE_MARGIN = 3.0
+"""m: the default workspace extends this far beyond the scene's objects and camera (see
+:meth:`Scene.workspace_bounds`)."""
+
+
 @dataclass(frozen=True)
 class Scene:
-    """A validated scene: name, optional floor plane at z = 0, optional camera, objects in order."""
+    """A validated scene: name, optional floor plane at z = 0, optional camera, objects in order, and
+    an optional ``workspace`` box ``((x, y, z) min, (x, y, z) max)`` in metres: detections outside it
+    are physically absurd and rejected (see :meth:`workspace_bounds` for the default)."""
 
     name: str
     objects: tuple[ObjectSpec, ...]
     floor: bool = True
     camera: CameraSpec | None = None
     source: str | None = None
+    workspace: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
+
+    def workspace_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """The box ``(lo (3,), hi (3,))`` (m) where perception can be believed: the scene's
+        ``workspace`` if given, else the box around the objects' given positions and the camera,
+        :data:`WORKSPACE_MARGIN` wider on every side but the bottom, which is 0.5 m under the floor
+        (with a floor; else the margin too)."""
+        if self.workspace is not None:
+            return np.array(self.workspace[0], dtype=float), np.array(self.workspace[1], dtype=float)
+        pts = [o.position for o in self.objects if o.position is not None]
+        if self.camera is not None:
+            pts.append(self.camera.position)
+        pts = np.array(pts, dtype=float).reshape(-1, 3) if pts else np.zeros((1, 3))
+        lo, hi = pts.min(axis=0) - WORKSPACE_MARGIN, pts.max(axis=0) + WORKSPACE_MARGIN
+        if self.floor:
+            lo[2] = -0.5
+        return lo, hi
 
     @property
     def object_ids(self) -> tuple[str, ...]:
@@ -305,7 +329,7 @@ def scene_from_dict(data: Any, *, path: str | None = None, lines: dict[str, int]
     """Validate a parsed scene mapping. ``base_dir`` resolves relative URDF paths."""
     f = _Fields(path, lines or {})
     data = f.mapping(data, "")
-    f.only(data, {"name", "floor", "camera", "objects", "version"}, "")
+    f.only(data, {"name", "floor", "camera", "objects", "version", "workspace"}, "")
     version = data.get("version", SCENE_FORMAT_VERSION)
     if version != SCENE_FORMAT_VERSION:
         raise f.error("version", f"unsupported scene format version {version!r} "
@@ -348,7 +372,18 @@ def scene_from_dict(data: Any, *, path: str | None = None, lines: dict[str, int]
             raise f.error(f"objects[{i}].id", f"duplicate object id {spec.id!r}")
         seen.add(spec.id)
         objects.append(spec)
-    return Scene(name=name, objects=tuple(objects), floor=floor, camera=camera, source=path)
+    workspace = None
+    if data.get("workspace") is not None:
+        ws = f.mapping(data["workspace"], "workspace")
+        f.only(ws, {"min", "max"}, "workspace")
+        for req in ("min", "max"):
+            if req not in ws:
+                raise f.error("workspace", f"missing field '{req}'")
+        lo, hi = f.vector(ws["min"], "workspace.min", 3), f.vector(ws["max"], "workspace.max", 3)
+        if not all(a < b for a, b in zip(lo, hi)):
+            raise f.error("workspace.max", f"must be greater than workspace.min on every axis, got {hi} and {lo}")
+        workspace = (lo, hi)
+    return Scene(name=name, objects=tuple(objects), floor=floor, camera=camera, source=path, workspace=workspace)
 
 
 def read_yaml_with_lines(path: str | os.PathLike, what: str = "scene file",
@@ -414,4 +449,6 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
             d["color"] = list(o.color)
         objs.append(d)
     out["objects"] = objs
+    if scene.workspace is not None:
+        out["workspace"] = {"min": list(scene.workspace[0]), "max": list(scene.workspace[1])}
     return out

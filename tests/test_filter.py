@@ -337,3 +337,20 @@ def test_calibration_of_a_hidden_objects_90_percent_region():
         hits += e @ np.linalg.solve(ob.position_cov, e) <= chi2.ppf(0.9, 3)
     band = 3 * np.sqrt(0.9 * 0.1 / n)
     assert 0.9 - band <= hits / n <= 1.0
+
+
+@pytest.mark.parametrize("particles", [1, 8])
+def test_absurd_detections_are_rejected_outliers_never_beliefs(particles):
+    """A position of 1e308 m, or 50 m under the floor, is well-formed JSON but physically absurd:
+    it is dropped and counted (outside the scene's workspace), and the belief stays where it was."""
+    scene = table_scene(dict(BOX, pose={"position": [0.1, 0, TABLE_TOP + 0.03]}))
+    at = [0.1, 0.0, TABLE_TOP + 0.03]
+    absurd = {0.5: [1e308, 0.0, 0.7], 0.6: [0.1, 0.0, -50.0]}
+    frs = [Frame(float(t), {"box": det(absurd.get(round(t, 3), at))}) for t in np.arange(0, 1.5, 0.1)]
+    noise = NoiseConfig() if particles > 1 else NoiseConfig.off()
+    with SceneEstimator(scene, EstimatorConfig(particles=particles, noise=noise), np.random.default_rng(0)) as est:
+        beliefs = est.run(frs)
+        assert est.rejected_detections == 2
+    for b in beliefs:
+        assert np.isfinite(b.objects["box"].position).all()
+        assert np.linalg.norm(b.objects["box"].position - at) < 0.05

@@ -112,3 +112,16 @@ def test_tick_velocity_and_vertical_acceleration():
     assert mem.vertical_acceleration(v2, 0.1)[CUP] == pytest.approx(-6.0)
     mem.end_tick(mem.perceived(0.2), np.zeros(3, bool), v2)  # not detected: its velocity is forgotten
     assert mem.vertical_acceleration(v2, 0.1)[CUP] == pytest.approx(-10.0)
+
+
+def test_detections_and_hands_outside_the_workspace_are_rejected_and_counted():
+    mem = memory()
+    lo, hi = mem.workspace
+    assert lo[2] == -0.5 and np.all(hi > lo)  # with a floor: half a metre under it
+    inside = det([0.1, 0.0, 0.7])
+    frame = Frame(1.0, {"ball": det([1e308, 0.0, 0.7]), "cup": det([0.0, 0.0, -50.0])},
+                  {"human/right": np.array([0.0, 0.0, 1e300]), "human/left": np.array([0.2, 0.0, 0.9])})
+    kept = mem.admit(frame)
+    assert kept.objects == {} and list(kept.hands) == ["human/left"] and mem.rejected == 3
+    assert mem.admit(Frame(2.0, {"cup": inside})).objects == {"cup": inside} and mem.rejected == 3
+    assert "nonsense" in mem.admit(Frame(3.0, {"nonsense": det([1e9, 0, 0])})).objects  # record() reports it

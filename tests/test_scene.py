@@ -111,3 +111,16 @@ def test_any_scene_data_gives_a_scene_or_a_scene_error(data):
         assert str(exc)
         return
     assert all(isinstance(o.id, str) for o in scene.objects)
+
+
+def test_workspace_given_or_derived_from_the_scene():
+    base = {"objects": [{"id": "cup", "cylinder": {"radius": 0.03, "height": 0.08}, "pose": {"position": [1, 2, 0.7]}}]}
+    lo, hi = scene_from_dict(base).workspace_bounds()
+    assert lo.tolist() == [-2.0, -1.0, -0.5] and hi.tolist() == [4.0, 5.0, 3.7]
+    given = scene_from_dict({**base, "workspace": {"min": [-1, -1, 0], "max": [1, 1, 2]}})
+    assert [b.tolist() for b in given.workspace_bounds()] == [[-1, -1, 0], [1, 1, 2]]
+    assert scene_from_dict(scene_to_dict(given)).workspace == given.workspace
+    with pytest.raises(SceneError, match="workspace.max"):
+        scene_from_dict({**base, "workspace": {"min": [0, 0, 0], "max": [1, -1, 1]}})
+    with pytest.raises(SceneError, match="workspace: missing field 'max'"):
+        scene_from_dict({**base, "workspace": {"min": [0, 0, 0]}})
