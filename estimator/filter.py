@@ -98,6 +98,7 @@ class SceneEstimator:
         self.static, self.dynamic, self.hollow = self.model.static, self.model.dynamic, self.model.hollow
         self.timeline = Timeline(cfg.event_threshold)
         self.recoveries = 0
+        self.reseeded = 0  # particles re-seeded from survivors (exploded simulations, dead workers)
         self.n_updates = 0
         self.last_belief: Belief | None = None
         self.t_frame: float | None = None
@@ -182,9 +183,13 @@ class SceneEstimator:
                                 settled.on_top, settled.is_in, step_events, ess, self.static, cfg.hypothesis_min_p,
                                 cov_floor=cfg.noise.covariance_floor_std ** 2)
         self._update_timeline(t, belief)
-        # resample
+        # resample; particles whose simulation exploded or whose worker died take a survivor's state
         if K > 1 and ess < cfg.resample_threshold * K:
             self._resample(weights, self.known & self.dynamic & ~perceived)
+        elif K > 1 and np.any(bad) and np.any(weights > 0):
+            self._reseed(bad, weights)
+        if K > 1 and np.any(bad) and np.any(weights > 0):
+            self.reseeded += int(bad.sum())
         return belief
 
     # -- pieces of the update -------------------------------------------------------------------------
@@ -205,11 +210,13 @@ class SceneEstimator:
 
     @staticmethod
     def _reset_exploded(out: BatchOutput, poses: np.ndarray, modes: np.ndarray, t: float) -> np.ndarray:
-        """Particles ``(K,)`` whose simulation exploded get back their state before physics, at rest
-        (in ``out``, in place; the model weighs them zero). Returns the exploded mask."""
+        """Particles ``(K,)`` whose simulation exploded (or whose worker died) get back their state
+        before physics, at rest (in ``out``, in place; the model weighs them zero, and the update
+        ends by giving them a survivor's state). Returns their mask."""
         bad = ~out.finite
         if np.any(bad):
-            log.warning("t=%.3f: %d particle simulation(s) exploded; their state is reset", t, bad.sum())
+            log.warning("t=%.3f: %d particle simulation(s) exploded or lost; they are re-seeded from the "
+                        "others", t, bad.sum())
             out.poses[bad] = poses[bad]
             out.velocities[bad] = 0.0
             out.modes[bad] = modes[bad]
@@ -246,6 +253,17 @@ class SceneEstimator:
         if self._produced is not None:
             self._produced = (self._produced[0][anc], self._produced[1][anc])
         self.model.regularise(self.state, kernels, self.rng)
+
+    def _reseed(self, bad: np.ndarray, weights: np.ndarray) -> None:
+        """Particles ``bad (K,)`` take the state (and weight) of survivors drawn by ``weights (K,)``
+        (zero for the bad ones); their worlds reload it at the next update."""
+        anc = np.arange(self.K)
+        anc[bad] = self.rng.choice(self.K, size=int(bad.sum()), p=weights)
+        logw = self.state.log_weights[anc]
+        self.state = self.state.take(anc)
+        self.state.log_weights = logw
+        if self._produced is not None:
+            self._produced = (self._produced[0][anc], self._produced[1][anc])
 
     def _update_timeline(self, t: float, belief: Belief) -> None:
         facts = {}

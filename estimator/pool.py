@@ -13,6 +13,7 @@ slots).
 """
 from __future__ import annotations
 
+import logging
 import multiprocessing as mp
 import time
 import traceback
@@ -28,6 +29,8 @@ from physics.world import PhysicsSettings
 from .propagate import PER_PARTICLE, BatchInput, BatchOutput, ParticleWorld, propagate_batch
 
 __all__ = ["BatchInput", "BatchOutput", "WorldPool", "shard_bounds"]
+
+log = logging.getLogger(__name__)
 
 
 class _Shard:
@@ -255,7 +258,9 @@ class WorldPool:
 
     After :meth:`run` (and :meth:`bare_step`), ``last_run_seconds`` is the wall time of the call in
     this process and ``last_worker_seconds`` the time each shard took in its worker (the benchmark's
-    breakdown)."""
+    breakdown). A worker process that dies (killed, out of memory) is restarted by the next
+    :meth:`run`, which reports its particles as not finite (the caller re-seeds them) and counts it
+    in ``restarts``; an exception inside a live worker is a ``RuntimeError``."""
 
     def __init__(self, scene: Scene, n_particles: int, workers: int = 0,
                  settings: PhysicsSettings | None = None, worlds: int | None = None):
@@ -271,36 +276,48 @@ class WorldPool:
         self.last_run_seconds = 0.0
         self.last_worker_seconds: list[float] = []
         self._procs, self._conns, self._bounds = [], [], []
+        self.restarts = 0
         if workers <= 0:
             self._local = _Shard(scene, settings, self.groups)
             self.initial_params = self._local.initial_params()
             return
-        ctx = mp.get_context("spawn")
-        runs = [self.groups[a:b] for a, b in shard_bounds(len(self.groups), workers)]
-        self._bounds = [(run[0][0], run[-1][1]) for run in runs]
-        buffer = ctx.RawArray("b", _SharedBatch.nbytes(n_particles, len(scene.objects)))
-        self._shared = _SharedBatch(buffer, n_particles, len(scene.objects))
+        self._ctx = mp.get_context("spawn")
+        self._runs = [self.groups[a:b] for a, b in shard_bounds(len(self.groups), workers)]
+        self._bounds = [(run[0][0], run[-1][1]) for run in self._runs]
+        self._buffer = self._ctx.RawArray("b", _SharedBatch.nbytes(n_particles, len(scene.objects)))
+        self._shared = _SharedBatch(self._buffer, n_particles, len(scene.objects))
+        self._scene, self._settings = scene, settings
         try:
-            for run in runs:
-                parent, child = ctx.Pipe()
-                p = ctx.Process(target=_worker_main, args=(child, scene, settings, run, buffer, n_particles),
-                                daemon=True)
-                p.start()
-                child.close()
-                self._procs.append(p)
-                self._conns.append(parent)
+            for j in range(len(self._runs)):
+                self._start_worker(j)
             params = [self._receive(c) for c in self._conns]
         except BaseException:
             self.close()
             raise
         self.initial_params = params[0]
 
+    def _start_worker(self, j: int) -> None:
+        """Start (or restart) the worker process of shard ``j``; it answers with the initial
+        parameters once its worlds are built."""
+        parent, child = self._ctx.Pipe()
+        p = self._ctx.Process(target=_worker_main, daemon=True,
+                              args=(child, self._scene, self._settings, self._runs[j], self._buffer,
+                                    self.n_particles))
+        p.start()
+        child.close()
+        if j < len(self._procs):
+            self._conns[j].close()
+            self._procs[j], self._conns[j] = p, parent
+        else:
+            self._procs.append(p)
+            self._conns.append(parent)
+
     @staticmethod
     def _recv(conn) -> tuple[str, object]:
         try:
             return conn.recv()
         except (EOFError, OSError):
-            return "error", "the worker process died (killed, or out of memory?)"
+            return "dead", "the worker process died (killed, or out of memory?)"
 
     @classmethod
     def _receive(cls, conn):
@@ -322,14 +339,25 @@ class WorldPool:
             try:
                 conn.send(("run", n_steps, d_sim_perc, lazy))
             except OSError:
-                raise RuntimeError("particle worker failed: the worker process died") from None
+                pass  # a dead worker: its reply says so
         replies = [self._recv(conn) for conn in self._conns]  # all of them: no reply is left unread
         for status, payload in replies:
-            if status != "ok":
+            if status == "error":  # an exception in a live worker is a bug: report it
                 raise RuntimeError(f"particle worker failed:\n{payload}")
         out = self._shared.outputs()
+        for j, (status, _) in enumerate(replies):
+            if status == "dead":  # a worker that died: its particles are lost, the worker restarted
+                lo, hi = self._bounds[j]
+                log.warning("particle worker %d (slots %d-%d) died; restarting it, its particles are "
+                            "re-seeded from the others", j, lo, hi - 1)
+                out.finite[lo:hi] = False
+                out.poses[lo:hi], out.velocities[lo:hi] = batch.poses[lo:hi], 0.0
+                out.modes[lo:hi], out.visible[lo:hi], out.aabbs[lo:hi] = batch.modes[lo:hi], 0.0, np.nan
+                self._start_worker(j)
+                self._receive(self._conns[j])
+                self.restarts += 1
         self.last_run_seconds = time.perf_counter() - t0
-        self.last_worker_seconds = [payload for _, payload in replies]
+        self.last_worker_seconds = [payload if status == "ok" else 0.0 for status, payload in replies]
         return out
 
     def bare_step(self, n_steps: int) -> None:

@@ -97,7 +97,8 @@ def run_stream(scene_path: str, observations_path: str, config: EstimatorConfig,
             "seconds": time.perf_counter() - t_start,
             "update_ms_median": 1e3 * float(np.median(times)) if times else None,
             "timeline": est.timeline.to_json(), "last_belief": est.last_belief,
-            "recoveries": est.recoveries, "rejected": est.rejected_detections}
+            "recoveries": est.recoveries, "rejected": est.rejected_detections,
+            "reseeded": est.reseeded, "worker_restarts": est.pool.restarts}
 
 
 def _add_run_arguments(p: argparse.ArgumentParser) -> None:
@@ -139,6 +140,9 @@ def print_summary(summary: dict, stream=None) -> None:
           f"reasoning steps in {summary['seconds']:.2f} s", file=stream)
     if summary.get("rejected"):
         print(f"{summary['rejected']} detection(s) outside the scene's workspace rejected as outliers", file=stream)
+    if summary.get("reseeded") or summary.get("worker_restarts"):
+        print(f"{summary.get('reseeded', 0)} particle(s) re-seeded from the others after an exploded simulation "
+              f"or a dead worker; {summary.get('worker_restarts', 0)} worker restart(s)", file=stream)
     print("\nEvents:", file=stream)
     for e in tl["events"]:
         print(f"  t={e['t']:7.3f}  {e['action']:<8} {e['subject']:<14} p={e['p']:.2f}", file=stream)

@@ -239,6 +239,8 @@ def test_exploded_particles_and_total_weight_collapse_never_give_nan():
         est.pool.run = corrupt
         beliefs = est.run(frames(np.arange(0, 0.5, 1 / 30), lambda t: {"box": [0.1, 0, TABLE_TOP + 0.04]}))
         assert beliefs[-1].weights[0] < 1e-12 or est.n_updates > 1
+        assert est.reseeded == est.n_updates  # particle 0, at every update
+        assert np.isfinite(est.poses).all() and np.isfinite(est.log_weights[0])  # it took a survivor's state
         mode["kill"] = [0, 1, 2, 3]
         more = est.run(frames(np.arange(0.5, 1.0, 1 / 30), lambda t: {"box": [0.1, 0, TABLE_TOP + 0.04]}))
         assert est.recoveries >= 1
@@ -354,3 +356,19 @@ def test_absurd_detections_are_rejected_outliers_never_beliefs(particles):
     for b in beliefs:
         assert np.isfinite(b.objects["box"].position).all()
         assert np.linalg.norm(b.objects["box"].position - at) < 0.05
+
+
+def test_a_worker_killed_mid_run_is_restarted_and_the_run_goes_on():
+    scene = table_scene(dict(BOX, pose={"position": [0.1, 0, TABLE_TOP + 0.03]}))
+    at = [0.1, 0.0, TABLE_TOP + 0.03]
+    frs = frames(np.arange(0, 1.5, 1 / 30), lambda t: {"box": at})
+    with SceneEstimator(scene, EstimatorConfig(particles=8, workers=2, worlds=4, noise=NoiseConfig()),
+                        np.random.default_rng(0)) as est:
+        beliefs = est.run(frs[:15])
+        est.pool._procs[0].kill()
+        est.pool._procs[0].join()
+        beliefs += est.run(frs[15:])
+        assert est.pool.restarts == 1 and est.reseeded == 4  # the dead worker's four particles
+    for b in beliefs:
+        assert np.isfinite(b.objects["box"].position).all() and np.isfinite(b.ess)
+    assert np.linalg.norm(beliefs[-1].objects["box"].position - at) < 0.02
