@@ -65,6 +65,11 @@ class ReasonerConfig:
       faster than ``release_speed``, or accelerating down faster than ``release_accel`` (while moving
       down at 0.3 m/s or more) with nothing under it, was let go (Release, in view). Velocities are
       measured over the reasoning period.
+    * ``max_gap`` (s): an update simulates the stream time since the previous one, but at most this
+      much: after a gap in the stream (a dropped connection, a paused recording) the scene is
+      simulated for ``max_gap`` seconds, by which time what fell has landed and what rolls has
+      mostly stopped, instead of for hours (an extension of the paper, which assumes a steady
+      stream).
     """
 
     t_perceived: float = 0.7
@@ -77,10 +82,11 @@ class ReasonerConfig:
     place_gap: float = 0.03
     release_speed: float = 1.0
     release_accel: float = 4.0
+    max_gap: float = 2.0
 
     def __post_init__(self):
         _check_positive(self, "t_perceived", "d_sim_perc", "d_perc_prev", "place_speed", "place_gap",
-                        "release_speed", "place_spin", "release_accel")
+                        "release_speed", "place_spin", "release_accel", "max_gap")
         _check_nonneg(self, "place_dwell")
         _check_nonneg(self, "horizon")
 

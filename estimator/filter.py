@@ -152,7 +152,8 @@ class SceneEstimator:
         """One reasoning step at ``frame.t``; ``detected (M,)``: objects detected since the last one."""
         cfg, model, K = self.config, self.model, self.K
         t = frame.t
-        dt = 0.0 if self.t_tick is None else t - self.t_tick  # the first update only places the objects
+        # the first update only places the objects; after a gap, at most max_gap is simulated
+        dt = 0.0 if self.t_tick is None else min(t - self.t_tick, cfg.reasoner.max_gap)
         n_steps = int(round(dt / cfg.physics.time_step))
         # perceive
         perceived = self.memory.perceived(t)

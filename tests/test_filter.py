@@ -372,3 +372,24 @@ def test_a_worker_killed_mid_run_is_restarted_and_the_run_goes_on():
     for b in beliefs:
         assert np.isfinite(b.objects["box"].position).all() and np.isfinite(b.ess)
     assert np.linalg.norm(beliefs[-1].objects["box"].position - at) < 0.02
+
+
+def test_a_gap_of_an_hour_simulates_at_most_max_gap():
+    """A stream that stops for an hour and resumes: the update after the gap simulates max_gap (2 s)
+    of physics, not an hour, and the unseen box has fallen onto the table meanwhile."""
+    scene = table_scene(dict(BOX, pose={"position": [0.1, 0, TABLE_TOP + 0.03]}),
+                        {"id": "cup", "cylinder": {"radius": 0.03, "height": 0.08}})
+    steps = []
+    with SceneEstimator(scene, EstimatorConfig(particles=4, noise=NoiseConfig()), np.random.default_rng(0)) as est:
+        real_run = est.pool.run
+
+        def counting(batch, n_steps, *a, **kw):
+            steps.append(n_steps)
+            return real_run(batch, n_steps, *a, **kw)
+
+        est.pool.run = counting
+        before = est.run([Frame(t, {"cup": det([-0.2, 0.1, TABLE_TOP + 0.3])}) for t in (0.0, 0.08)])
+        after = est.run([Frame(3600.0, {}), Frame(3600.08, {})])
+    assert steps == [0, 19, 480, 19]
+    assert before[-1].objects["cup"].perceived and not after[-1].objects["cup"].perceived
+    assert TABLE_TOP < after[-1].objects["cup"].position[2] < TABLE_TOP + 0.05  # standing or lying on the table
