@@ -106,3 +106,14 @@ def test_any_stream_gives_finite_frames_or_a_located_error(tmp_path_factory, lin
         for d in f.objects.values():
             assert np.isfinite(d.position).all()
             assert d.orientation is None or np.isclose(np.linalg.norm(d.orientation), 1.0)
+
+
+def test_a_recording_replayed_twice_is_an_error_or_its_replay_is_skipped(tmp_path):
+    rows = [{"t": round(0.1 * i, 3), "objects": {"cup": {"position": [0, 0, 0.7]}}} for i in range(5)]
+    path = tmp_path / "twice.jsonl"
+    write_jsonl(path, rows + rows)  # the clock jumps back to 0 at line 6
+    with pytest.raises(ObservationError, match=r"twice.jsonl:6: t"):
+        list(ObservationReader(str(path), ["cup"]))
+    reader = ObservationReader(str(path), ["cup"], skip_bad_frames=True)
+    frames = list(reader)
+    assert [f.t for f in frames] == [0.0, 0.1, 0.2, 0.3, 0.4] and reader.skipped == 5
