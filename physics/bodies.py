@@ -63,15 +63,17 @@ def collision_shape(client: int, spec: ObjectSpec) -> int:
     if spec.shape == "cylinder":
         return pb.createCollisionShape(pb.GEOM_CYLINDER, radius=spec.radius, height=spec.height,
                                        physicsClientId=c)
-    # open-top container: floor + four walls, frame at the centre of the outer box
+    # open-top container: floor + four walls standing on it, frame at the centre of the outer box
+    # (only the floor reaches the bottom: what the container rests on touches one box, not five)
     sx, sy, sz = spec.size
     w = spec.wall
+    hw, zw = (sz - w) / 2, w / 2  # walls: half height, centre height
     half = [[sx / 2, sy / 2, w / 2],
-            [w / 2, sy / 2, sz / 2], [w / 2, sy / 2, sz / 2],
-            [sx / 2 - w, w / 2, sz / 2], [sx / 2 - w, w / 2, sz / 2]]
+            [w / 2, sy / 2, hw], [w / 2, sy / 2, hw],
+            [sx / 2 - w, w / 2, hw], [sx / 2 - w, w / 2, hw]]
     centres = [[0, 0, -sz / 2 + w / 2],
-               [sx / 2 - w / 2, 0, 0], [-sx / 2 + w / 2, 0, 0],
-               [0, sy / 2 - w / 2, 0], [0, -sy / 2 + w / 2, 0]]
+               [sx / 2 - w / 2, 0, zw], [-sx / 2 + w / 2, 0, zw],
+               [0, sy / 2 - w / 2, zw], [0, -sy / 2 + w / 2, zw]]
     return pb.createCollisionShapeArray([pb.GEOM_BOX] * 5, halfExtents=half,
                                         collisionFramePositions=centres, physicsClientId=c)
 
