@@ -17,7 +17,8 @@ order_by_dim=False)`` (piecewise-constant white acceleration); measurement ``z (
 :attr:`TrackerConfig.measurement_std`. A new track starts at the detection with zero velocity,
 ``P = diag(R, velocity_std**2 I)``.
 
-Only positions are filtered. Orientations are passed through from an object's last detection: an
+Only positions are filtered. Orientations are passed through from an object's last detection (or,
+while it is unseen and feedback is on, from the belief's consensus orientation): an
 orientation filter would need a quaternion-aware (error-state) filter, and the estimator uses
 orientations only in its detection likelihood, never in its motion model.
 """
@@ -260,7 +261,9 @@ class PhysicsAwareTracker:
         ``accel_std`` cannot follow) is not rejected: the track restarts at the belief's position with
         its covariance and zero velocity (counted in :attr:`pseudo_resets`), so the track always lies
         within the gate of the belief. An object without a track gets one at the belief's position
-        when it is in ``object_ids``. The belief's time must be the tracker's (call after :meth:`update`).
+        when it is in ``object_ids``. The track's orientation becomes the belief's consensus
+        orientation (physics knows better than the last detection how a hidden object turned). The
+        belief's time must be the tracker's (call after :meth:`update`).
 
         The estimator was fed the same detections, so its position is correlated with the track's
         (the fused covariance is somewhat optimistic while an object has just been hidden; both
@@ -289,6 +292,7 @@ class PhysicsAwareTracker:
             else:  # physics moved it beyond the constant-velocity model (a fall, a push): restart there
                 track.kf = self.new_filter(ob.position, r)
                 self.pseudo_resets += 1
+            track.orientation = np.asarray(ob.orientation, float)
             track.last_support = self.t
             track.source = "belief"
             done.append(oid)
@@ -297,8 +301,8 @@ class PhysicsAwareTracker:
     # -- output -----------------------------------------------------------------------------------
     def to_frame(self, t: float | None = None, hands: dict[str, np.ndarray] | None = None) -> Frame:
         """The filtered poses as a :class:`Frame` at ``t`` (default: the tracker's time; a later
-        ``t`` predicts first): position ``(3,)`` m, the last detected orientation (``None`` if never
-        detected and not from a belief), ``position_std`` (m, :attr:`Track.position_std`); ``hands``
+        ``t`` predicts first): position ``(3,)`` m, the orientation of the last detection or
+        pseudo-measurement (``None`` if neither had one), ``position_std`` (m, :attr:`Track.position_std`); ``hands``
         passed through."""
         if t is not None:
             self.predict(t)
