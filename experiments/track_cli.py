@@ -45,6 +45,9 @@ def add_track_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"position noise of a detection without position_std, m ({d.measurement_std})")
     parser.add_argument("--coast", type=float, default=d.coast_time,
                         help=f"seconds an unsupported track is predicted before it is dropped ({d.coast_time})")
+    parser.add_argument("--fusion", choices=("kalman", "replace"), default=d.pseudo_fusion,
+                        help="how a pseudo-measurement from the estimator enters a hidden object's track: a "
+                             f"Kalman update, or a restart at the belief ({d.pseudo_fusion})")
     _add_estimator_arguments(parser)
     parser.add_argument("--skip-bad-frames", action="store_true",
                         help="drop malformed frames with a counted warning instead of stopping")
@@ -111,7 +114,8 @@ def run_track(args: argparse.Namespace) -> int:
     from .cli import build_config
 
     tracker_config = TrackerConfig(accel_std=args.accel_std, measurement_std=args.measurement_std,
-                                   coast_time=args.coast, use_feedback=args.feedback)
+                                   coast_time=args.coast, use_feedback=args.feedback,
+                                   pseudo_fusion=args.fusion)
     est_config = build_config(args) if args.feedback else None
     s = track_stream(args.scene, args.observations, args.out, tracker_config, est_config, args.seed,
                      args.skip_bad_frames, args.quiet)

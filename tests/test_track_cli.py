@@ -46,6 +46,11 @@ def test_track_stream_is_an_observation_stream(cup_run, capsys):
         if "box" in r.objects:
             d = f.objects["box"]
             assert abs(d.position - r.objects["box"].position).max() < 0.05
+    # restarting hidden tracks at the belief instead of fusing it gives the same objects
+    replaced = str(out / "tracked_replace.jsonl")
+    assert main(["track", "--scene", scene, "--observations", obs, "--out", replaced, "--feedback", "--quiet",
+                 "--fusion", "replace", "--particles", "4", "--workers", "0", "--seed", "1"]) == 0
+    assert _ids_per_frame(replaced, ids) == _ids_per_frame(fed, ids)
     # `run` accepts the tracked stream
     assert main(["run", "--scene", scene, "--observations", fed, "--quiet", "--out", str(out / "e.jsonl")]) == 0
     assert len((out / "e.jsonl").read_text().splitlines()) >= 10

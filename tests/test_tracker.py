@@ -153,6 +153,26 @@ def test_feedback_follows_belief_with_honest_covariance():
     assert fr.objects["cup"].position_std == pytest.approx(np.sqrt(1e-4 + 0.002 ** 2))
 
 
+def test_replace_fusion_takes_the_belief():
+    trk = PhysicsAwareTracker(TrackerConfig(pseudo_fusion="replace", velocity_std=0.5))
+    for k in range(10):
+        trk.update(frame(k * DT, ball=([0.1 * k * DT, 0.0, 0.7], None)))
+    t = 10 * DT
+    trk.update(frame(t))
+    cov = np.diag([1e-4, 4e-4, 9e-4])
+    trk.feedback(belief(t, ball=([0.3, 0.1, 0.5], cov)))
+    tr = trk.tracks["ball"]
+    r = cov + trk.config.pseudo_std_floor ** 2 * np.eye(3)
+    np.testing.assert_allclose(tr.position, [0.3, 0.1, 0.5], atol=1e-15)
+    np.testing.assert_allclose(tr.position_cov, r, atol=1e-15)
+    np.testing.assert_allclose(tr.kf.x[3:, 0], 0.0)
+    trk.predict(t + 0.1)  # stays put, its covariance grows by velocity_std^2 dt^2 and more
+    np.testing.assert_allclose(tr.position, [0.3, 0.1, 0.5], atol=1e-15)
+    assert np.all(np.diag(tr.position_cov) > np.diag(r) + 0.5 ** 2 * 0.1 ** 2 - 1e-12)
+    with pytest.raises(ValueError, match="pseudo_fusion"):
+        TrackerConfig(pseudo_fusion="average")
+
+
 def test_time_going_backwards_is_an_error():
     trk = PhysicsAwareTracker()
     trk.update(frame(1.0, cup=([0, 0, 0.7], None)))
