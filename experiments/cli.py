@@ -3,7 +3,7 @@
 Subcommands: ``run`` (estimate a recorded stream), ``config`` (the configuration ``run`` would use),
 ``demo`` (the built-in example), ``simulate``
 (scenario simulator), ``evaluate`` (statistics over scenarios, seeds and methods), ``bench`` (speed
-against bare pybullet stepping).
+against bare pybullet stepping), ``track`` (a Kalman pose tracker, fed back by the estimator).
 """
 from __future__ import annotations
 
@@ -247,12 +247,15 @@ def main(argv: list[str] | None = None) -> int:
     from .bench import add_bench_arguments, run_bench
     from .evaluate_cli import add_evaluate_arguments, run_evaluate
     from .simulate_cli import add_simulate_arguments, run_simulate
+    from .track_cli import add_track_arguments, run_track
 
     for name, text, add, run in [
             ("simulate", "simulate a scenario with ground truth", add_simulate_arguments, run_simulate),
             ("evaluate", "statistical evaluation over scenarios, seeds and methods", add_evaluate_arguments,
              run_evaluate),
-            ("bench", "update time against bare pybullet stepping", add_bench_arguments, run_bench)]:
+            ("bench", "update time against bare pybullet stepping", add_bench_arguments, run_bench),
+            ("track", "Kalman pose tracker over a stream, kept alive by the estimator with --feedback",
+             add_track_arguments, run_track)]:
         p_sub = sub.add_parser(name, help=text)
         add(p_sub)
         p_sub.set_defaults(func=run)

@@ -104,7 +104,7 @@ def _truth_rows_at(truth: list[dict], times: list[float]) -> list[dict]:
     return out
 
 
-def score_run(scene, truth: list[dict], true_events: list[dict], run: MethodRun) -> dict:
+def score_run(scene, truth: list[dict], true_events: list[dict], run: MethodRun, frames=None) -> dict:
     """Metrics of one method run against the ground truth (a flat dict plus ``"reliability"``).
 
     Args:
@@ -112,6 +112,8 @@ def score_run(scene, truth: list[dict], true_events: list[dict], run: MethodRun)
         truth: truth rows (one per camera frame) of :class:`~experiments.simulator.SimulationResult`.
         true_events: the true events ``[{"t", "action", "subject"}]``.
         run: the method's steps and events.
+        frames: the perception frames the method ran on; when given, the re-appearance and NEES
+            metrics of :mod:`experiments.tracking_metrics` are added.
 
     Objects scored: the dynamic (non-static) objects. Samples: every (reasoning step, object).
     """
@@ -206,6 +208,29 @@ def score_run(scene, truth: list[dict], true_events: list[dict], run: MethodRun)
         out[f"ece_{name.lower()}"] = M.ece_from_bins(bins)
         rel[name] = bins
     out["reliability"] = rel
+    if frames is not None:
+        out.update(_tracking_scores(dyn_ids, truth, frames, steps, est, cov, tru, vis))
+    return out
+
+
+def _tracking_scores(dyn_ids, truth, frames, steps, est, cov, tru, vis) -> dict:
+    """Re-appearance and NEES metrics (:mod:`experiments.tracking_metrics`) of a run."""
+    from .tracking_metrics import nees_scores, reappearance_scores
+
+    f_count, d_count = len(frames), len(dyn_ids)
+    det_pos = np.full((f_count, d_count, 3), np.nan)
+    det_std = np.full((f_count, d_count), np.nan)
+    for i, f in enumerate(frames):
+        for k, oid in enumerate(dyn_ids):
+            d = f.objects.get(oid)
+            if d is not None:
+                det_pos[i, k] = d.position
+                det_std[i, k] = np.nan if d.position_std is None else d.position_std
+    det_t = np.array([f.t for f in frames])
+    rows = _truth_rows_at(truth, list(det_t))
+    true_pos = np.array([[r["objects"][o]["position"] for o in dyn_ids] for r in rows]).reshape(f_count, d_count, 3)
+    out = reappearance_scores(np.array([s.t for s in steps]), est, cov, det_t, det_pos, det_std, true_pos)
+    out.update(nees_scores(est, cov, tru, vis))
     return out
 
 
@@ -372,7 +397,7 @@ def run_trial(spec: TrialSpec) -> dict:
     finally:
         if rec is not None:
             rec.close()
-    scores = score_run(scene, sim.truth, sim.events, run)
+    scores = score_run(scene, sim.truth, sim.events, run, frames)
     ms = 1e3 * np.asarray(run.step_seconds)
     row = {"key": spec.key, "version": ROW_VERSION, "scenario": spec.scenario, "seed": spec.seed,
            "method": spec.method, "particles": spec.particles, "duration": spec.duration}
@@ -734,6 +759,9 @@ EXTRA_COLUMNS: tuple[Column, ...] = (
     Column("brier_plausible", "Brier P(plausible)"), Column("ece_plausible", "ECE P(plausible)"),
     Column("brier_isin", "Brier P(isIn)"), Column("ece_isin", "ECE P(isIn)"),
     Column("brier_isontop", "Brier P(isOnTop)"), Column("ece_isontop", "ECE P(isOnTop)"),
+    Column("err_reappear_median", "err. at re-appearance (cm)", 100.0),
+    Column("gate_rate_reappear", "re-appearance in 99% gate"),
+    Column("nees_seen_median", "NEES seen (median; 2.37)"), Column("nees_hidden_median", "NEES hidden (median; 2.37)"),
     Column("timing.update_ms_p95", "update p95 (ms)"), Column("timing.peak_rss_mb", "peak memory (MB)"),
     Column("timing.trial_s", "trial (s)"),
 )

@@ -11,6 +11,14 @@ name                       what it is
 ``particles-no-held``      ablation: a held object that vanishes is always released (as the paper
                            does) and held objects do not follow the tracked hands
 ``particles-no-negative``  ablation: no negative evidence from the camera
+``tracker``                a constant-velocity Kalman tracker alone
+                           (:class:`~estimator.tracker.PhysicsAwareTracker` without feedback): its
+                           positions and covariances, no relations; a lost object is unknown (NaN)
+                           once its track is dropped
+``tracker-feedback``       the tracker kept alive by the particle estimator, which runs beside it
+                           on the raw frames: positions and covariances are the tracker's,
+                           relations, held and events the estimator's
+``particles-on-tracker``   the particle estimator fed the tracker's filtered poses (no feedback)
 =========================  ===================================================================
 
 :func:`run_method` runs any of them on a scene and a list of perception frames and returns a
@@ -34,6 +42,7 @@ from estimator.config import EstimatorConfig, NoiseConfig, ReasonerConfig, confi
 from estimator.filter import SceneEstimator
 from estimator.observations import Frame
 from estimator.relations import relation_list, relation_masks
+from estimator.tracker import PhysicsAwareTracker, TrackerConfig
 from physics.scene import Scene
 from physics.world import World
 
@@ -67,13 +76,15 @@ def _no_negative(particles: int) -> EstimatorConfig:
 @dataclass(frozen=True)
 class MethodSpec:
     """A named method. ``config(K)`` builds its estimator configuration for K particles (``None``
-    for the last-seen baseline); ``uses_particles`` says whether the sweep's K applies (otherwise
-    the method always runs with one world)."""
+    for the last-seen baseline and the tracker alone); ``uses_particles`` says whether the sweep's K
+    applies (otherwise the method always runs with one world). ``tracker``: ``None``, or how the
+    Kalman tracker takes part (``"alone"``, ``"feedback"``, ``"input"``; see :class:`TrackerMethod`)."""
 
     name: str
     description: str
     uses_particles: bool
     config: Callable[[int], EstimatorConfig] | None
+    tracker: str | None = None
 
 
 METHODS: dict[str, MethodSpec] = {m.name: m for m in [
@@ -84,6 +95,11 @@ METHODS: dict[str, MethodSpec] = {m.name: m for m in [
     MethodSpec("particles-no-held", "ablation: no held mode for vanished objects (always released)", True,
                _no_held),
     MethodSpec("particles-no-negative", "ablation: no negative evidence", True, _no_negative),
+    MethodSpec("tracker", "constant-velocity Kalman tracker alone", False, None, "alone"),
+    MethodSpec("tracker-feedback", "Kalman tracker kept alive by the particle estimator's belief", True,
+               _particles_config, "feedback"),
+    MethodSpec("particles-on-tracker", "particle estimator fed the Kalman tracker's filtered poses", True,
+               _particles_config, "input"),
 ]}
 
 
@@ -275,6 +291,9 @@ def run_method(name: str, scene: Scene, frames: list[Frame], particles: int, rng
     seconds: list[float] = []
     ids = scene.object_ids
     last: Belief | None = None
+    mode = get_method(name).tracker
+    if mode is not None:
+        return _run_tracker_method(mode, scene, frames, cfg, rng, on_step)
     if cfg is None:
         model, to_step = LastSeenBaseline(scene), (lambda step: step)
     else:
@@ -297,3 +316,90 @@ def run_method(name: str, scene: Scene, frames: list[Frame], particles: int, rng
     if keep_particles and last is not None and steps:
         steps[-1] = step_from_belief(last, ids, keep_particles=True)
     return MethodRun(steps, events, seconds, cfg.particles)
+
+
+# --------------------------------------------------------------------------------------------------
+# the Kalman tracker's methods
+
+
+class TrackerMethod:
+    """The Kalman tracker (:class:`~estimator.tracker.PhysicsAwareTracker`) as a method.
+
+    ``mode`` ``"alone"``: the tracker without feedback, reasoning on the estimator's schedule (every
+    ``horizon`` s); its positions and position covariances, no relations, never held.
+    ``"feedback"``: the estimator runs beside it on the raw frames; at each of its steps its belief
+    gives the tracker pseudo-measurements for the dynamic objects not detected; the step has the
+    tracker's positions and covariances and the estimator's relations, P(held), P(plausible).
+    ``"input"``: the estimator is fed the tracker's filtered poses (no feedback); the step is its belief.
+    """
+
+    def __init__(self, scene: Scene, mode: str, config: EstimatorConfig | None, rng: np.random.Generator,
+                 tracker_config: TrackerConfig = TrackerConfig()):
+        if mode not in ("alone", "feedback", "input") or (config is None) != (mode == "alone"):
+            raise ValueError(f"tracker mode {mode!r} with estimator configuration {config!r}")
+        self.mode, self.ids = mode, scene.object_ids
+        dynamic = tuple(o.id for o in scene.objects if not o.static)
+        self.tracker = PhysicsAwareTracker(
+            dataclasses.replace(tracker_config, use_feedback=mode == "feedback", feed_estimator=mode == "input"),
+            dynamic)
+        self.estimator = None if config is None else SceneEstimator(scene, config, rng)
+        self.horizon = (config.reasoner if config is not None else ReasonerConfig()).horizon
+        self.t_step: float | None = None
+
+    def close(self) -> None:
+        if self.estimator is not None:
+            self.estimator.close()
+
+    def __enter__(self) -> "TrackerMethod":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def update(self, frame: Frame) -> tuple[StepEstimate, Belief | None] | None:
+        """One frame; the step and the estimator's belief (``None`` when it has none) at a reasoning step."""
+        self.tracker.update(frame)
+        if self.mode == "input":
+            belief = self.estimator.update(self.tracker.to_frame(hands=frame.hands))
+            return None if belief is None else (step_from_belief(belief, self.ids), belief)
+        if self.mode == "feedback":
+            belief = self.estimator.update(frame)
+            if belief is None:
+                return None
+            self.tracker.feedback(belief)
+            return self._step(frame.t, belief), belief
+        if self.t_step is not None and frame.t < self.t_step + self.horizon - 1e-9:
+            return None
+        self.t_step = frame.t
+        return self._step(frame.t, None), None
+
+    def _step(self, t: float, belief: Belief | None) -> StepEstimate:
+        m = len(self.ids)
+        if belief is not None:
+            step = step_from_belief(belief, self.ids)
+        else:
+            step = StepEstimate(t, np.full((m, 3), np.nan), np.zeros((m, 3, 3)), np.ones(m), np.zeros(m),
+                                [("none", None)] * m, {})
+        for i, oid in enumerate(self.ids):
+            track = self.tracker.tracks.get(oid)
+            step.positions[i] = np.nan if track is None else track.position
+            step.covariances[i] = 0.0 if track is None else track.position_cov
+        return step
+
+
+def _run_tracker_method(mode: str, scene: Scene, frames: list[Frame], cfg: EstimatorConfig | None,
+                        rng: np.random.Generator, on_step) -> MethodRun:
+    steps: list[StepEstimate] = []
+    seconds: list[float] = []
+    with TrackerMethod(scene, mode, cfg, rng) as method:
+        for frame in frames:
+            t0 = time.perf_counter()
+            out = method.update(frame)
+            if out is None:
+                continue
+            seconds.append(time.perf_counter() - t0)
+            steps.append(out[0])
+            if on_step is not None:
+                on_step(out[0], out[1])
+        events = [] if method.estimator is None else method.estimator.timeline.to_json()["events"]
+    return MethodRun(steps, events, seconds, 0 if cfg is None else cfg.particles)

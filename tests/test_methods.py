@@ -18,7 +18,7 @@ BALL = {"id": "ball", "sphere": {"radius": 0.03}, "mass": 0.05,
 
 def test_registry_has_the_baselines_the_estimator_and_the_ablations():
     assert list(METHODS) == ["last-seen", "paper", "particles", "particles-no-params", "particles-no-held",
-                             "particles-no-negative"]
+                             "particles-no-negative", "tracker", "tracker-feedback", "particles-on-tracker"]
     with pytest.raises(ValueError, match="known"):
         get_method("kalman")
 
