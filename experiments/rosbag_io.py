@@ -156,8 +156,13 @@ class BagFrameReader:
         self.skipped = 0
         self.late = 0
         self.frames_read = 0
-        self.t0_ns = 0
         self.tf = TfTree()
+        reader = open_reader(self.path)  # fail early: a missing bag or topic, before any estimation
+        try:
+            self._connections(reader)
+            self.t0_ns = int(reader.start_time) if reader.message_count else 0
+        finally:
+            reader.close()
 
     # -- errors ---------------------------------------------------------------------------------------
 
@@ -215,6 +220,7 @@ class BagFrameReader:
 
     def _items(self, reader) -> Iterator[_Item]:
         """Messages in stamp order (sorted within the reorder window; later ones dropped, counted)."""
+        self.tf = TfTree()
         conns, sources = self._connections(reader)
         statics = [c for c in reader.connections if c.topic == TF_STATIC_TOPIC and c.msgtype == TF_TYPE]
         for conn, _, raw in reader.messages(connections=statics):
@@ -295,7 +301,6 @@ class BagFrameReader:
     def __iter__(self) -> Iterator[Frame]:
         reader = open_reader(self.path)
         try:
-            self.t0_ns = int(reader.start_time)
             window_ns = int(round(self.topics.window * 1e9))
             start = last = None
             objects: dict[tuple[int, str], np.ndarray] = {}
@@ -322,15 +327,3 @@ class BagFrameReader:
 def read_bag_frames(path: str, topics: TopicsSpec, *, skip_bad_frames: bool = False) -> list[Frame]:
     """All frames of a bag as a list."""
     return list(BagFrameReader(path, topics, skip_bad_frames=skip_bad_frames))
-
-
-def check_topics_exist(path: str, topics: TopicsSpec) -> None:
-    """Raise the reader's located error when a source's topic is missing from the bag or of another
-    type, before any estimation starts."""
-    reader_obj = BagFrameReader(path, topics)
-    reader = open_reader(path)
-    try:
-        reader_obj._connections(reader)
-    finally:
-        reader.close()
-

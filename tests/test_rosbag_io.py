@@ -206,3 +206,112 @@ def test_malformed_topics_file_and_missing_bag_are_located(tmp_path):
     bad.write_text(TOPICS)
     with pytest.raises(ObservationError, match=r"topics.yaml:7: sources\[1\].topic: topic /tracker/box is not in"):
         read_bag_frames(bag, load_topics(str(bad), ["table", "cup", "box"]))
+
+
+# -- the no-topics-file convention equals JSONL; estimates written back; the command line ------------
+
+def lift_frames(n=45):
+    """A box lifted off the table and put back, 30 Hz, as frames (t from 0 s)."""
+    out = []
+    for k in range(n):
+        t = round(k / 30, 4)
+        z = TABLE_TOP + 0.03 + (0.2 if 0.5 <= t < 1.0 else 0.0)
+        out.append(Frame(t, {"box": det([-0.1, 0.1, z])}))
+    return out
+
+
+def frames_to_tf_bag(path, frames, extra=()):
+    """The same frames as world->object transforms on /tf (log time = stamp), plus a static chain."""
+    msgs = [("/tf_static", TF, 0.0, tfs(0.0, ("world", "table_link", WORLD_TABLE))), *extra]
+    for f in frames:
+        msgs.append(("/tf", TF, f.t, tfs(f.t, *[("world", oid, np.concatenate([d.position, d.orientation]))
+                                                for oid, d in f.objects.items()])))
+    msgs.sort(key=lambda m: m[2])
+    return write_bag(path, msgs)
+
+
+def estimates(scene, frames):
+    with SceneEstimator(scene, EstimatorConfig.paper(), np.random.default_rng(0)) as est:
+        return [b.to_json() for b in (est.update(f) for f in frames) if b is not None]
+
+
+@pytest.mark.parametrize("name", ["conv.bag", "conv"])
+def test_no_topics_file_gives_the_estimates_of_the_same_jsonl(tmp_path, name):
+    scene = table_scene(*SCENE_OBJECTS[1:])
+    frames = lift_frames()
+    write_observations(str(tmp_path / "o.jsonl"), frames)
+    from_jsonl = list(ObservationReader(str(tmp_path / "o.jsonl"), scene.object_ids))
+    bag = frames_to_tf_bag(tmp_path / name, frames)
+    from_bag = read_bag_frames(bag, default_topics(scene.object_ids))
+    assert [f.t for f in from_bag] == [f.t for f in from_jsonl]
+    for a, b in zip(from_bag, from_jsonl):
+        assert a.to_json() == b.to_json()
+    e_bag, e_jsonl = estimates(scene, from_bag), estimates(scene, from_jsonl)
+    assert len(e_bag) > 5 and e_bag == e_jsonl
+
+
+def test_particles_same_estimates_from_bag_and_jsonl(tmp_path):
+    """Small K, seeded: the bag and the JSONL stream drive the filter identically."""
+    scene = table_scene(*SCENE_OBJECTS[1:])
+    frames = lift_frames(20)
+    write_observations(str(tmp_path / "o.jsonl"), frames)
+    bag = frames_to_tf_bag(tmp_path / "k.bag", frames)
+    cfg = EstimatorConfig(particles=4, workers=0)
+    runs = []
+    for stream in (read_bag_frames(bag, default_topics(scene.object_ids)),
+                   list(ObservationReader(str(tmp_path / "o.jsonl"), scene.object_ids))):
+        with SceneEstimator(scene, cfg, np.random.default_rng(3)) as est:
+            runs.append([b.to_json() for b in (est.update(f) for f in stream) if b is not None])
+    assert runs[0] == runs[1] and len(runs[0]) >= 3
+
+
+def write_scene(tmp_path):
+    import yaml
+    from physics.scene import scene_to_dict
+    path = tmp_path / "scene.yaml"
+    path.write_text(yaml.safe_dump(scene_to_dict(table_scene(*SCENE_OBJECTS[1:]))))
+    return str(path)
+
+
+@pytest.mark.parametrize("out_name", ["annotated.bag", "annotated"])
+def test_cli_end_to_end_with_bag_out(tmp_path, capsys, out_name):
+    scene = write_scene(tmp_path)
+    bag = frames_to_tf_bag(tmp_path / "in.bag", lift_frames(30))
+    out, bag_out = tmp_path / "e.jsonl", tmp_path / out_name
+    code = main(["run", "--scene", scene, "--bag", bag, "--out", str(out), "--bag-out", str(bag_out), "--quiet"])
+    assert code == 0
+    lines = [json.loads(x) for x in out.read_text().splitlines()]
+    assert len(lines) >= 5
+    with AnyReader([bag_out]) as reader:
+        assert set(reader.topics) == {"/tf", ESTIMATE_TOPIC}
+        tf_msgs, strings = [], []
+        for conn, log_ns, raw in reader.messages(connections=reader.connections):
+            msg = reader.deserialize(raw, conn.msgtype)
+            (tf_msgs if conn.topic == "/tf" else strings).append((log_ns, msg))
+    assert len(tf_msgs) == len(strings) == len(lines)
+    assert [json.loads(m.data) for _, m in strings] == lines
+    for (log_ns, m), line in zip(tf_msgs, lines):
+        assert log_ns == int(round(line["t"] * NS))
+        assert [t.child_frame_id for t in m.transforms] == [f"estimate/{oid}" for oid in line["objects"]]
+        assert all(t.header.frame_id == "world" for t in m.transforms)
+        box = next(t for t in m.transforms if t.child_frame_id == "estimate/box").transform.translation
+        assert [box.x, box.y, box.z] == line["objects"]["box"]["position"]
+
+
+def test_cli_bad_input_exits_2_with_a_located_message(tmp_path, capsys):
+    scene = write_scene(tmp_path)
+    bag = frames_to_tf_bag(tmp_path / "in.bag", lift_frames(3))
+    assert main(["run", "--scene", scene, "--bag", str(tmp_path / "missing.bag"), "--quiet"]) == 2
+    assert f"error: {tmp_path / 'missing.bag'}: bag not found" in capsys.readouterr().err
+    topics = tmp_path / "topics.yaml"
+    topics.write_text("sources:\n  - topic: /tf\n    type: tf\n    objects: {box: bowl}\n")
+    assert main(["run", "--scene", scene, "--bag", bag, "--topics", str(topics), "--quiet"]) == 2
+    assert f"error: {topics}:4: sources[0].objects.box: unknown object id 'bowl'" in capsys.readouterr().err
+    topics.write_text("sources:\n  - topic: /camera/tags\n    type: tf\n")
+    assert main(["run", "--scene", scene, "--bag", bag, "--topics", str(topics), "--quiet"]) == 2
+    assert f"error: {topics}:2: sources[0].topic: topic /camera/tags is not in" in capsys.readouterr().err
+    assert main(["run", "--scene", scene, "--observations", "o.jsonl", "--topics", str(topics)]) == 2
+    assert "error: --topics needs --bag" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        main(["run", "--scene", scene, "--bag", bag, "--observations", "o.jsonl"])
+    assert exc.value.code == 2 and "not allowed with argument" in capsys.readouterr().err
