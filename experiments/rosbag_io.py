@@ -9,7 +9,7 @@ chained to the world frame through the TF tree *at the message's time*: the tran
 parent -> child edge is kept, and static transforms hold for the whole bag (they are read first).
 Static transforms place frames; they are not detections.
 
-**Time.** A message's time is its header stamp; ``t`` of a frame is seconds since the bag's start
+**Time.** A message's time is its header stamp (a TF message's: the latest stamp of its transforms); ``t`` of a frame is seconds since the bag's start
 (:attr:`BagFrameReader.t0_ns`, its first recorded message). Messages are sorted by stamp within the
 ``reorder`` window (0.1 s): a message stamped more than ``reorder`` before the newest stamp read so
 far is too late, dropped and counted (:attr:`BagFrameReader.late`).
@@ -207,8 +207,21 @@ class BagFrameReader:
                 conns.append(c)
         return conns, chosen
 
-    def _decode(self, reader, conn, raw: bytes, source: int, seq: int) -> _Item:
-        msg = reader.deserialize(raw, conn.msgtype)
+    def _messages(self, reader, connections: list) -> Iterator[tuple]:
+        """(connection, decoded message) of ``connections`` in recorded order; a bag that cannot be
+        read or decoded raises :class:`ObservationError` naming it, not rosbags' own error."""
+        stream = reader.messages(connections=connections)
+        while True:
+            try:
+                conn, _, raw = next(stream)
+                msg = reader.deserialize(raw, conn.msgtype)
+            except StopIteration:
+                return
+            except Exception as exc:  # rosbags' read and decode errors have several types
+                raise ObservationError(f"cannot read the bag: {type(exc).__name__}: {exc}", path=self.path) from None
+            yield conn, msg
+
+    def _decode(self, conn, msg, source: int, seq: int) -> _Item:
         if conn.msgtype == TF_TYPE:
             tfs = tuple((t.header.frame_id, t.child_frame_id, _pose7(t.transform.translation, t.transform.rotation))
                         for t in msg.transforms)
@@ -221,16 +234,17 @@ class BagFrameReader:
     def _items(self, reader) -> Iterator[_Item]:
         """Messages in stamp order (sorted within the reorder window; later ones dropped, counted)."""
         self.tf = TfTree()
+        self.late = self.skipped = self.frames_read = 0
         conns, sources = self._connections(reader)
         statics = [c for c in reader.connections if c.topic == TF_STATIC_TOPIC and c.msgtype == TF_TYPE]
-        for conn, _, raw in reader.messages(connections=statics):
-            for parent, child, pose in self._decode(reader, conn, raw, -1, 0).transforms:
+        for conn, msg in self._messages(reader, statics):
+            for parent, child, pose in self._decode(conn, msg, -1, 0).transforms:
                 self.tf.set(parent, child, pose)
         reorder_ns = int(round(self.topics.reorder * 1e9))
         heap: list = []
         newest = -math.inf
-        for seq, (conn, _, raw) in enumerate(reader.messages(connections=conns)):
-            item = self._decode(reader, conn, raw, sources[conn.id], seq)
+        for seq, (conn, msg) in enumerate(self._messages(reader, conns)):
+            item = self._decode(conn, msg, sources[conn.id], seq)
             if item.stamp_ns < newest - reorder_ns:
                 self.late += 1
                 self.warn(f"{self.path}: {item.topic}: message stamped {self._t(item.stamp_ns):.3f} s arrived "

@@ -315,3 +315,27 @@ def test_cli_bad_input_exits_2_with_a_located_message(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["run", "--scene", scene, "--bag", bag, "--observations", "o.jsonl"])
     assert exc.value.code == 2 and "not allowed with argument" in capsys.readouterr().err
+
+
+def test_hands_and_another_world_frame(tmp_path):
+    """Hands come from TF frames named in the topics file; --world-frame 'map' (map -> world here)."""
+    map_world = P(1.0, 2.0, 0.0, tuple(quat_from_axis_angle(np.array([0, 0, 1.0]), 0.5)))
+    msgs = [("/tf_static", TF, 0.0, tfs(0.0, ("map", "world", map_world))),
+            ("/tf", TF, 0.0, tfs(0.0, ("world", "cup", cup_at(0)), ("world", "r_hand", P(0.3, -0.1, 0.9))))]
+    bag = write_bag(tmp_path / "h", msgs)
+    topics = tmp_path / "t.yaml"
+    topics.write_text("sources:\n  - {topic: /tf, type: tf, objects: {cup: cup}, position_std: 0.01}\n"
+                      "hands: {r_hand: human/right}\n")
+    (frame,) = read_bag_frames(bag, load_topics(str(topics), ["table", "cup"], world_frame="map"))
+    np.testing.assert_allclose(frame.hands["human/right"], pose_compose(map_world, P(0.3, -0.1, 0.9))[:3], atol=1e-12)
+    np.testing.assert_allclose(frame.objects["cup"].position, pose_compose(map_world, cup_at(0))[:3], atol=1e-12)
+    (frame,) = read_bag_frames(bag, load_topics(str(topics), ["table", "cup"]))   # the file's world frame
+    np.testing.assert_allclose(frame.hands["human/right"], [0.3, -0.1, 0.9], atol=1e-12)
+
+
+def test_truncated_bag_is_an_input_error(tmp_path):
+    bag = frames_to_tf_bag(tmp_path / "cut.bag", lift_frames(30))
+    data = Path(bag).read_bytes()
+    Path(bag).write_bytes(data[: len(data) // 2])
+    with pytest.raises(ObservationError, match="cut.bag: "):
+        read_bag_frames(bag, default_topics(["table", "box"]))
