@@ -245,6 +245,8 @@ class BagFrameReader:
         newest = -math.inf
         for seq, (conn, msg) in enumerate(self._messages(reader, conns)):
             item = self._decode(conn, msg, sources[conn.id], seq)
+            if item.kind == "tf" and not item.transforms:
+                continue  # an empty TF message has no time and places nothing
             if item.stamp_ns < newest - reorder_ns:
                 self.late += 1
                 self.warn(f"{self.path}: {item.topic}: message stamped {self._t(item.stamp_ns):.3f} s arrived "

@@ -224,6 +224,8 @@ def frames_to_tf_bag(path, frames, extra=()):
     """The same frames as world->object transforms on /tf (log time = stamp), plus a static chain."""
     msgs = [("/tf_static", TF, 0.0, tfs(0.0, ("world", "table_link", WORLD_TABLE))), *extra]
     for f in frames:
+        if not f.objects:
+            continue  # nothing perceived: no message (a bag has no empty frames)
         msgs.append(("/tf", TF, f.t, tfs(f.t, *[("world", oid, np.concatenate([d.position, d.orientation]))
                                                 for oid, d in f.objects.items()])))
     msgs.sort(key=lambda m: m[2])
