@@ -9,13 +9,15 @@ chained to the world frame through the TF tree *at the message's time*: the tran
 parent -> child edge is kept, and static transforms hold for the whole bag (they are read first).
 Static transforms place frames; they are not detections.
 
-**Time.** A message's time is its header stamp (a TF message's: the latest stamp of its transforms); ``t`` of a frame is seconds since the bag's start
-(:attr:`BagFrameReader.t0_ns`, its first recorded message). Messages are sorted by stamp within the
+**Time.** A message's time is its header stamp (a TF message's: the latest stamp of its
+transforms); ``t`` of a frame is seconds since the bag's start (:attr:`BagFrameReader.t0_ns`, its
+first recorded message). Empty TF messages are ignored, so a bag has no frame where nothing was seen. Messages are sorted by stamp within the
 ``reorder`` window (0.1 s): a message stamped more than ``reorder`` before the newest stamp read so
 far is too late, dropped and counted (:attr:`BagFrameReader.late`).
 
 **Frames.** Timestamp windows: a frame starts at the first message after the previous frame and
-gathers every message stamped less than ``window`` (0.02 s) after it; its ``t`` is its latest stamp.
+gathers every message stamped less than ``window`` (0.02 s) after it (with ``window: 0``, one frame
+per distinct stamp); its ``t`` is its latest stamp, so frame times strictly increase.
 Within a frame, the latest detection of each (source, object) is kept and an object seen by several
 sources is fused by inverse variance (:func:`fuse`). An object is unperceived only if no source saw
 it. Hands are the latest positions of their TF frames in the frame.
@@ -322,7 +324,7 @@ class BagFrameReader:
             objects: dict[tuple[int, str], np.ndarray] = {}
             hands: dict[str, np.ndarray] = {}
             for stamp, obs in self._observations(reader):
-                if start is not None and stamp - start >= window_ns and (objects or hands):
+                if start is not None and stamp - start >= window_ns and stamp > last and (objects or hands):
                     self.frames_read += 1
                     yield self._frame(last, objects, hands)
                     start, objects, hands = None, {}, {}

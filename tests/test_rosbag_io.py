@@ -341,3 +341,16 @@ def test_truncated_bag_is_an_input_error(tmp_path):
     Path(bag).write_bytes(data[: len(data) // 2])
     with pytest.raises(ObservationError, match="cut.bag: "):
         read_bag_frames(bag, default_topics(["table", "box"]))
+
+
+def test_window_zero_gives_one_frame_per_distinct_stamp(tmp_path):
+    msgs = [("/tf", TF, 0.0, tfs(0.0, ("world", "cup", cup_at(0.0)))),
+            ("/tf", TF, 0.0, tfs(0.0, ("world", "box_tag", P(0, 0, 1)))),
+            ("/tf", TF, 0.005, tfs(0.005, ("world", "cup", cup_at(0.005))))]
+    bag = write_bag(tmp_path / "w.bag", msgs)
+    topics = tmp_path / "t.yaml"
+    topics.write_text("window: 0\nsources:\n  - {topic: /tf, type: tf, objects: {cup: cup, box_tag: box}}\n")
+    frames = read_bag_frames(bag, load_topics(str(topics), ["table", "cup", "box"]))
+    assert [(f.t, sorted(f.objects)) for f in frames] == [(0.0, ["box", "cup"]), (0.005, ["cup"])]
+    frames = read_bag_frames(bag, default_topics(["table", "cup", "box"]))     # 0.02 s window: one frame
+    assert [(f.t, sorted(f.objects)) for f in frames] == [(0.005, ["cup"])]    # box_tag is not an object id
