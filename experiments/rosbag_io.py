@@ -130,8 +130,8 @@ def open_reader(path: str):
 
     if not os.path.exists(path):
         raise ObservationError("bag not found", path=path)
-    reader = AnyReader([Path(path)], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
     try:
+        reader = AnyReader([Path(path)], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         reader.open()
     except Exception as exc:  # rosbags raises several types for a file that is not a bag
         raise ObservationError(f"not a readable ROS 1 or ROS 2 bag: {exc}", path=path) from None

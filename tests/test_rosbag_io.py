@@ -202,6 +202,9 @@ def test_malformed_topics_file_and_missing_bag_are_located(tmp_path):
     (tmp_path / "junk.bag").write_text("not a bag")
     with pytest.raises(ObservationError, match="junk.bag: not a readable ROS 1 or ROS 2 bag"):
         read_bag_frames(str(tmp_path / "junk.bag"), default_topics(["cup"]))
+    for not_a_bag in (bad, tmp_path):            # a YAML file, a folder without a ROS 2 bag
+        with pytest.raises(ObservationError, match="not a readable ROS 1 or ROS 2 bag"):
+            read_bag_frames(str(not_a_bag), default_topics(["cup"]))
     bag = write_bag(tmp_path / "b.bag", [("/tf", TF, 0.0, tfs(0.0, ("world", "cup", cup_at(0))))])
     bad.write_text(TOPICS)
     with pytest.raises(ObservationError, match=r"topics.yaml:7: sources\[1\].topic: topic /tracker/box is not in"):
@@ -312,6 +315,8 @@ def test_cli_bad_input_exits_2_with_a_located_message(tmp_path, capsys):
     topics.write_text("sources:\n  - topic: /camera/tags\n    type: tf\n")
     assert main(["run", "--scene", scene, "--bag", bag, "--topics", str(topics), "--quiet"]) == 2
     assert f"error: {topics}:2: sources[0].topic: topic /camera/tags is not in" in capsys.readouterr().err
+    assert main(["run", "--scene", scene, "--bag", bag, "--bag-out", bag, "--quiet"]) == 2
+    assert f"error: {bag}: output bag already exists" in capsys.readouterr().err
     assert main(["run", "--scene", scene, "--observations", "o.jsonl", "--topics", str(topics)]) == 2
     assert "error: --topics needs --bag" in capsys.readouterr().err
     with pytest.raises(SystemExit) as exc:
