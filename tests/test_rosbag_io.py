@@ -359,3 +359,25 @@ def test_window_zero_gives_one_frame_per_distinct_stamp(tmp_path):
     assert [(f.t, sorted(f.objects)) for f in frames] == [(0.0, ["box", "cup"]), (0.005, ["cup"])]
     frames = read_bag_frames(bag, default_topics(["table", "cup", "box"]))     # 0.02 s window: one frame
     assert [(f.t, sorted(f.objects)) for f in frames] == [(0.005, ["cup"])]    # box_tag is not an object id
+
+
+def test_pose_in_a_moving_frame_uses_the_transform_at_its_own_time(tmp_path):
+    """The camera moves (world->camera on /tf); a PoseStamped in the camera frame is placed with the
+    latest camera transform *at its stamp*, even when that transform was logged after it."""
+    cam = {t: P(t, 0.0, 1.0, tuple(quat_from_axis_angle(np.array([0, 0, 1.0]), t))) for t in (0.0, 0.1, 0.2)}
+    in_cam = P(0.3, 0.1, -0.2)
+    msgs = [("/tf", TF, 0.0, tfs(0.0, ("world", "camera", cam[0.0]))),
+            ("/tracker/box", POSE, 0.05, pose_msg(0.05, "camera", in_cam)),
+            ("/tracker/box", POSE, 0.15, pose_msg(0.15, "camera", in_cam)),
+            ("/tf", TF, 0.16, tfs(0.1, ("world", "camera", cam[0.1]))),     # logged 0.06 s late
+            ("/tf", TF, 0.2, tfs(0.2, ("world", "camera", cam[0.2]))),
+            ("/tracker/box", POSE, 0.25, pose_msg(0.25, "camera", in_cam))]
+    bag = write_bag(tmp_path / "moving", msgs)
+    topics = tmp_path / "t.yaml"
+    topics.write_text("sources:\n  - {topic: /tracker/box, type: pose, object: box, position_std: 0.01}\n")
+    frames = read_bag_frames(bag, load_topics(str(topics), ["table", "box"]))
+    assert [round(f.t, 6) for f in frames] == [0.05, 0.15, 0.25]
+    for f, t_cam in zip(frames, (0.0, 0.1, 0.2)):
+        expected = pose_compose(cam[t_cam], in_cam)
+        np.testing.assert_allclose(f.objects["box"].position, expected[:3], atol=1e-9)
+        np.testing.assert_allclose(f.objects["box"].orientation, expected[3:], atol=1e-9)
