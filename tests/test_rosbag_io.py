@@ -2,7 +2,6 @@
 
 Bags are written here with rosbags' own writers, ROS 1 (``.bag``) and ROS 2 (folder)."""
 import json
-import math
 from pathlib import Path
 
 import numpy as np
