@@ -50,13 +50,43 @@ def build_config(args) -> EstimatorConfig:
     return cfg
 
 
-def run_stream(scene_path: str, observations_path: str, config: EstimatorConfig, seed: int,
+@dataclasses.dataclass(frozen=True)
+class BagInput:
+    """Perception read from a ROS bag instead of a JSONL stream (``run --bag``).
+
+    ``path``: ROS 1 ``.bag`` file or ROS 2 bag folder; ``topics``: topics file (``None``: ``/tf`` and
+    ``/tf_static``, child frames named like scene objects); ``world_frame``: the scene's frame (wins
+    over the topics file's; default ``world``); ``out``: bag to write the estimates to (``.bag``:
+    ROS 1, otherwise a ROS 2 folder)."""
+
+    path: str
+    topics: str | None = None
+    world_frame: str | None = None
+    out: str | None = None
+
+
+def _frame_reader(scene, observations_path: str | None, bag: BagInput | None, skip_bad_frames: bool, warn):
+    """The frames of a JSONL stream or of a bag: an iterable with ``frames_read`` and ``skipped``."""
+    if (observations_path is None) == (bag is None):
+        raise ValueError("give exactly one of an observation stream (--observations) and a bag (--bag)")
+    if bag is None:
+        return ObservationReader(observations_path, scene.object_ids, skip_bad_frames=skip_bad_frames, warn=warn)
+    from .rosbag_io import BagFrameReader
+    from .rosbag_topics import default_topics, load_topics
+
+    topics = (load_topics(bag.topics, scene.object_ids, bag.world_frame) if bag.topics
+              else default_topics(scene.object_ids, bag.world_frame or "world"))
+    return BagFrameReader(bag.path, topics, skip_bad_frames=skip_bad_frames, warn=warn)
+
+
+def run_stream(scene_path: str, observations_path: str | None, config: EstimatorConfig, seed: int,
                out_path: str | None, timeline_path: str | None, skip_bad_frames: bool = False,
-               quiet: bool = False, on_belief=None, on_frame=None) -> dict:
-    """Estimate a whole observation stream, writing one estimate line per reasoning step as it goes
-    (flushed, so an interrupted run keeps what it wrote) and the timeline at the end (also on
-    interruption). ``on_frame(frame)`` and ``on_belief(belief)`` see every frame and every belief.
-    Returns a summary dict."""
+               quiet: bool = False, on_belief=None, on_frame=None, bag: BagInput | None = None) -> dict:
+    """Estimate a whole observation stream (a JSONL file, or a ROS bag given as ``bag`` with
+    ``observations_path=None``), writing one estimate line per reasoning step as it goes
+    (flushed, so an interrupted run keeps what it wrote), the estimates also into ``bag.out`` when
+    given, and the timeline at the end (also on interruption). ``on_frame(frame)`` and
+    ``on_belief(belief)`` see every frame and every belief. Returns a summary dict."""
     scene = load_scene(scene_path)
     warnings: list[str] = []
 
@@ -65,8 +95,11 @@ def run_stream(scene_path: str, observations_path: str, config: EstimatorConfig,
         if not quiet:
             print(f"warning: {msg}", file=sys.stderr)
 
-    reader = ObservationReader(observations_path, scene.object_ids, skip_bad_frames=skip_bad_frames,
-                               warn=warn)
+    reader = _frame_reader(scene, observations_path, bag, skip_bad_frames, warn)
+    bag_out = None
+    if bag is not None and bag.out:
+        from .rosbag_out import BagEstimateWriter
+        bag_out = BagEstimateWriter(bag.out, reader.topics.world_frame, reader.t0_ns)
     out = open(out_path, "w", encoding="utf-8") if out_path else None
     n_est = 0
     times = []
@@ -82,15 +115,20 @@ def run_stream(scene_path: str, observations_path: str, config: EstimatorConfig,
                 continue
             times.append(time.perf_counter() - t0)
             n_est += 1
+            line = belief.to_json()
             if out is not None:
-                out.write(json.dumps(belief.to_json()) + "\n")
+                out.write(json.dumps(line) + "\n")
                 out.flush()
+            if bag_out is not None:
+                bag_out.write(line)
             if on_belief is not None:
                 on_belief(belief)
     finally:
         est.close()
         if out is not None:
             out.close()
+        if bag_out is not None:
+            bag_out.close()
         if timeline_path:
             est.timeline.write(timeline_path)
     return {"frames": reader.frames_read, "skipped": reader.skipped, "estimates": n_est,
@@ -98,12 +136,24 @@ def run_stream(scene_path: str, observations_path: str, config: EstimatorConfig,
             "update_ms_median": 1e3 * float(np.median(times)) if times else None,
             "timeline": est.timeline.to_json(), "last_belief": est.last_belief,
             "recoveries": est.recoveries, "rejected": est.rejected_detections,
-            "reseeded": est.reseeded, "worker_restarts": est.pool.restarts}
+            "reseeded": est.reseeded, "worker_restarts": est.pool.restarts,
+            "late": getattr(reader, "late", 0)}
 
 
 def _add_run_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scene", required=True, help="scene file (YAML or JSON)")
-    p.add_argument("--observations", required=True, help="observation stream (JSON Lines)")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--observations", help="observation stream (JSON Lines)")
+    src.add_argument("--bag", help="perception from a ROS 1 bag (.bag) or a ROS 2 bag (folder) instead")
+    p.add_argument("--topics", metavar="FILE",
+                   help="with --bag: topics file (YAML) naming the sources (tf / pose topics, frame -> object, "
+                        "position_std), hands and world frame; without it /tf and /tf_static are read and a "
+                        "child frame named like a scene object is that object")
+    p.add_argument("--world-frame", help="with --bag: the scene's TF frame (default: world, or the topics file's)")
+    p.add_argument("--bag-out", metavar="PATH",
+                   help="with --bag: also write the estimates to a bag (TF frames estimate/<id> and "
+                        "/scene_estimator/estimate JSON strings); a path ending in .bag is a ROS 1 bag, "
+                        "any other a ROS 2 bag folder")
     p.add_argument("--out", help="estimate stream to write (JSON Lines)")
     p.add_argument("--timeline", help="timeline to write at the end (JSON)")
     _add_estimator_arguments(p)
@@ -168,6 +218,13 @@ def print_summary(summary: dict, stream=None) -> None:
 
 
 def cmd_run(args) -> int:
+    bag = None
+    if args.bag:
+        bag = BagInput(args.bag, args.topics, args.world_frame, args.bag_out)
+    else:
+        for name in ("topics", "world_frame", "bag_out"):
+            if getattr(args, name):
+                raise ValueError(f"--{name.replace('_', '-')} needs --bag")
     recorder = None
     if args.rerun:
         from .recording import Recorder
@@ -176,7 +233,7 @@ def cmd_run(args) -> int:
         summary = run_stream(args.scene, args.observations, build_config(args), args.seed, args.out,
                              args.timeline, args.skip_bad_frames, args.quiet,
                              on_belief=recorder.log_belief if recorder else None,
-                             on_frame=recorder.log_frame if recorder else None)
+                             on_frame=recorder.log_frame if recorder else None, bag=bag)
         if recorder is not None:
             recorder.log_timeline(summary["timeline"])
     finally:
@@ -186,6 +243,8 @@ def cmd_run(args) -> int:
         print_summary(summary)
         if args.skip_bad_frames:
             print(f"\n{summary['skipped']} bad frame(s) skipped", file=sys.stderr)
+        if summary["late"]:
+            print(f"{summary['late']} bag message(s) too late to sort into place, dropped", file=sys.stderr)
     return 0
 
 

@@ -1,0 +1,347 @@
+"""Perception from ROS bags: an input adapter that turns the messages of a ROS 1 or ROS 2 bag into
+the estimator's :class:`~estimator.observations.Frame` stream.
+
+Read with the pure-Python ``rosbags`` library (``AnyReader`` reads both formats). Sources (see
+:mod:`experiments.rosbag_topics`): ``tf2_msgs/TFMessage`` topics, whose transforms of mapped child
+frames are object poses, and ``geometry_msgs/PoseStamped`` topics, one object each. Every pose is
+chained to the world frame through the TF tree *at the message's time*: the transforms of ``/tf`` and
+``/tf_static`` (and of every tf source) are applied in stamp order, the latest transform of each
+parent -> child edge is kept, and static transforms hold for the whole bag (they are read first).
+Static transforms place frames; they are not detections.
+
+**Time.** A message's time is its header stamp (a TF message's: the latest stamp of its
+transforms); ``t`` of a frame is seconds since the bag's start (:attr:`BagFrameReader.t0_ns`, its
+first recorded message). Empty TF messages are ignored, so a bag has no frame where nothing was seen. Messages are sorted by stamp within the
+``reorder`` window (0.1 s): a message stamped more than ``reorder`` before the newest stamp read so
+far is too late, dropped and counted (:attr:`BagFrameReader.late`).
+
+**Frames.** Timestamp windows: a frame starts at the first message after the previous frame and
+gathers every message stamped less than ``window`` (0.02 s) after it (with ``window: 0``, one frame
+per distinct stamp); its ``t`` is its latest stamp, so frame times strictly increase.
+Within a frame, the latest detection of each (source, object) is kept and an object seen by several
+sources is fused by inverse variance (:func:`fuse`). An object is unperceived only if no source saw
+it. Hands are the latest positions of their TF frames in the frame.
+
+Units: metres, seconds; quaternions x, y, z, w.
+"""
+from __future__ import annotations
+
+import heapq
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterator
+
+import numpy as np
+
+from estimator.observations import Detection, Frame
+from physics.errors import ObservationError
+from physics.transforms import pose_compose, pose_inverse
+
+from .rosbag_topics import SOURCE_TYPES, TF_STATIC_TOPIC, TF_TOPIC, SourceSpec, TopicsSpec
+
+TF_TYPE = SOURCE_TYPES["tf"]
+POSE_TYPE = SOURCE_TYPES["pose"]
+
+
+def fuse(detections: list[Detection]) -> Detection:
+    """Inverse-variance fusion of detections of one object: position = sum(p_i / s_i^2) / sum(1 / s_i^2),
+    std = (sum 1 / s_i^2)^-1/2 (metres); the orientation is that of the most precise detection
+    that has one. Detections without a ``position_std`` count with equal weights (std ``None``)."""
+    if len(detections) == 1:
+        return detections[0]
+    if any(d.position_std is None for d in detections):
+        w = np.ones(len(detections))
+        std = None
+    else:
+        w = np.array([1.0 / d.position_std ** 2 for d in detections])
+        std = float(1.0 / math.sqrt(w.sum()))
+    pos = (w[:, None] * np.array([d.position for d in detections])).sum(axis=0) / w.sum()
+    oriented = [(i, d) for i, d in enumerate(detections) if d.orientation is not None]
+    orn = max(oriented, key=lambda p: w[p[0]])[1].orientation if oriented else None
+    return Detection(pos, orn, std)
+
+
+class TfTree:
+    """The latest transform of each parent -> child edge (child frame id -> (parent, pose (7,)))."""
+
+    def __init__(self):
+        self.edges: dict[str, tuple[str, np.ndarray]] = {}
+
+    def set(self, parent: str, child: str, pose: np.ndarray) -> None:
+        self.edges[child] = (parent, pose)
+
+    def _to_root(self, frame: str) -> tuple[str, np.ndarray | None]:
+        """(root frame, pose of ``frame`` in it; ``None`` when ``frame`` is the root)."""
+        pose = None
+        seen = {frame}
+        while frame in self.edges:
+            parent, edge = self.edges[frame]
+            pose = edge if pose is None else pose_compose(edge, pose)
+            frame = parent
+            if frame in seen:
+                break  # a loop: report as unconnected
+            seen.add(frame)
+        return frame, pose
+
+    def lookup(self, world: str, frame: str) -> np.ndarray | None:
+        """Pose (7,) of ``frame`` in ``world``, or ``None`` when no chain of transforms joins them."""
+        root, pose = self._to_root(frame)
+        world_root, world_pose = self._to_root(world)
+        if root != world_root:
+            return None
+        if pose is None:
+            pose = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
+        return pose if world_pose is None else pose_compose(pose_inverse(world_pose), pose)
+
+    def root(self, frame: str) -> str:
+        return self._to_root(frame)[0]
+
+
+def _stamp_ns(stamp) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def _pose7(translation, rotation) -> np.ndarray:
+    return np.array([translation.x, translation.y, translation.z, rotation.x, rotation.y, rotation.z, rotation.w],
+                    dtype=float)
+
+
+@dataclass(frozen=True)
+class _Item:
+    """One message, decoded: ``kind`` "tf" (``transforms``: (parent, child, pose)) or "pose"."""
+
+    stamp_ns: int
+    seq: int
+    kind: str
+    source: int
+    topic: str
+    transforms: tuple = ()
+    frame_id: str = ""
+    pose: np.ndarray | None = None
+
+
+def open_reader(path: str):
+    """An opened ``AnyReader`` on ``path`` (a ROS 1 ``.bag`` file or a ROS 2 bag folder), or an
+    :class:`ObservationError` naming the file."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    if not os.path.exists(path):
+        raise ObservationError("bag not found", path=path)
+    try:
+        reader = AnyReader([Path(path)], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+        reader.open()
+    except Exception as exc:  # rosbags raises several types for a file that is not a bag
+        raise ObservationError(f"not a readable ROS 1 or ROS 2 bag: {exc}", path=path) from None
+    return reader
+
+
+class BagFrameReader:
+    """Iterate over the frames of a ROS bag (see the module docstring for time and grouping).
+
+    Args:
+        path: a ROS 1 ``.bag`` file or a ROS 2 bag folder.
+        topics: the sources (:func:`~experiments.rosbag_topics.load_topics` or ``default_topics``).
+        skip_bad_frames: a pose that cannot be placed (no transform chain to the world frame, a
+            zero quaternion) is dropped with a counted warning instead of raising.
+        warn: called with a message for each dropped pose or late message.
+    """
+
+    def __init__(self, path: str, topics: TopicsSpec, *, skip_bad_frames: bool = False,
+                 warn: Callable[[str], None] | None = None):
+        self.path = str(path)
+        self.topics = topics
+        self.skip_bad_frames = skip_bad_frames
+        self.warn = warn or (lambda msg: None)
+        self.skipped = 0
+        self.late = 0
+        self.frames_read = 0
+        self.tf = TfTree()
+        reader = open_reader(self.path)  # fail early: a missing bag or topic, before any estimation
+        try:
+            self._connections(reader)
+            self.t0_ns = int(reader.start_time) if reader.message_count else 0
+        finally:
+            reader.close()
+
+    # -- errors ---------------------------------------------------------------------------------------
+
+    def _topic_error(self, source: SourceSpec | None, index: int | None, message: str) -> ObservationError:
+        if self.topics.path is not None and index is not None:
+            where = f"sources[{index}].topic"
+            path, line = self.topics.locate(where)
+            return ObservationError(message, path=path, line=line, field=where)
+        return ObservationError(message, path=self.path, field=source.topic if source else None)
+
+    def _bad(self, message: str, topic: str) -> None:
+        if not self.skip_bad_frames:
+            raise ObservationError(message, path=self.path, field=topic)
+        self.skipped += 1
+        self.warn(f"skipped: {self.path}: {topic}: {message}")
+
+    # -- reading --------------------------------------------------------------------------------------
+
+    def _connections(self, reader) -> tuple[list, dict[int, int]]:
+        """Connections to read and, for each connection id, its source index (-1: TF only)."""
+        by_topic: dict[str, list] = {}
+        for c in reader.connections:
+            by_topic.setdefault(c.topic, []).append(c)
+        chosen: dict[int, int] = {}
+        conns = []
+        for i, src in enumerate(self.topics.sources):
+            if src.topic not in by_topic:
+                raise self._topic_error(src, i if self.topics.path else None,
+                                        f"topic {src.topic} is not in {self.path} (it has: "
+                                        f"{', '.join(sorted(by_topic)) or 'no topics'})")
+            for c in by_topic[src.topic]:
+                if c.msgtype != SOURCE_TYPES[src.type]:
+                    raise self._topic_error(src, i if self.topics.path else None,
+                                            f"topic {src.topic} carries {c.msgtype}, not {SOURCE_TYPES[src.type]} "
+                                            f"(type {src.type})")
+                if c.id not in chosen:
+                    chosen[c.id] = i
+                    conns.append(c)
+        for c in by_topic.get(TF_TOPIC, []):
+            if c.id not in chosen and c.msgtype == TF_TYPE:
+                chosen[c.id] = -1
+                conns.append(c)
+        return conns, chosen
+
+    def _messages(self, reader, connections: list) -> Iterator[tuple]:
+        """(connection, decoded message) of ``connections`` in recorded order; a bag that cannot be
+        read or decoded raises :class:`ObservationError` naming it, not rosbags' own error."""
+        stream = reader.messages(connections=connections)
+        while True:
+            try:
+                conn, _, raw = next(stream)
+                msg = reader.deserialize(raw, conn.msgtype)
+            except StopIteration:
+                return
+            except Exception as exc:  # rosbags' read and decode errors have several types
+                raise ObservationError(f"cannot read the bag: {type(exc).__name__}: {exc}", path=self.path) from None
+            yield conn, msg
+
+    def _decode(self, conn, msg, source: int, seq: int) -> _Item:
+        if conn.msgtype == TF_TYPE:
+            tfs = tuple((t.header.frame_id, t.child_frame_id, _pose7(t.transform.translation, t.transform.rotation))
+                        for t in msg.transforms)
+            stamp = max((_stamp_ns(t.header.stamp) for t in msg.transforms), default=0)
+            return _Item(stamp, seq, "tf", source, conn.topic, transforms=tfs)
+        p = msg.pose
+        return _Item(_stamp_ns(msg.header.stamp), seq, "pose", source, conn.topic, frame_id=msg.header.frame_id,
+                     pose=_pose7(p.position, p.orientation))
+
+    def _items(self, reader) -> Iterator[_Item]:
+        """Messages in stamp order (sorted within the reorder window; later ones dropped, counted)."""
+        self.tf = TfTree()
+        self.late = self.skipped = self.frames_read = 0
+        conns, sources = self._connections(reader)
+        statics = [c for c in reader.connections if c.topic == TF_STATIC_TOPIC and c.msgtype == TF_TYPE]
+        for conn, msg in self._messages(reader, statics):
+            for parent, child, pose in self._decode(conn, msg, -1, 0).transforms:
+                self.tf.set(parent, child, pose)
+        reorder_ns = int(round(self.topics.reorder * 1e9))
+        heap: list = []
+        newest = -math.inf
+        for seq, (conn, msg) in enumerate(self._messages(reader, conns)):
+            item = self._decode(conn, msg, sources[conn.id], seq)
+            if item.kind == "tf" and not item.transforms:
+                continue  # an empty TF message has no time and places nothing
+            if item.stamp_ns < newest - reorder_ns:
+                self.late += 1
+                self.warn(f"{self.path}: {item.topic}: message stamped {self._t(item.stamp_ns):.3f} s arrived "
+                          f"more than {self.topics.reorder} s late; dropped")
+                continue
+            newest = max(newest, item.stamp_ns)
+            heapq.heappush(heap, (item.stamp_ns, 0 if item.kind == "tf" else 1, seq, item))
+            while heap and heap[0][0] < newest - reorder_ns:
+                yield heapq.heappop(heap)[3]
+        while heap:
+            yield heapq.heappop(heap)[3]
+
+    def _t(self, stamp_ns: int) -> float:
+        return (stamp_ns - self.t0_ns) / 1e9
+
+    def _place(self, frame_id: str, pose: np.ndarray | None, t: float, topic: str, what: str) -> np.ndarray | None:
+        """World pose of ``pose`` given in ``frame_id`` (``None``: the frame itself), or ``None``
+        after reporting a missing transform or a zero quaternion."""
+        world = self.topics.world_frame
+        chain = self.tf.lookup(world, frame_id)
+        if chain is None:
+            self._bad(f"t={t:.3f} s: no transform from {world!r} to {frame_id!r} to place {what} (the TF tree "
+                      f"joins {frame_id!r} to {self.tf.root(frame_id)!r}, {world!r} to {self.tf.root(world)!r})",
+                      topic)
+            return None
+        out = chain if pose is None else pose_compose(chain, pose)
+        q = out[3:]
+        n = float(np.linalg.norm(q))
+        if not np.all(np.isfinite(out)) or n < 1e-9:
+            self._bad(f"t={t:.3f} s: non-finite pose or zero-length quaternion for {what} in {frame_id!r}", topic)
+            return None
+        q = q / n
+        return np.concatenate([out[:3], -q if q[3] < 0 else q])
+
+    def _observations(self, reader) -> Iterator[tuple[int, tuple]]:
+        """(stamp ns, ("object", source, id, pose) | ("hand", name, position)) in stamp order."""
+        specs = self.topics.sources
+        frames = [dict(s.frames) for s in specs]
+        hands = dict(self.topics.hands)
+        for item in self._items(reader):
+            t = self._t(item.stamp_ns)
+            if item.kind == "tf":
+                for parent, child, pose in item.transforms:
+                    self.tf.set(parent, child, pose)
+                for parent, child, _ in item.transforms:
+                    oid = frames[item.source].get(child) if item.source >= 0 else None
+                    if oid is not None or child in hands:
+                        placed = self._place(child, None, t, item.topic, f"frame {child!r}")
+                        if placed is None:
+                            continue
+                        if oid is not None:
+                            yield item.stamp_ns, ("object", item.source, oid, placed)
+                        if child in hands:
+                            yield item.stamp_ns, ("hand", hands[child], placed[:3])
+            else:
+                oid = specs[item.source].object
+                placed = self._place(item.frame_id, item.pose, t, item.topic, f"object {oid!r}")
+                if placed is not None:
+                    yield item.stamp_ns, ("object", item.source, oid, placed)
+
+    def _frame(self, stamp_ns: int, objects: dict, hands: dict) -> Frame:
+        by_object: dict[str, list[Detection]] = {}
+        for (source, oid), pose in objects.items():
+            det = Detection(pose[:3], pose[3:], self.topics.sources[source].position_std)
+            by_object.setdefault(oid, []).append(det)
+        return Frame(self._t(stamp_ns), {oid: fuse(d) for oid, d in sorted(by_object.items())}, dict(hands))
+
+    def __iter__(self) -> Iterator[Frame]:
+        reader = open_reader(self.path)
+        try:
+            window_ns = int(round(self.topics.window * 1e9))
+            start = last = None
+            objects: dict[tuple[int, str], np.ndarray] = {}
+            hands: dict[str, np.ndarray] = {}
+            for stamp, obs in self._observations(reader):
+                if start is not None and stamp - start >= window_ns and stamp > last and (objects or hands):
+                    self.frames_read += 1
+                    yield self._frame(last, objects, hands)
+                    start, objects, hands = None, {}, {}
+                if start is None:
+                    start = stamp
+                last = stamp
+                if obs[0] == "object":
+                    objects[(obs[1], obs[2])] = obs[3]
+                else:
+                    hands[obs[1]] = obs[2]
+            if objects or hands:
+                self.frames_read += 1
+                yield self._frame(last, objects, hands)
+        finally:
+            reader.close()
+
+
+def read_bag_frames(path: str, topics: TopicsSpec, *, skip_bad_frames: bool = False) -> list[Frame]:
+    """All frames of a bag as a list."""
+    return list(BagFrameReader(path, topics, skip_bad_frames=skip_bad_frames))
