@@ -380,3 +380,55 @@ def test_pose_in_a_moving_frame_uses_the_transform_at_its_own_time(tmp_path):
         expected = pose_compose(cam[t_cam], in_cam)
         np.testing.assert_allclose(f.objects["box"].position, expected[:3], atol=1e-9)
         np.testing.assert_allclose(f.objects["box"].orientation, expected[3:], atol=1e-9)
+
+
+# -- property-based: damaged bags and arbitrary topics files give frames or a located input error ----------
+
+from hypothesis import given, strategies as st  # noqa: E402
+
+from helpers import fuzz_settings, json_values  # noqa: E402
+from physics.errors import InputError  # noqa: E402
+
+_BAG_BYTES: dict[str, bytes] = {}
+
+
+def _ros1_bag_bytes(tmp_path_factory) -> bytes:
+    if "ros1" not in _BAG_BYTES:
+        path = tmp_path_factory.mktemp("bag") / "clean.bag"
+        write_bag(path, multi_source_messages())
+        _BAG_BYTES["ros1"] = path.read_bytes()
+    return _BAG_BYTES["ros1"]
+
+
+@fuzz_settings(150)
+@given(st.data())
+def test_a_damaged_bag_gives_finite_frames_or_a_located_error(tmp_path_factory, data):
+    clean = _ros1_bag_bytes(tmp_path_factory)
+    damaged = bytearray(clean)
+    if data.draw(st.booleans(), label="truncate"):
+        damaged = damaged[:data.draw(st.integers(0, len(clean) - 1), label="length")]
+    for _ in range(data.draw(st.integers(0, 8), label="flips")):
+        if damaged:
+            damaged[data.draw(st.integers(0, len(damaged) - 1))] = data.draw(st.integers(0, 255))
+    path = tmp_path_factory.mktemp("damaged") / "d.bag"
+    path.write_bytes(bytes(damaged))
+    try:
+        frames = read_bag_frames(str(path), default_topics(["table", "cup", "box"]),
+                                 skip_bad_frames=data.draw(st.booleans(), label="skip"))
+    except InputError as exc:
+        assert str(path) in str(exc)
+        return
+    assert all(b.t > a.t for a, b in zip(frames, frames[1:]))
+    for f in frames:
+        assert np.isfinite(f.t) and all(np.isfinite(d.position).all() for d in f.objects.values())
+
+
+@fuzz_settings(300)
+@given(json_values())
+def test_any_topics_file_gives_topics_or_a_located_error(tmp_path_factory, content):
+    path = tmp_path_factory.mktemp("topics") / "topics.yaml"
+    path.write_text(json.dumps(content))
+    try:
+        load_topics(str(path), ["table", "cup", "box"])
+    except InputError as exc:
+        assert str(path) in str(exc)
