@@ -239,6 +239,9 @@ def add_bench_arguments(p: argparse.ArgumentParser) -> None:
                    help="timed updates per configuration (default 20; with --scenario, default: the whole "
                         "stream; given: the stream stops after this many)")
     p.add_argument("--json", action="store_true", help="print the figures as one JSON object")
+    p.add_argument("--bag", action="store_true",
+                   help="with --scenario: time a run of the stream read from JSON Lines against one read from "
+                        "a ROS 2 bag of the same detections from two sources (/tf and PoseStamped)")
     p.add_argument("--config", metavar="FILE", default=None,
                    help="estimator configuration file (see `scene-estimator config`) to time instead of the "
                         "particle filter's defaults, e.g. 'noise: {rolling_friction_range: [0.001, 0.01]}'")
@@ -253,6 +256,10 @@ def add_bench_arguments(p: argparse.ArgumentParser) -> None:
 def run_bench(args) -> int:
     if args.updates is not None and args.updates < 1:
         raise ValueError(f"--updates must be >= 1, got {args.updates}")
+    if args.bag and not args.scenario:
+        raise ValueError("--bag compares the streams of scenarios: give --scenario NAME")
+    if args.bag and args.breakdown:
+        raise ValueError("--breakdown splits an update's time; --bag times whole runs: give one of them")
     if args.scenario:
         if args.rerun_overhead:
             raise ValueError("--rerun-overhead times the synthetic scenes (--objects), not --scenario")

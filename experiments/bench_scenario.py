@@ -65,6 +65,17 @@ def scenario_stream(name: str, seed: int = SEED) -> Iterator[tuple[Scene, list[F
 def run_scenario_bench(args) -> int:
     names = resolve_scenarios(args.scenario)
     configs = particle_configs(args)
+    if getattr(args, "bag", False):
+        from .bag_bench import BAG_COLUMNS, bag_rows
+
+        def bag_table():
+            for name in names:
+                with scenario_stream(name) as (scene, frames):
+                    yield from bag_rows(name, scene, frames, configs)
+
+        meta = {"mode": "bag", "seed": SEED, "workers": args.workers, "cpu_count": os.cpu_count(),
+                "config": args.config}
+        return report(args, BAG_COLUMNS, bag_table(), meta)
 
     def rows():
         for name in names:

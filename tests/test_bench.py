@@ -146,3 +146,38 @@ def test_no_pybullet_banner_on_stdout(args):
     res = _cli(*args)
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip() and BANNER not in res.stdout
+
+
+def test_bag_mode_times_the_same_stream_from_jsonl_and_from_a_two_source_bag(tmp_path):
+    """The two-source bag the benchmark writes reads back as the JSONL's frames (fused positions
+    equal, std divided by sqrt 2), and the command reports both run times and their quotient."""
+    import contextlib
+    import io
+    import json as _json
+
+    import numpy as np
+
+    from estimator.observations import Detection, Frame
+    from experiments.bag_bench import write_two_source_bag
+    from experiments.cli import main
+    from experiments.rosbag_io import read_bag_frames
+    from experiments.rosbag_topics import load_topics
+
+    frames = [Frame(0.1 * i, {"cup": Detection(np.array([0.1 * i, 0.0, 0.7]), np.array([0, 0, 0, 1.0]))},
+                    {"human/right": np.array([0.3, 0.0, 1.0])}) for i in range(5)]
+    bag, topics = write_two_source_bag(frames, str(tmp_path), position_std=0.01)
+    back = read_bag_frames(bag, load_topics(topics, ["table", "cup"]))
+    assert [round(f.t, 6) for f in back] == [round(f.t, 6) for f in frames]
+    for a, b in zip(frames, back):
+        assert np.allclose(a.objects["cup"].position, b.objects["cup"].position, atol=1e-12)
+        assert b.objects["cup"].position_std == pytest.approx(0.01 / np.sqrt(2))
+        assert np.allclose(b.hands["human/right"], a.hands["human/right"])
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        assert main(["bench", "--scenario", "static_floating", "--particles", "2", "--workers", "0", "--bag",
+                     "--json"]) == 0
+    rows = _json.loads(buf.getvalue())["results"]
+    assert len(rows) == 1 and rows[0]["bag_s"] > 0 and rows[0]["jsonl_s"] > 0
+    assert rows[0]["bag_over_jsonl"] == pytest.approx(rows[0]["bag_s"] / rows[0]["jsonl_s"])
+    with contextlib.redirect_stderr(io.StringIO()):
+        assert main(["bench", "--bag", "--particles", "2"]) == 2
