@@ -8,7 +8,7 @@ import numpy as np
 import pybullet as pb
 
 from physics.transforms import carry_pose, quat_conjugate, quat_from_rotvec, quat_multiply, quat_to_rotvec
-from physics.sleep import touching, wake
+from physics.sleep import near, touching, wake
 from physics.world import World
 
 
@@ -16,19 +16,14 @@ def depenetrate(w: World, indices: list[int], rounds: int = 2) -> None:
     """Push objects ``indices`` out of whatever they interpenetrate, along the deepest contact's
     normal (Bullet would otherwise shoot them out with a spurious velocity)."""
     c = w.client
-    mine = set(w.uids) | ({w.floor_uid} if w.floor_uid >= 0 else set())
+    floor = [w.floor_uid] if w.floor_uid >= 0 else []
     for _ in range(rounds):
         moved = False
         for i in indices:
             uid = w.uids[i]
             worst, normal = 0.0, None
-            lo, hi = pb.getAABB(uid, -1, physicsClientId=c)
-            for link in range(pb.getNumJoints(uid, physicsClientId=c)):
-                a, b = pb.getAABB(uid, link, physicsClientId=c)
-                lo, hi = [min(x, y) for x, y in zip(lo, a)], [max(x, y) for x, y in zip(hi, b)]
-            # only the bodies of this world whose boxes overlap its box (the broadphase's answer)
-            near = {o for o, _ in pb.getOverlappingObjects(lo, hi, physicsClientId=c) or ()}
-            for o in sorted(near & mine - {uid}):
+            # the floor and the bodies of this world whose boxes overlap its box (the broadphase's answer)
+            for o in floor + [w.uids[j] for j in near(w, [i], 0.0)]:
                 for pt in pb.getClosestPoints(uid, o, 0.0, physicsClientId=c):
                     if pt[8] < worst:  # contact distance, negative when penetrating
                         worst, normal = pt[8], pt[7]  # normal on B, pointing from B to A

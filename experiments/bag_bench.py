@@ -22,6 +22,7 @@ from estimator.filter import SceneEstimator
 from estimator.observations import Frame, ObservationReader, write_observations
 
 from .rosbag_io import BagFrameReader
+from .rosbag_out import pose_stamped, transform_stamped
 from .rosbag_topics import load_topics
 
 NS = 1_000_000_000
@@ -44,39 +45,21 @@ def write_two_source_bag(frames: list[Frame], folder: str, position_std: float =
     hands = sorted({h for f in frames for h in f.hands})
     bag = os.path.join(folder, "bag")
 
-    def stamp(t: float):
-        ns = int(round(t * NS))
-        return T["builtin_interfaces/msg/Time"](sec=ns // NS, nanosec=ns % NS)
-
-    def transform(t: float, child: str, p, q):
-        return T["geometry_msgs/msg/TransformStamped"](
-            header=T["std_msgs/msg/Header"](stamp=stamp(t), frame_id="world"), child_frame_id=child,
-            transform=T["geometry_msgs/msg/Transform"](
-                translation=T["geometry_msgs/msg/Vector3"](x=float(p[0]), y=float(p[1]), z=float(p[2])),
-                rotation=T["geometry_msgs/msg/Quaternion"](x=float(q[0]), y=float(q[1]), z=float(q[2]),
-                                                           w=float(q[3]))))
-
     with Writer(Path(bag), version=8) as w:
         tf = w.add_connection("/tf", "tf2_msgs/msg/TFMessage", typestore=ts)
         mocap = {oid: w.add_connection(f"/mocap/{oid}", "geometry_msgs/msg/PoseStamped", typestore=ts)
                  for oid in ids}
         for f in frames:
             ns = int(round(f.t * NS))
-            edges = [transform(f.t, oid, d.position, d.orientation if d.orientation is not None else (0, 0, 0, 1))
+            edges = [transform_stamped(T, ns, "world", oid, d.position, _orientation(d))
                      for oid, d in f.objects.items()]
-            edges += [transform(f.t, f"hand_{hands.index(h)}", p, (0, 0, 0, 1)) for h, p in f.hands.items()]
+            edges += [transform_stamped(T, ns, "world", f"hand_{hands.index(h)}", p, (0, 0, 0, 1))
+                      for h, p in f.hands.items()]
             if edges:
                 msg = T["tf2_msgs/msg/TFMessage"](transforms=edges)
                 w.write(tf, ns, ts.serialize_cdr(msg, "tf2_msgs/msg/TFMessage"))
             for oid, d in f.objects.items():
-                q = d.orientation if d.orientation is not None else (0, 0, 0, 1)
-                pose = T["geometry_msgs/msg/PoseStamped"](
-                    header=T["std_msgs/msg/Header"](stamp=stamp(f.t), frame_id="world"),
-                    pose=T["geometry_msgs/msg/Pose"](
-                        position=T["geometry_msgs/msg/Point"](x=float(d.position[0]), y=float(d.position[1]),
-                                                              z=float(d.position[2])),
-                        orientation=T["geometry_msgs/msg/Quaternion"](x=float(q[0]), y=float(q[1]),
-                                                                      z=float(q[2]), w=float(q[3]))))
+                pose = pose_stamped(T, ns, "world", d.position, _orientation(d))
                 w.write(mocap[oid], ns, ts.serialize_cdr(pose, "geometry_msgs/msg/PoseStamped"))
     lines = ["world_frame: world", "window: 0", "sources:",
              "  - topic: /tf", "    type: tf", "    objects: {" + ", ".join(f"{o}: {o}" for o in ids) + "}",
@@ -88,6 +71,10 @@ def write_two_source_bag(frames: list[Frame], folder: str, position_std: float =
     topics = os.path.join(folder, "topics.yaml")
     Path(topics).write_text("\n".join(lines) + "\n")
     return bag, topics
+
+
+def _orientation(d) -> tuple:
+    return tuple(d.orientation) if d.orientation is not None else (0.0, 0.0, 0.0, 1.0)
 
 
 def _timed_run(scene, cfg, frames_iter) -> float:

@@ -20,6 +20,34 @@ TF_TYPE = "tf2_msgs/msg/TFMessage"
 STRING_TYPE = "std_msgs/msg/String"
 
 
+def header(types, stamp_ns: int, frame_id: str):
+    """A ``std_msgs/Header`` stamped ``stamp_ns`` (ns) in ``frame_id``, from a typestore's ``types``."""
+    return types["std_msgs/msg/Header"](
+        stamp=types["builtin_interfaces/msg/Time"](sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000),
+        frame_id=frame_id)
+
+
+def transform_stamped(types, stamp_ns: int, parent: str, child: str, position, orientation):
+    """A ``geometry_msgs/TransformStamped`` ``parent -> child`` at ``position (3,)`` (m) and
+    ``orientation (4,)`` (x, y, z, w)."""
+    p, q = [float(v) for v in position], [float(v) for v in orientation]
+    return types["geometry_msgs/msg/TransformStamped"](
+        header=header(types, stamp_ns, parent), child_frame_id=child,
+        transform=types["geometry_msgs/msg/Transform"](
+            translation=types["geometry_msgs/msg/Vector3"](x=p[0], y=p[1], z=p[2]),
+            rotation=types["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3])))
+
+
+def pose_stamped(types, stamp_ns: int, frame_id: str, position, orientation):
+    """A ``geometry_msgs/PoseStamped`` in ``frame_id`` at ``position (3,)`` (m), ``orientation (4,)``."""
+    p, q = [float(v) for v in position], [float(v) for v in orientation]
+    return types["geometry_msgs/msg/PoseStamped"](
+        header=header(types, stamp_ns, frame_id),
+        pose=types["geometry_msgs/msg/Pose"](
+            position=types["geometry_msgs/msg/Point"](x=p[0], y=p[1], z=p[2]),
+            orientation=types["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3])))
+
+
 class BagEstimateWriter:
     """Write estimate lines (the dicts of ``Belief.to_json()``) to a bag; a context manager.
 
@@ -62,17 +90,10 @@ class BagEstimateWriter:
         """Write one estimate line (``{"t", "objects": {id: {"position", "orientation", ...}}, ...}``)."""
         T = self.typestore.types
         stamp_ns = self.t0_ns + int(round(float(estimate["t"]) * 1e9))
-        stamp = T["builtin_interfaces/msg/Time"](sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
-        header = T["std_msgs/msg/Header"](stamp=stamp, frame_id=self.world_frame)
-        transforms = []
-        for oid, ob in estimate["objects"].items():
-            p, q = ob["position"], ob.get("orientation") or [0.0, 0.0, 0.0, 1.0]
-            tr = T["geometry_msgs/msg/Transform"](
-                translation=T["geometry_msgs/msg/Vector3"](x=float(p[0]), y=float(p[1]), z=float(p[2])),
-                rotation=T["geometry_msgs/msg/Quaternion"](x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])))
-            transforms.append(T["geometry_msgs/msg/TransformStamped"](header=header, child_frame_id=f"estimate/{oid}",
-                                                                      transform=tr))
-        tf = T[TF_TYPE](transforms=transforms)
+        tf = T[TF_TYPE](transforms=[
+            transform_stamped(T, stamp_ns, self.world_frame, f"estimate/{oid}", ob["position"],
+                              ob.get("orientation") or [0.0, 0.0, 0.0, 1.0])
+            for oid, ob in estimate["objects"].items()])
         self._writer.write(self._tf, stamp_ns, self._serialize(tf, TF_TYPE))
         text = T[STRING_TYPE](data=json.dumps(estimate))
         self._writer.write(self._str, stamp_ns, self._serialize(text, STRING_TYPE))

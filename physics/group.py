@@ -1,8 +1,8 @@
 """Several copies of one scene side by side in one pybullet client.
 
-A DIRECT client costs about 28 MB whatever it holds, and connecting one about 20-30 ms; a copy of a
-tabletop scene in an existing client costs a fraction of a megabyte and a millisecond or less (with
-collision-only URDFs, :mod:`physics.urdf`). A :class:`WorldGroup` puts ``copies`` copies of a scene
+A DIRECT client costs about 28 MB whatever it holds (DESIGN.md's measurement on these machines); a
+copy of a tabletop scene in an existing client costs far less (with collision-only URDFs,
+:mod:`physics.urdf`). A :class:`WorldGroup` puts ``copies`` copies of a scene
 in one client, on a grid :data:`SPACING` metres apart (far beyond any camera's reach and any object's
 travel, so that copies never meet), each a :class:`~physics.world.World` with its own ``origin``:
 named, array-based access in its own scene frame, as if it were alone. They share the floor plane

@@ -15,10 +15,10 @@ class PhysicsSettings:
     ``solver_residual_threshold`` the residual at which the solver stops earlier (pybullet's default
     1e-7; 1e-4 makes resting scenes cheaper to step);
     ``deterministic_pairs`` sorts overlapping pairs so that two identically built worlds agree bit
-    for bit. ``sleeping`` lets bodies be put to sleep (:meth:`World.sleep`; Bullet's own
+    for bit. ``sleeping`` lets bodies be put to sleep (:func:`physics.sleep.sleep`; Bullet's own
     deactivation too): a sleeping body costs almost nothing to step and wakes when an awake body
     touches it, but NOT when it is reset, so whoever resets bodies must wake them
-    (:meth:`World.wake`; ``False``, the default, never lets a body sleep). ``collision_only`` loads
+    (:func:`physics.sleep.wake`; ``False``, the default, never lets a body sleep). ``collision_only`` loads
     URDFs without their visual meshes and textures (:mod:`physics.urdf`), which physics never uses
     (a world whose visual shapes are read, for drawing, keeps them: the default).
     """

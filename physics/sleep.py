@@ -56,13 +56,17 @@ def touching(world: World, indices) -> list[int]:
 
 def near(world: World, indices, margin: float = 0.01) -> list[int]:
     """Objects (indices, sorted) whose bounding boxes come within ``margin`` (m) of those of objects
-    ``indices`` as they are now (the broadphase's answer; ``indices`` themselves excluded): what a
-    body just moved may touch once stepped, when no contact of it is known yet."""
+    ``indices`` (all their links) as they are now (the broadphase's answer; ``indices`` themselves
+    and the floor excluded): what a body just moved may touch once stepped, when no contact of it is
+    known yet."""
     c = world.client
     found: set[int] = set()
     for i in indices:
         uid = world.uids[i]
         lo, hi = pb.getAABB(uid, -1, physicsClientId=c)
+        for link in range(pb.getNumJoints(uid, physicsClientId=c)):
+            a, b = pb.getAABB(uid, link, physicsClientId=c)
+            lo, hi = [min(x, y) for x, y in zip(lo, a)], [max(x, y) for x, y in zip(hi, b)]
         lo = [x - margin for x in lo]
         hi = [x + margin for x in hi]
         for o, _ in pb.getOverlappingObjects(lo, hi, physicsClientId=c) or ():

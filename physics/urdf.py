@@ -1,10 +1,10 @@
 """Collision-only copies of URDF files, for worlds that only simulate.
 
 A pybullet DIRECT client still loads every ``<visual>`` of a URDF (meshes and textures, for its
-software renderer): pybullet_data's table costs 33 ms and 12 MB per load because of its 0.9 MB
-texture, and a particle filter loads it once per particle. Physics never uses visuals, so worlds
+software renderer): pybullet_data's table decodes its 0.9 MB texture at every load, and a
+particle filter loads it once per particle. Physics never uses visuals, so worlds
 load a copy of the URDF without its ``<visual>`` elements (mesh paths made absolute), written once
-per process into a cache folder: the table then loads in 0.1 ms with no memory to speak of.
+per process into a cache folder.
 
 Inertia is unaffected: pybullet computes a missing ``<inertial>`` from the collision shapes, never
 from visuals.

@@ -8,11 +8,10 @@ lie on or inside spheres, cylinders and boxes alike).
 from __future__ import annotations
 
 import numpy as np
-import pybullet as pb
 
 from .scene import CameraSpec
 from .transforms import quat_rotate
-from .world import MAX_RAYS_PER_BATCH, World
+from .world import World, ray_cast
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -143,17 +142,6 @@ def visible_fractions(worlds: list[World], camera: Camera, indices, local_points
         clients = np.array([w.client for w in worlds])[g_idx]
         for c in np.unique(clients).tolist():
             rows = np.flatnonzero(clients == c)
-            hit[rows] = ray_bodies(c, start[rows], ends[rows])
+            hit[rows] = ray_cast(c, start[rows], ends[rows])[0]
         seen[sel] = hit == uids[g_idx, o_idx]
     return seen.sum(axis=2) / np.maximum(counts, 1)
-
-
-def ray_bodies(client: int, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
-    """Body id ``(N,)`` int64 first hit by each ray ``starts -> ends`` ``(N, 3)`` (client frame; -1
-    for none), by batched ray tests."""
-    out = np.empty(len(starts), dtype=np.int64)
-    for lo in range(0, len(starts), MAX_RAYS_PER_BATCH):
-        hi = min(len(starts), lo + MAX_RAYS_PER_BATCH)
-        res = pb.rayTestBatch(starts[lo:hi].tolist(), ends[lo:hi].tolist(), physicsClientId=client)
-        out[lo:hi] = [r[0] for r in res]
-    return out

@@ -31,6 +31,21 @@ PARK_DEPTH = 25.0
 MAX_RAYS_PER_BATCH = 16000
 
 
+def ray_cast(client: int, starts: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Batched ray tests ``starts -> ends`` ``(N, 3)`` in a client's frame: the body id ``(N,)`` int64
+    first hit by each ray (-1 for none) and the fraction of its length where it hit ``(N,)`` (1.0 for
+    none)."""
+    n = len(starts)
+    uids = np.full(n, -1, dtype=np.int64)
+    frac = np.ones(n)
+    for lo in range(0, n, MAX_RAYS_PER_BATCH):
+        hi = min(n, lo + MAX_RAYS_PER_BATCH)
+        res = pb.rayTestBatch(starts[lo:hi].tolist(), ends[lo:hi].tolist(), physicsClientId=client)
+        uids[lo:hi] = [r[0] for r in res]
+        frac[lo:hi] = [r[2] if r[0] >= 0 else 1.0 for r in res]
+    return uids, frac
+
+
 class World:
     """A physics world holding the objects of ``scene`` (plus an optional floor plane at z = 0).
 
@@ -180,7 +195,7 @@ class World:
 
     def set_poses(self, poses: np.ndarray, indices=None) -> None:
         """Teleport objects ``indices`` to link-frame ``poses`` ``(n, 7)``. Velocities are kept.
-        Sleeping bodies are not woken (see :meth:`wake`)."""
+        Sleeping bodies are not woken (see :func:`physics.sleep.wake`)."""
         idx = self._indices(indices)
         poses = self.com_frame(np.asarray(poses, dtype=float).reshape(len(idx), 7), None, idx)[0].copy()
         self._park(idx, poses[:, 2])
@@ -221,7 +236,7 @@ class World:
         """Set objects ``indices`` to centre-of-mass poses and velocities given as nested lists
         ``[[x, y, z, qx, qy, qz, qw], ...]`` (in the client's frame: scene frame plus
         :attr:`origin`) and ``[[vx, vy, vz, wx, wy, wz], ...]`` (the hot load path; :meth:`com_frame`
-        converts link-frame arrays). Sleeping bodies are not woken (see :meth:`wake`)."""
+        converts link-frame arrays). Sleeping bodies are not woken (see :func:`physics.sleep.wake`)."""
         c = self.client
         reset, reset_vel = pb.resetBasePositionAndOrientation, pb.resetBaseVelocity
         floor = self.origin[2] - PARK_DEPTH
@@ -393,25 +408,15 @@ class World:
         return len(pb.getContactPoints(**kw)) > 0
 
     def ray_test(self, origins: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Cast rays ``origins`` -> ``ends`` ``(N, 3)``.
+        """Cast rays ``origins`` -> ``ends`` ``(N, 3)`` (scene frame).
 
         Returns ``(hit_index (N,) int, hit_fraction (N,) float)``: the object index of the first hit
         (:data:`FLOOR` for the floor, -1 for none) and the fraction of the ray's length where it hit
         (1.0 for none).
         """
-        origins = np.asarray(origins, dtype=float).reshape(-1, 3) + self.origin
-        ends = np.asarray(ends, dtype=float).reshape(-1, 3) + self.origin
-        n = len(origins)
-        hit = np.full(n, -1, dtype=int)
-        frac = np.ones(n)
-        for start in range(0, n, MAX_RAYS_PER_BATCH):
-            stop = min(n, start + MAX_RAYS_PER_BATCH)
-            res = pb.rayTestBatch(origins[start:stop].tolist(), ends[start:stop].tolist(),
-                                  physicsClientId=self.client)
-            for k, r in enumerate(res):
-                if r[0] >= 0:
-                    hit[start + k] = self.index_of_uid(r[0])
-                    frac[start + k] = r[2]
+        uids, frac = ray_cast(self.client, np.asarray(origins, dtype=float).reshape(-1, 3) + self.origin,
+                              np.asarray(ends, dtype=float).reshape(-1, 3) + self.origin)
+        hit = np.array([self.index_of_uid(u) if u >= 0 else -1 for u in uids.tolist()], dtype=int)
         return hit, frac
 
     def save_state(self) -> int:
