@@ -64,15 +64,28 @@ class ModePriors:
       (sampled: that fraction of the particles releases it, the rest keep it held);
       ``release``: probability per update that a held, unperceived object is let go later.
       Releases are drawn from these priors, so they cost nothing in the weights.
+    * ``release_on_loss_carried`` / ``release_on_loss_still``: the same when the hand that held
+      the object is tracked and has moved more than ``carry_distance`` (m) since the object was last
+      seen (it is carrying it: people rarely drop what they carry) / has not (it may have put it
+      down, or let it fall: a hand in plain view that no longer shows its object is evidence that
+      negative evidence weighs, see ``NoiseConfig.hand_occlusion``). The defaults are fitted on the
+      simulator's scenarios (``scene-estimator fit-priors``, on seeds the evaluation does not use):
+      the fraction of such losses where the object had in truth been let go.
     """
 
     pick: float = 0.02
     place: float = 0.2
     release: float = 0.01
     release_on_loss: float = 0.5
+    release_on_loss_carried: float = 0.024  # fitted: scene-estimator fit-priors (seeds 100-119), 0 of 40
+    release_on_loss_still: float = 0.5  # fitted: no such loss in the scenarios (Laplace: 0.5)
+    carry_distance: float = 0.05
 
     def __post_init__(self):
-        for name in ("pick", "place", "release", "release_on_loss"):
+        if not (isinstance(self.carry_distance, (int, float)) and 0 <= self.carry_distance < float("inf")):
+            raise ValueError(f"ModePriors.carry_distance must be >= 0 metres, got {self.carry_distance!r}")
+        for name in ("pick", "place", "release", "release_on_loss", "release_on_loss_carried",
+                     "release_on_loss_still"):
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
                 raise ValueError(f"ModePriors.{name} must be in [0, 1], got {v}")

@@ -107,6 +107,11 @@ class NoiseConfig:
       (rolling and sliding are chaotic: the model error grows with motion; flight is not noised).
     * ``covariance_floor_std`` (m): added as ``std**2 * I`` to every reported position covariance,
       for what no particle represents (contact resolution, perception bias).
+    * ``held_offset_std`` (m per axis) and ``held_offset_time`` (s): a held object that follows its
+      tracked hand out of sight is at the hand plus the offset it had when last detected, plus an
+      error per particle that grows from zero to this standard deviation with this time constant
+      (the grasp slips, the hand turns: :func:`~estimator.held.hand_offset_walk`). The standard
+      deviation is fitted on the simulator's scenarios (``scene-estimator fit-priors``).
     * ``held_drift_std`` (m per sqrt(s)): growth of the uncertainty of a held, unperceived object
       that has no tracked hand to follow.
     * ``friction_range``, ``rolling_friction_range``, ``spinning_friction_range``,
@@ -123,6 +128,11 @@ class NoiseConfig:
     * ``outlier_prob``: weight of the uniform-outlier component of the pose likelihood (heavy tails).
     * ``miss_prob``: probability that the camera misses an object in plain view (negative evidence:
       a particle that puts an undetected object in view is weighted by it).
+    * ``hand_occlusion``: probability that the tracked hand holding an object, or its person, hides
+      it from a camera that would otherwise see it (the particle worlds contain neither): a held
+      object in view pays ``log(hand_occlusion + (1 - hand_occlusion) * miss_prob)``; 1 exempts held
+      objects from negative evidence. The default is fitted on the simulator's scenarios
+      (``scene-estimator fit-priors``, seeds the evaluation does not use).
     """
 
     position_std: float = 0.01
@@ -133,6 +143,8 @@ class NoiseConfig:
     rest_speed: float = 0.01
     covariance_floor_std: float = 0.005
     held_drift_std: float = 0.05
+    held_offset_std: float = 0.0164  # fitted: scene-estimator fit-priors (seeds 100-119)
+    held_offset_time: float = 0.5
     friction_range: tuple[float, float] | None = (0.3, 1.0)
     rolling_friction_range: tuple[float, float] | None = None
     spinning_friction_range: tuple[float, float] | None = None
@@ -143,15 +155,20 @@ class NoiseConfig:
     max_jitter_std: float = 0.01
     outlier_prob: float = 0.05
     miss_prob: float = 0.1
+    hand_occlusion: float = 0.099  # fitted: scene-estimator fit-priors (seeds 100-119)
 
     def __post_init__(self):
         _check_nonneg(self, "position_std", "orientation_std", "process_position_std",
-                      "process_orientation_std", "held_drift_std", "param_jitter", "outlier_prob", "miss_prob",
-                      "motion_noise", "rest_speed", "covariance_floor_std", "regularisation", "max_jitter_std")
+                      "process_orientation_std", "held_drift_std", "held_offset_std", "param_jitter", "outlier_prob",
+                      "miss_prob", "motion_noise", "rest_speed", "covariance_floor_std", "regularisation",
+                      "max_jitter_std")
+        _check_positive(self, "held_offset_time")
         if self.param_jitter >= 1:
             raise ValueError("NoiseConfig.param_jitter must be < 1")
         if self.outlier_prob >= 1 or not 0 < self.miss_prob <= 1:
             raise ValueError("NoiseConfig.outlier_prob must be < 1 and miss_prob in (0, 1]")
+        if not (isinstance(self.hand_occlusion, (int, float)) and 0.0 <= self.hand_occlusion <= 1.0):
+            raise ValueError(f"NoiseConfig.hand_occlusion must be in [0, 1], got {self.hand_occlusion!r}")
         for n in ("friction_range", "rolling_friction_range", "spinning_friction_range",
                   "restitution_range", "mass_scale_range"):
             r = getattr(self, n)
@@ -165,10 +182,10 @@ class NoiseConfig:
         """No perturbation at all: the paper's deterministic reasoner."""
         return cls(position_std=0.0, orientation_std=0.0, process_position_std=0.0,
                    process_orientation_std=0.0, motion_noise=0.0, covariance_floor_std=0.0,
-                   held_drift_std=0.0, friction_range=None,
+                   held_drift_std=0.0, held_offset_std=0.0, friction_range=None,
                    rolling_friction_range=None, spinning_friction_range=None, restitution_range=None,
                    mass_scale_range=None, param_jitter=0.0, regularisation=0.0, outlier_prob=0.0,
-                   miss_prob=0.1)
+                   miss_prob=0.1, hand_occlusion=1.0)
 
     @property
     def is_off(self) -> bool:
@@ -251,7 +268,8 @@ class EstimatorConfig:
     def paper(cls, reasoner: ReasonerConfig | None = None) -> "EstimatorConfig":
         """The single-world, noise-free physics reasoner of Sallami et al. (2019)."""
         return cls(particles=1, noise=NoiseConfig.off(), reasoner=reasoner or ReasonerConfig(),
-                   priors=ModePriors(release_on_loss=1.0), negative_evidence=False, follow_hands=False,
+                   priors=ModePriors(release_on_loss=1.0, release_on_loss_carried=1.0,
+                                                    release_on_loss_still=1.0), negative_evidence=False, follow_hands=False,
                    lazy_checks=False, fresh_checks=False)
 
 

@@ -31,6 +31,7 @@ from physics.scene import Scene
 
 from .belief import Belief, compute_belief
 from .config import EstimatorConfig
+from .likelihood import held_unseen_in_view
 from .model import Move, SceneModel, Settled, initial_poses
 from .observations import Frame
 from .perception_memory import PerceptionMemory
@@ -165,14 +166,14 @@ class SceneEstimator:
         bad = self._reset_exploded(out, move.poses, move.modes, t)
         settled = model.settle(self.state, move, out, t, dt, detected, perceived)
         # weigh (the model's terms)
-        evidence = model.evidence(move, settled, out, frame, detected, perceived)
+        evidence = model.evidence(move, settled, out, frame, detected, perceived, self.state.unseen_in_view)
         logw = model.log_weight(self.state.log_weights, evidence)
         weights, _ = normalise_log_weights(logw)
         if not np.any(np.isfinite(logw)):
             logw, weights = self._recover(t, settled, detected)
         ess = effective_sample_size(weights)
         # commit
-        self._commit(move, settled, logw, bad)
+        self._commit(move, settled, logw, bad, held_unseen_in_view(evidence, cfg.visibility_threshold))
         self.memory.end_tick(perceived, detected, settled.tick_vel)
         self.t_tick = t
         self.n_updates += 1
@@ -231,7 +232,8 @@ class SceneEstimator:
         self.model.reseed(settled.poses, settled.velocities, detected, self.rng)
         return np.zeros(self.K), np.full(self.K, 1.0 / self.K)
 
-    def _commit(self, move: Move, settled: Settled, logw: np.ndarray, bad: np.ndarray) -> None:
+    def _commit(self, move: Move, settled: Settled, logw: np.ndarray, bad: np.ndarray,
+                unseen_in_view: np.ndarray) -> None:
         """The particles after this update (the largest finite log-weight made 0)."""
         s = self.state
         last_motion = np.linalg.norm(settled.poses[..., :3] - move.poses[..., :3], axis=-1)
@@ -243,7 +245,8 @@ class SceneEstimator:
             poses=settled.poses, velocities=settled.velocities, params=s.params, modes=settled.modes,
             log_weights=logw - np.max(logw[np.isfinite(logw)]), on_top=settled.on_top, is_in=settled.is_in,
             event_t=s.event_t, supported=settled.supported, last_motion=last_motion,
-            jolted=np.zeros((self.K, self.M), dtype=bool))
+            jolted=np.zeros((self.K, self.M), dtype=bool), unseen_in_view=unseen_in_view,
+            hold_error=move.hold_error, let_go_unseen=move.let_go_unseen)
 
     def _resample(self, weights: np.ndarray, hidden: np.ndarray) -> None:
         """Systematic resampling, then the model's regularisation of hidden objects ``hidden (M,)`` and

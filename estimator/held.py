@@ -12,6 +12,19 @@ from physics.sleep import near, touching, wake
 from physics.world import World
 
 
+def hand_offset_walk(error: np.ndarray, dt: float, std: float, time_constant: float,
+                     rng: np.random.Generator) -> np.ndarray:
+    """One step of the error of a hand-held object's offset to its hand, per particle: ``error (n,
+    3)`` m, an Ornstein-Uhlenbeck process that starts at zero when the object is last detected and
+    tends to a stationary standard deviation ``std`` (m per axis) with ``time_constant`` (s): the
+    grasp slips and the hand turns, which the tracked hand position does not show. Returns the new
+    error ``(n, 3)``; ``std = 0`` keeps it at zero."""
+    if std <= 0 or len(error) == 0:
+        return np.zeros_like(error)
+    a = float(np.exp(-dt / time_constant))
+    return a * error + np.sqrt(1.0 - a * a) * std * rng.normal(0.0, 1.0, error.shape)
+
+
 def depenetrate(w: World, indices: list[int], rounds: int = 2) -> None:
     """Push objects ``indices`` out of whatever they interpenetrate, along the deepest contact's
     normal (Bullet would otherwise shoot them out with a spurious velocity)."""

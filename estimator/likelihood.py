@@ -96,13 +96,24 @@ def detection_log_likelihood(poses: np.ndarray, detected: np.ndarray, has_orient
 
 def negative_evidence_log_likelihood(visible: np.ndarray, modes: np.ndarray, queried: np.ndarray,
                                      in_tracked_hand: np.ndarray, miss_prob: float,
-                                     visibility_threshold: float) -> np.ndarray:
+                                     visibility_threshold: float, hand_occlusion: float = 1.0,
+                                     unseen_in_view: np.ndarray | None = None,
+                                     perceived: np.ndarray | None = None,
+                                     exempt: np.ndarray | None = None) -> np.ndarray:
     """Log-likelihood ``(K,)`` float64 of *not* detecting the ``queried`` objects.
 
     A particle pays ``log(miss_prob)`` for each queried object it puts in view of the camera (visible
-    fraction at least ``visibility_threshold``), nothing for the others. An object HELD in a particle
-    whose hand is tracked pays nothing: the hand or the person, which the particle worlds do not
-    contain, may hide it.
+    fraction at least ``visibility_threshold``), nothing for the others.
+
+    An object HELD by a tracked hand may also be hidden by the hand or its person, which the particle
+    worlds do not contain, and such a hiding lasts (a cup carried behind the back stays there): with
+    probability ``hand_occlusion`` the person keeps it hidden, otherwise the camera misses it at each
+    update with ``miss_prob``. After ``n`` updates in view without a detection the likelihood is
+    ``h + (1 - h) miss_prob**n``; the update that makes it ``n + 1`` pays the ratio of the two. So a
+    hand that stays in plain view while its object is not seen any more makes the particles that keep
+    the object in it lose weight to those that let it go, but never more than a factor ``h`` in all.
+    ``hand_occlusion = 1`` exempts held objects. The count starts when the object stops being
+    ``perceived``: before, every particle holds it (no release happens while perceived) and pays the same.
 
     Args:
         visible: ``(K, M)`` float, fraction of each object's sample points the camera sees (0..1).
@@ -111,12 +122,40 @@ def negative_evidence_log_likelihood(visible: np.ndarray, modes: np.ndarray, que
         in_tracked_hand: ``(M,)`` bool, objects whose hand (when last detected) is tracked now.
         miss_prob: probability in (0, 1] that the camera misses an object in plain view.
         visibility_threshold: fraction of points in view for an object to count as visible.
+        hand_occlusion: probability in [0, 1] that the holding hand or its person hides the object.
+        unseen_in_view: ``(K, M)`` int, ``n`` before this update (None: zeros).
+        perceived: ``(M,)`` bool, objects still perceived (None: none).
+        exempt: ``(K, M)`` bool, entries that pay nothing (``Evidence.fell_unseen``; None: none).
     """
     if not np.any(queried):
         return np.zeros(len(visible))
     in_hand = (modes == HELD) & np.asarray(in_tracked_hand, dtype=bool)[None, :]
-    seen = (visible >= visibility_threshold) & ~in_hand
-    return math.log(miss_prob) * seen[:, queried].sum(axis=1)
+    seen = visible >= visibility_threshold
+    if exempt is not None:
+        seen = seen & ~exempt
+    out = math.log(miss_prob) * (seen & ~in_hand)[:, queried].sum(axis=1)
+    if perceived is not None:
+        in_hand = in_hand & ~np.asarray(perceived, dtype=bool)[None, :]
+    if hand_occlusion < 1.0:
+        held_seen = (seen & in_hand)[:, queried]
+        if np.any(held_seen):
+            n = np.zeros(held_seen.shape) if unseen_in_view is None else unseen_in_view[:, queried].astype(float)
+            h = hand_occlusion
+            step = np.log(h + (1.0 - h) * miss_prob ** (n + 1)) - np.log(h + (1.0 - h) * miss_prob ** n)
+            out = out + np.where(held_seen, step, 0.0).sum(axis=1)
+    return out
+
+
+def held_unseen_in_view(ev: "Evidence", visibility_threshold: float) -> np.ndarray:
+    """The counts ``(K, M)`` int32 after this update: ``ev.unseen_in_view`` plus one where a held,
+    unperceived object in a tracked hand was queried and in view; zero for objects detected in this
+    update or not held (see :func:`negative_evidence_log_likelihood`)."""
+    n = ev.unseen_in_view.astype(np.int32, copy=True)
+    in_hand = (ev.modes == HELD) & (np.asarray(ev.in_tracked_hand, dtype=bool) & ~ev.perceived)[None, :]
+    counted = in_hand & ev.queried[None, :] & (ev.visible >= visibility_threshold)
+    n[counted] += 1
+    n[(ev.modes != HELD) | ev.detected[None, :]] = 0
+    return n
 
 
 def mode_switch_log_prior(priors: ModePriors, previous: np.ndarray, new: np.ndarray,
@@ -154,6 +193,11 @@ class Evidence:
     * ``visible (K, M)``: visible fractions from the pool (0 where not queried); ``queried (M,)``:
       objects whose visibility was computed; ``in_tracked_hand (M,)``: objects whose hand is tracked.
     * ``finite (K,)``: particles whose simulation stayed finite.
+    * ``unseen_in_view (K, M)`` int: the particles' counts before this update (see
+      :class:`~estimator.state.ParticleState`).
+    * ``fell_unseen (K, M)`` bool: free objects the particle let go less than ``t_perceived`` ago
+      when they stopped being perceived: in truth they fell in the ``t_perceived`` before, unseen,
+      and the particle's late fall in view is no evidence against it (None: none).
     """
 
     poses: np.ndarray
@@ -170,6 +214,8 @@ class Evidence:
     queried: np.ndarray
     in_tracked_hand: np.ndarray
     finite: np.ndarray
+    unseen_in_view: np.ndarray
+    fell_unseen: np.ndarray | None = None
 
 
 LogWeightTerm = Callable[[Evidence], np.ndarray]
@@ -202,10 +248,12 @@ class NegativeEvidenceTerm:
 
     miss_prob: float
     visibility_threshold: float
+    hand_occlusion: float = 1.0
 
     def __call__(self, ev: Evidence) -> np.ndarray:
         return negative_evidence_log_likelihood(ev.visible, ev.modes, ev.queried, ev.in_tracked_hand,
-                                                self.miss_prob, self.visibility_threshold)
+                                                self.miss_prob, self.visibility_threshold, self.hand_occlusion,
+                                                ev.unseen_in_view, ev.perceived, ev.fell_unseen)
 
 
 @dataclass(frozen=True)

@@ -29,6 +29,7 @@ from physics.transforms import carry_pose, quat_from_rotvec, quat_multiply
 
 from .belief import pose_stats
 from .config import EstimatorConfig
+from .held import hand_offset_walk
 from .likelihood import (DetectionTerm, Evidence, LogWeightTerm, ModeSwitchTerm, NegativeEvidenceTerm, add_terms,
                          exploded_log_likelihood)
 from .observations import Frame
@@ -65,7 +66,8 @@ class Move:
     ``release_codes (K, M)`` int8: event codes of those releases; ``teleported (M,)`` bool;
     ``target (K, M, 7)`` / ``target_vel (K, M, 6)``: where held objects go and perceived objects
     are checked against; ``check (K, M)``: free objects to test for divergence; ``depenetrate (K, M)``:
-    objects displaced without physics; ``vis_query (M,)``: objects whose visibility is wanted.
+    objects displaced without physics; ``vis_query (M,)``: objects whose visibility is wanted;
+    ``hold_error (K, M, 3)``, ``let_go_unseen (K, M)``: see :class:`~estimator.state.ParticleState`.
     """
 
     poses: np.ndarray
@@ -80,6 +82,8 @@ class Move:
     check: np.ndarray
     depenetrate: np.ndarray
     vis_query: np.ndarray
+    hold_error: np.ndarray
+    let_go_unseen: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -129,7 +133,7 @@ class SceneModel:
         """The terms a particle's log-weight is the sum of. A new term goes here."""
         nz, cfg = self.config.noise, self.config
         return (DetectionTerm(nz.position_std, nz.orientation_std, nz.outlier_prob),
-                NegativeEvidenceTerm(nz.miss_prob, cfg.visibility_threshold),
+                NegativeEvidenceTerm(nz.miss_prob, cfg.visibility_threshold, nz.hand_occlusion),
                 ModeSwitchTerm(cfg.priors))
 
     # -- the prior ------------------------------------------------------------------------------------
@@ -157,7 +161,9 @@ class SceneModel:
                              modes=np.zeros((K, M), dtype=np.int8), log_weights=np.zeros(K),
                              on_top=np.zeros((K, M, M + 1), dtype=bool), is_in=np.zeros((K, M, M), dtype=bool),
                              event_t=np.full((K, M, 3), -np.inf), supported=np.zeros((K, M), dtype=bool),
-                             last_motion=np.zeros((K, M)), jolted=np.zeros((K, M), dtype=bool))
+                             last_motion=np.zeros((K, M)), jolted=np.zeros((K, M), dtype=bool),
+                             unseen_in_view=np.zeros((K, M), dtype=np.int32), hold_error=np.zeros((K, M, 3)),
+                             let_go_unseen=np.full((K, M), -np.inf))
 
     # -- the move -------------------------------------------------------------------------------------
     def move(self, state: ParticleState, frame: Frame, detected: np.ndarray, perceived: np.ndarray,
@@ -175,8 +181,12 @@ class SceneModel:
         if np.any(tele):
             self.teleport(poses, vel, np.flatnonzero(tele), newly_known, state.is_in, rng)
         self.known |= perceived
-        modes, release_codes = self.release(prev_modes, perceived, state.supported, rng)
-        target, target_vel = self.held_targets(frame, poses, modes, detected, perceived, dt, rng)
+        modes, release_codes = self.release(prev_modes, perceived, state.supported, rng,
+                                            mem.following_hand(frame))
+        let_go = state.let_go_unseen.copy()
+        let_go[(release_codes != 0) & (mem.perceived_prev & ~perceived)[None, :]] = frame.t
+        target, target_vel, hold_error = self.held_targets(frame, poses, modes, detected, perceived, dt, rng,
+                                                           state.hold_error)
         resting = state.supported & (np.linalg.norm(state.velocities[..., :3], axis=-1)
                                      < self.config.noise.rest_speed)
         jolted = self.process_noise(poses, modes, perceived, state.supported, resting, state.last_motion, dt, rng)
@@ -191,7 +201,7 @@ class SceneModel:
         depen = (np.broadcast_to(placed & (cfg.noise.position_std > 0), (self.K, self.M)) | jolted
                  | state.jolted) & (modes == FREE)
         return Move(poses, vel, predicted, prev_modes, modes, release_codes, tele, target, target_vel, check,
-                    depen, vis_query)
+                    depen, vis_query, hold_error, let_go)
 
     def teleport(self, poses: np.ndarray, vel: np.ndarray, idx: np.ndarray, newly_known: np.ndarray,
                  is_in: np.ndarray, rng: np.random.Generator) -> None:
@@ -223,27 +233,43 @@ class SceneModel:
         vel[:, idx, :3] = mem.perc_vel[idx, :3]
 
     def release(self, modes: np.ndarray, perceived: np.ndarray, supported: np.ndarray,
-                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+                rng: np.random.Generator, tracked: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Releases of held objects that are not perceived: with probability ``release_on_loss`` when
-        they were perceived at the last update, ``release`` after. Returns the new modes ``(K, M)``
-        and the event codes of the switches ``(K, M)`` (``supported (K, M)``: Place or Release)."""
+        they were perceived at the last update (for the objects whose hand is tracked, ``tracked
+        (M,)``: ``release_on_loss_carried`` when the hand has moved more than ``carry_distance``
+        since the object was last seen, else ``release_on_loss_still``), ``release`` after (not while
+        the tracked hand has carried it more than ``carry_distance`` since it was seen). Returns
+        the new modes ``(K, M)`` and the event codes of the switches ``(K, M)`` (``supported (K, M)``:
+        Place or Release)."""
         priors, K, M = self.config.priors, self.K, self.M
         new = modes.copy()
         lost = self.memory.perceived_prev & ~perceived
         u = rng.random((K, M))
         held_unseen = (new == HELD) & ~perceived[None, :]
-        p_rel = np.where(lost[None, :], priors.release_on_loss, priors.release)
+        on_loss = np.full(M, priors.release_on_loss)
+        later = np.full(M, priors.release)
+        if tracked is not None and np.any(tracked):
+            tracked = np.asarray(tracked, dtype=bool)
+            carried = self.memory.hand_travel() > priors.carry_distance  # NaN (no hand): False
+            on_loss[tracked & carried] = priors.release_on_loss_carried
+            on_loss[tracked & ~carried] = priors.release_on_loss_still
+            later[tracked & carried] = 0.0  # what a moving hand carries, it keeps
+        p_rel = np.where(lost[None, :], on_loss[None, :], later[None, :])
         new[held_unseen & (u < p_rel)] = FREE
         return new, switch_events(modes, new, supported)
 
     def held_targets(self, frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: np.ndarray,
-                     perceived: np.ndarray, dt: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        """Targets ``(K, M, 7)`` and target velocities ``(K, M, 6)``: perceived objects at their
-        perception (no noise: it would shake what a held object carries); held objects not detected
-        in this update follow the hand that held them when last detected, if it is tracked, else stay
-        where they were perceived (while perceived) or where the particle has them, drifting by
-        ``held_drift_std`` (m per sqrt(s)) when not perceived. Others: their pose in ``poses``."""
+                     perceived: np.ndarray, dt: float, rng: np.random.Generator,
+                     hold_error: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Targets ``(K, M, 7)``, target velocities ``(K, M, 6)`` and offset errors ``(K, M, 3)``:
+        perceived objects at their perception (no noise: it would shake what a held object carries);
+        held objects not detected in this update follow the hand that held them when last detected,
+        if it is tracked, at its offset then plus each particle's error (``hold_error (K, M, 3)``
+        before, walked by :func:`~estimator.held.hand_offset_walk`), else stay where they were
+        perceived (while perceived) or where the particle has them, drifting by ``held_drift_std``
+        (m per sqrt(s)) when not perceived. Others: their pose in ``poses``."""
         mem, nz = self.memory, self.config.noise
+        new_error = np.zeros_like(hold_error)
         target = poses.copy()
         target_vel = np.zeros((self.K, self.M, 6))
         pidx = np.flatnonzero(perceived)
@@ -257,10 +283,12 @@ class SceneModel:
             rows = held[:, m]
             hand = mem.hand_target(frame, m)
             if hand is not None:
-                target[rows, m, :3] = hand
+                new_error[rows, m] = hand_offset_walk(hold_error[rows, m], dt, nz.held_offset_std,
+                                                      nz.held_offset_time, rng)
+                target[rows, m, :3] = hand + new_error[rows, m]
             elif not perceived[m] and nz.held_drift_std > 0:
                 target[rows, m, :3] += rng.normal(0.0, nz.held_drift_std * math.sqrt(dt), (int(rows.sum()), 3))
-        return target, target_vel
+        return target, target_vel, new_error
 
     def process_noise(self, poses: np.ndarray, modes: np.ndarray, perceived: np.ndarray, supported: np.ndarray,
                       resting: np.ndarray, last_motion: np.ndarray, dt: float,
@@ -323,15 +351,19 @@ class SceneModel:
 
     # -- the weights ----------------------------------------------------------------------------------
     def evidence(self, move: Move, settled: Settled, out: BatchOutput, frame: Frame, detected: np.ndarray,
-                 perceived: np.ndarray) -> Evidence:
-        """What the log-weight terms read for this update."""
+                 perceived: np.ndarray, unseen_in_view: np.ndarray) -> Evidence:
+        """What the log-weight terms read for this update (``unseen_in_view (K, M)``: the particles'
+        counts before it, see :class:`~estimator.state.ParticleState`)."""
         mem = self.memory
         return Evidence(poses=settled.poses, predicted=move.predicted, previous_modes=move.previous_modes,
                         modes=settled.modes, detected=detected & self.dynamic, teleported=move.teleported,
                         perceived=perceived, detected_poses=mem.last_pose,
                         has_orientation=mem.last_has_orientation, detection_std=mem.last_std,
                         visible=out.visible, queried=move.vis_query,
-                        in_tracked_hand=mem.following_hand(frame), finite=out.finite)
+                        in_tracked_hand=mem.following_hand(frame), finite=out.finite,
+                        unseen_in_view=unseen_in_view,
+                        fell_unseen=(settled.modes == FREE)
+                        & (frame.t - move.let_go_unseen < self.config.reasoner.t_perceived - 1e-9))
 
     def log_weight(self, previous: np.ndarray, ev: Evidence) -> np.ndarray:
         """New log-weights ``(K,)``: ``previous (K,)`` plus every term of :attr:`terms` (one particle

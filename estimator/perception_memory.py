@@ -20,6 +20,8 @@ from .observations import Frame
 
 HAND_RADIUS = 0.3
 """A tracked hand within this distance (m) of a detected object is taken to be the one holding it."""
+HAND_SMOOTHING = 3
+"""Hand positions are averaged over this many latest frames before a displacement is measured."""
 
 
 class PerceptionMemory:
@@ -54,6 +56,8 @@ class PerceptionMemory:
         self.perceived_prev = np.zeros(M, dtype=bool)
         self.hold_hand: list[str | None] = [None] * M
         self.hold_offset = np.zeros((M, 3))
+        self.hold_hand_position = np.full((M, 3), np.nan)
+        self._hand_history: dict[str, deque] = {}
         self._prev_tick_vel = np.zeros((M, 3))
         self._t_seen_at_tick = np.full(M, -np.inf)
         self._history: list[deque] = [deque() for _ in range(M)]
@@ -88,6 +92,9 @@ class PerceptionMemory:
         Raises ValueError for an object id the scene does not have."""
         detected = np.zeros(self.M, dtype=bool)
         hr = self.reasoner
+        for name, p in frame.hands.items():
+            hist = self._hand_history.setdefault(name, deque(maxlen=HAND_SMOOTHING))
+            hist.append(np.asarray(p, dtype=float))
         for oid, det in frame.objects.items():
             try:
                 m = self.scene.index(oid)
@@ -127,6 +134,22 @@ class PerceptionMemory:
         if d[best] < HAND_RADIUS:
             self.hold_hand[m] = names[best]
             self.hold_offset[m] = self.last_pose[m, :3] - hp[best]
+            self.hold_hand_position[m] = self.hand_position(names[best])
+
+    def hand_position(self, name: str) -> np.ndarray:
+        """Position ``(3,)`` m of tracked hand ``name``: the mean of its last :data:`HAND_SMOOTHING`
+        frames (NaN if never tracked)."""
+        hist = self._hand_history.get(name)
+        return np.mean(np.array(hist), axis=0) if hist else np.full(3, np.nan)
+
+    def hand_travel(self) -> np.ndarray:
+        """Distance ``(M,)`` (m) the hand that held each object when it was last detected has moved
+        since then (smoothed positions, :meth:`hand_position`); NaN for objects without one."""
+        out = np.full(self.M, np.nan)
+        for m, name in enumerate(self.hold_hand):
+            if name is not None:
+                out[m] = float(np.linalg.norm(self.hand_position(name) - self.hold_hand_position[m]))
+        return out
 
     # -- queries at a reasoning step ------------------------------------------------------------------
     def perceived(self, t: float) -> np.ndarray:

@@ -21,7 +21,13 @@ class ParticleState:
     * ``supported (K, M)`` bool: resting on or in something at the last update;
     * ``last_motion (K, M)``: distance (m) each object moved in the last update;
     * ``jolted (K, M)`` bool: objects displaced without physics since the worlds last saw them (to
-      be pushed out of anything they interpenetrate before stepping).
+      be pushed out of anything they interpenetrate before stepping);
+    * ``unseen_in_view (K, M)`` int32: updates since its last detection in which a held object in a
+      tracked hand was in the camera's view and not detected (the hand-occlusion term's memory);
+    * ``let_go_unseen (K, M)``: time (s) at which the particle let the object go when it stopped
+      being perceived (-inf: never); its fall happened unseen, in the ``t_perceived`` before;
+    * ``hold_error (K, M, 3)``: m, how far a held, undetected object following a tracked hand is from
+      the hand plus its offset at the last detection (:func:`estimator.held.hand_offset_walk`).
     """
 
     poses: np.ndarray
@@ -35,6 +41,9 @@ class ParticleState:
     supported: np.ndarray
     last_motion: np.ndarray
     jolted: np.ndarray
+    unseen_in_view: np.ndarray
+    hold_error: np.ndarray
+    let_go_unseen: np.ndarray
 
     def take(self, ancestors: np.ndarray) -> "ParticleState":
         """The particles ``ancestors (K,)`` (indices, repeats allowed), copied, equally weighted."""

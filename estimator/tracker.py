@@ -68,7 +68,9 @@ class TrackerConfig:
             covariance. The belief was computed from the same detections and successive beliefs
             are correlated, so repeated Kalman updates make the track more confident than the
             belief it follows (seen in evaluation: a track at 3 cm std following a belief at 5 cm,
-            with twice its error); ``"replace"`` avoids that.
+            with twice its error); ``"replace"`` (the default) avoids that: over 6 seeds of four
+            scenarios with hidden objects its median NEES while hidden was 1.5-17 against 2.3-23
+            with ``"kalman"``, and its error at re-appearance 7 cm against 9 cm.
     """
 
     accel_std: float = 2.0
@@ -80,7 +82,7 @@ class TrackerConfig:
     use_feedback: bool = True
     feed_estimator: bool = False
     pseudo_std_floor: float = 0.002
-    pseudo_fusion: str = "kalman"
+    pseudo_fusion: str = "replace"
 
     def __post_init__(self) -> None:
         for name in ("accel_std", "measurement_std", "velocity_std", "pseudo_std_floor"):

@@ -305,6 +305,7 @@ def main(argv: list[str] | None = None) -> int:
     p_demo.set_defaults(func=cmd_demo)
     from .bench import add_bench_arguments, run_bench
     from .evaluate_cli import add_evaluate_arguments, run_evaluate
+    from .fit_priors import add_fit_arguments, run_fit
     from .simulate_cli import add_simulate_arguments, run_simulate
     from .track_cli import add_track_arguments, run_track
 
@@ -314,7 +315,9 @@ def main(argv: list[str] | None = None) -> int:
              run_evaluate),
             ("bench", "update time against bare pybullet stepping", add_bench_arguments, run_bench),
             ("track", "Kalman pose tracker over a stream, kept alive by the estimator with --feedback",
-             add_track_arguments, run_track)]:
+             add_track_arguments, run_track),
+            ("fit-priors", "fit the held-object priors on simulated scenarios (seeds 100-119)", add_fit_arguments,
+             run_fit)]:
         p_sub = sub.add_parser(name, help=text)
         add(p_sub)
         p_sub.set_defaults(func=run)

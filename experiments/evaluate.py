@@ -209,12 +209,14 @@ def score_run(scene, truth: list[dict], true_events: list[dict], run: MethodRun,
         rel[name] = bins
     out["reliability"] = rel
     if frames is not None:
-        out.update(_tracking_scores(dyn_ids, truth, frames, steps, est, cov, tru, vis))
+        out.update(_tracking_scores(dyn_ids, truth, frames, steps, est, cov, tru, vis, run.gate_actions))
     return out
 
 
-def _tracking_scores(dyn_ids, truth, frames, steps, est, cov, tru, vis) -> dict:
-    """Re-appearance and NEES metrics (:mod:`experiments.tracking_metrics`) of a run."""
+def _tracking_scores(dyn_ids, truth, frames, steps, est, cov, tru, vis, gate_actions=None) -> dict:
+    """Re-appearance and NEES metrics (:mod:`experiments.tracking_metrics`) of a run; with the Kalman
+    tracker's ``gate_actions`` (see :class:`~experiments.methods.MethodRun`), a re-appearance is
+    inside the gate when the tracker accepted it."""
     from .tracking_metrics import nees_scores, reappearance_scores
 
     f_count, d_count = len(frames), len(dyn_ids)
@@ -229,7 +231,12 @@ def _tracking_scores(dyn_ids, truth, frames, steps, est, cov, tru, vis) -> dict:
     det_t = np.array([f.t for f in frames])
     rows = _truth_rows_at(truth, list(det_t))
     true_pos = np.array([[r["objects"][o]["position"] for o in dyn_ids] for r in rows]).reshape(f_count, d_count, 3)
-    out = reappearance_scores(np.array([s.t for s in steps]), est, cov, det_t, det_pos, det_std, true_pos)
+    accepted = None
+    if gate_actions is not None:
+        accepted = np.array([[gate_actions.get((i, oid)) == "accepted" for oid in dyn_ids] for i in range(f_count)],
+                            dtype=bool).reshape(f_count, d_count)
+    out = reappearance_scores(np.array([s.t for s in steps]), est, cov, det_t, det_pos, det_std, true_pos,
+                              accepted=accepted)
     out.update(nees_scores(est, cov, tru, vis))
     return out
 

@@ -166,12 +166,15 @@ class StepEstimate:
 class MethodRun:
     """A method's whole run: its steps, its events (``[{"t", "action", "subject", "p"}]``, the
     timeline's for the estimator, none for last-seen), the wall-clock duration (s) of every step, and
-    the number of particle worlds."""
+    the number of particle worlds. ``gate_actions``: for the Kalman tracker's methods, what the
+    tracker did with each detection, by ``(frame index, object id)`` (``"accepted"``, ``"rejected"``,
+    ``"initialised"``, ``"reinitialised"``); ``None`` for the others."""
 
     steps: list[StepEstimate]
     events: list[dict]
     step_seconds: list[float] = field(default_factory=list)
     particles: int = 0
+    gate_actions: dict[tuple[int, str], str] | None = None
 
 
 def step_from_belief(belief: Belief, object_ids, keep_particles: bool = False) -> StepEstimate:
@@ -357,8 +360,9 @@ class TrackerMethod:
         self.close()
 
     def update(self, frame: Frame) -> tuple[StepEstimate, Belief | None] | None:
-        """One frame; the step and the estimator's belief (``None`` when it has none) at a reasoning step."""
-        self.tracker.update(frame)
+        """One frame; the step and the estimator's belief (``None`` when it has none) at a reasoning
+        step. The tracker's :class:`~estimator.tracker.Outcome` of the frame is :attr:`outcome`."""
+        self.outcome = self.tracker.update(frame)
         if self.mode == "input":
             belief = self.estimator.update(self.tracker.to_frame(hands=frame.hands))
             return None if belief is None else (step_from_belief(belief, self.ids), belief)
@@ -391,10 +395,12 @@ def _run_tracker_method(mode: str, scene: Scene, frames: list[Frame], cfg: Estim
                         rng: np.random.Generator, on_step) -> MethodRun:
     steps: list[StepEstimate] = []
     seconds: list[float] = []
+    actions: dict[tuple[int, str], str] = {}
     with TrackerMethod(scene, mode, cfg, rng) as method:
-        for frame in frames:
+        for i, frame in enumerate(frames):
             t0 = time.perf_counter()
             out = method.update(frame)
+            actions.update({(i, oid): a for oid, a in method.outcome.action.items()})
             if out is None:
                 continue
             seconds.append(time.perf_counter() - t0)
@@ -402,4 +408,4 @@ def _run_tracker_method(mode: str, scene: Scene, frames: list[Frame], cfg: Estim
             if on_step is not None:
                 on_step(out[0], out[1])
         events = [] if method.estimator is None else method.estimator.timeline.to_json()["events"]
-    return MethodRun(steps, events, seconds, 0 if cfg is None else cfg.particles)
+    return MethodRun(steps, events, seconds, 0 if cfg is None else cfg.particles, actions)

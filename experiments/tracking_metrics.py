@@ -13,6 +13,8 @@ Units: metres, seconds. T reasoning steps, F perception frames, D scored (dynami
   (99 %) chi-square(3) gate of the prior, ``S = prior covariance + R``, ``R = std^2 I`` with the
   detection's ``position_std`` or ``measurement_std``: how often a Kalman tracker primed with that
   prior would have accepted the returning detection instead of rejecting it or re-initialising.
+  For the Kalman tracker's own methods it is what the tracker did (it predicts to the detection's
+  time with its velocity, which the estimator's prior, up to one reasoning period old, does not).
 * **NEES**: ``e' (P + floor^2 I)^-1 e`` of the position (``floor`` 1 mm keeps point estimates
   invertible), median over the (step, object) samples where the object is seen / hidden; a
   consistent estimate has the chi-square(3) median, 2.37.
@@ -46,7 +48,7 @@ def reappearances(det_t: np.ndarray, detected: np.ndarray, min_gap: float = REAP
 def reappearance_scores(step_t: np.ndarray, est: np.ndarray, cov: np.ndarray, det_t: np.ndarray,
                         det_pos: np.ndarray, det_std: np.ndarray, true_pos: np.ndarray,
                         measurement_std: float = 0.01, gate_probability: float = 0.99,
-                        min_gap: float = REAPPEAR_GAP) -> dict[str, float]:
+                        min_gap: float = REAPPEAR_GAP, accepted: np.ndarray | None = None) -> dict[str, float]:
     """Error at re-appearance and gate rate (see the module docstring).
 
     Args:
@@ -55,6 +57,9 @@ def reappearance_scores(step_t: np.ndarray, est: np.ndarray, cov: np.ndarray, de
         det_t: ``(F,)`` frame times (s); ``det_pos (F, D, 3)`` detected positions, NaN where not
             detected; ``det_std (F, D)`` each detection's ``position_std`` (NaN: none given).
         true_pos: ``(F, D, 3)`` true positions at the frame times.
+        accepted: ``(F, D)`` bool, what a Kalman tracker did with each detection (accepted in its
+            gate, after predicting to the frame's time); when given, it decides the gate rate
+            instead of the prior's covariance.
 
     Returns ``n_reappear``, ``err_reappear_median`` (m) and ``gate_rate_reappear``; an estimate
     unknown (NaN) at re-appearance counts as outside the gate and is left out of the error.
@@ -69,11 +74,14 @@ def reappearance_scores(step_t: np.ndarray, est: np.ndarray, cov: np.ndarray, de
             continue
         mean, c = est[i, k], cov[i, k]
         if not np.all(np.isfinite(mean)):
-            inside.append(False)
+            inside.append(False if accepted is None else bool(accepted[f, k]))
             continue
         std = det_std[f, k] if np.isfinite(det_std[f, k]) else measurement_std
         y = det_pos[f, k] - mean
-        inside.append(bool(y @ np.linalg.solve(c + std ** 2 * np.eye(3), y) <= gate))
+        if accepted is not None:
+            inside.append(bool(accepted[f, k]))
+        else:
+            inside.append(bool(y @ np.linalg.solve(c + std ** 2 * np.eye(3), y) <= gate))
         errors.append(float(np.linalg.norm(mean - true_pos[f, k])))
     return {"n_reappear": len(inside),
             "err_reappear_median": float(np.median(errors)) if errors else math.nan,

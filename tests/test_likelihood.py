@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from actions.modes import FREE, HELD, ModePriors
-from estimator.likelihood import (DetectionTerm, Evidence, ModeSwitchTerm, NegativeEvidenceTerm, add_terms,
+from estimator.likelihood import (DetectionTerm, held_unseen_in_view, Evidence, ModeSwitchTerm, NegativeEvidenceTerm, add_terms,
                                   detection_log_likelihood, exploded_log_likelihood, mode_switch_log_prior,
                                   negative_evidence_log_likelihood, orientation_log_likelihood,
                                   position_log_likelihood)
@@ -102,6 +102,31 @@ def test_negative_evidence_per_visible_undetected_object():
     assert np.all(negative_evidence_log_likelihood(visible, modes, np.zeros(3, bool), in_tracked_hand, miss, 0.3) == 0)
 
 
+def test_hand_occlusion_is_sticky_and_its_total_cost_is_bounded_by_h():
+    """Held in a tracked hand and in view, undetected for n updates: the increments add up to
+    log(h + (1 - h) miss^n) exactly, so the total never falls below log(h); a free object pays
+    log(miss) every time; h = 1 exempts held objects."""
+    miss, h = 0.1, 0.25
+    visible = np.array([[1.0, 1.0], [1.0, 0.0]])
+    modes = np.array([[HELD, FREE], [HELD, HELD]], np.int8)
+    queried, hand = np.array([True, True]), np.array([True, True])
+    ev = replace(_evidence(), visible=visible, modes=modes, queried=queried, in_tracked_hand=hand)
+    total = np.zeros(2)
+    for n in range(6):
+        total += negative_evidence_log_likelihood(visible, modes, queried, hand, miss, 0.5, h, ev.unseen_in_view)
+        counts = held_unseen_in_view(ev, 0.5)
+        assert counts[0, 0] == n + 1 and counts[0, 1] == 0 and counts[1, 1] == 0  # free / out of view
+        ev = replace(ev, unseen_in_view=counts)
+        expect0 = math.log(h + (1 - h) * miss ** (n + 1)) + (n + 1) * math.log(miss)
+        expect1 = math.log(h + (1 - h) * miss ** (n + 1))
+        assert total[0] == pytest.approx(expect0) and total[1] == pytest.approx(expect1)
+    assert total[1] > math.log(h) - 1e-12
+    exempt = negative_evidence_log_likelihood(visible, modes, queried, hand, miss, 0.5, 1.0, ev.unseen_in_view)
+    assert exempt[0] == pytest.approx(math.log(miss)) and exempt[1] == 0.0
+    # a detection resets the count
+    assert np.all(held_unseen_in_view(replace(ev, detected=np.array([True, True])), 0.5) == 0)
+
+
 def test_mode_switch_prior_values():
     pr = ModePriors(pick=0.02, place=0.2)
     previous = np.array([[FREE, HELD, FREE, HELD]] * 3, dtype=np.int8)
@@ -129,7 +154,8 @@ def _evidence(K=2, M=2):
                     detected=np.zeros(M, bool), teleported=np.zeros(M, bool), perceived=np.zeros(M, bool),
                     detected_poses=np.zeros((M, 7)), has_orientation=np.zeros(M, bool),
                     detection_std=np.full(M, np.nan), visible=np.zeros((K, M)), queried=np.zeros(M, bool),
-                    in_tracked_hand=np.zeros(M, bool), finite=np.ones(K, bool))
+                    in_tracked_hand=np.zeros(M, bool), finite=np.ones(K, bool),
+                    unseen_in_view=np.zeros((K, M), np.int32))
 
 
 def test_detection_term_scores_a_teleported_object_where_the_particle_predicted_it():

@@ -112,14 +112,17 @@ def test_move_teleports_a_first_sighting_and_makes_it_known():
 def test_held_targets_follow_the_tracked_hand_or_drift():
     frame = Frame(1.0, {}, {"human/right": np.array([1.0, 0.0, 1.0])})
     for follow in (True, False):
-        model = make(EstimatorConfig(particles=3, noise=NoiseConfig(held_drift_std=0.05), follow_hands=follow))
+        model = make(EstimatorConfig(particles=3, noise=NoiseConfig(held_drift_std=0.05, held_offset_std=0.0),
+                                     follow_hands=follow))
         st = model.initial_state(np.random.default_rng(0))
         model.memory.hold_hand[CUP] = "human/right"
         model.memory.hold_offset[CUP] = [0.0, 0.0, -0.05]
         modes = st.modes.copy()
         modes[:2, CUP] = HELD  # held in particles 0 and 1, free in 2
         none = np.zeros(5, bool)
-        target, target_vel = model.held_targets(frame, st.poses, modes, none, none, 0.25, np.random.default_rng(7))
+        target, target_vel, err = model.held_targets(frame, st.poses, modes, none, none, 0.25,
+                                                     np.random.default_rng(7), st.hold_error)
+        assert np.all(err == 0)
         if follow:
             assert np.allclose(target[:2, CUP, :3], [1.0, 0.0, 0.95])
         else:  # no hand to follow: a drift of held_drift_std * sqrt(dt), the same draws as here
@@ -136,8 +139,8 @@ def test_held_target_of_a_perceived_object_is_its_perception_without_drift():
     modes = st.modes.copy()
     modes[:, CUP] = HELD
     perceived = model.memory.perceived(0.4)
-    target, target_vel = model.held_targets(Frame(0.4), st.poses, modes, np.zeros(5, bool), perceived, 0.3,
-                                            np.random.default_rng(0))
+    target, target_vel, _ = model.held_targets(Frame(0.4), st.poses, modes, np.zeros(5, bool), perceived, 0.3,
+                                               np.random.default_rng(0), st.hold_error)
     assert np.all(target[:, CUP, :3] == [0.3, 0.3, 0.4])
     assert np.allclose(target_vel[:, CUP, :3], [0.0, 0.0, 1.0])  # finite difference, m/s
 
@@ -168,6 +171,57 @@ def test_process_noise_touches_only_unperceived_free_known_dynamic_objects():
     # std: sqrt(0.01^2 * 0.5 + (0.5 * rolled)^2) capped at max_jitter_std (0.01); jolted above 2 mm
     assert np.array_equal(jolted, expect)
     assert np.all(np.abs(poses[0, BALL, :3] - st.poses[0, BALL, :3]) < 5 * nz.max_jitter_std)
+
+
+def test_held_target_adds_each_particles_offset_error_to_the_tracked_hand():
+    """With held_offset_std, each particle's held object is at the hand + offset + its own error,
+    which starts at zero and walks (hand_offset_walk, the same draws); detected objects reset it."""
+    frame = Frame(1.0, {}, {"human/right": np.array([1.0, 0.0, 1.0])})
+    model = make(EstimatorConfig(particles=3, noise=NoiseConfig(held_offset_std=0.02, held_offset_time=0.5)))
+    st = model.initial_state(np.random.default_rng(0))
+    model.memory.hold_hand[CUP] = "human/right"
+    model.memory.hold_offset[CUP] = [0.0, 0.0, -0.05]
+    modes = st.modes.copy()
+    modes[:, CUP] = HELD
+    before = np.zeros((3, 5, 3))
+    before[:, CUP] = [[0.01, 0.0, 0.0], [0.0, -0.01, 0.0], [0.0, 0.0, 0.0]]
+    none = np.zeros(5, bool)
+    target, _, err = model.held_targets(frame, st.poses, modes, none, none, 0.1, np.random.default_rng(3), before)
+    from estimator.held import hand_offset_walk
+    expect = hand_offset_walk(before[:, CUP], 0.1, 0.02, 0.5, np.random.default_rng(3))
+    np.testing.assert_allclose(err[:, CUP], expect)
+    np.testing.assert_allclose(target[:, CUP, :3], np.array([1.0, 0.0, 0.95]) + expect)
+    assert np.all(err[:, [i for i in range(5) if i != CUP]] == 0)
+    detected = none.copy()
+    detected[CUP] = True
+    _, _, err = model.held_targets(frame, st.poses, modes, detected, detected, 0.1, np.random.default_rng(3), before)
+    assert np.all(err == 0)
+
+
+def test_release_on_loss_depends_on_whether_the_tracked_hand_carried_the_object():
+    """At the loss of a held object whose hand is tracked: release_on_loss_carried when the hand
+    moved more than carry_distance since the object was last seen, else release_on_loss_still;
+    release_on_loss without a tracked hand. Probabilities 0 and 1 make the outcome certain."""
+    from actions.modes import ModePriors
+    priors = ModePriors(release_on_loss=1.0, release_on_loss_carried=0.0, release_on_loss_still=1.0,
+                        release=0.0, carry_distance=0.05)
+    for hand_end, tracked, expect_released in (([0.3, 0.0, 0.8], True, False), ([0.11, 0.0, 0.8], True, True),
+                                               ([0.3, 0.0, 0.8], False, True)):
+        model = make(EstimatorConfig(particles=4, noise=NoiseConfig(), priors=priors))
+        st = model.initial_state(np.random.default_rng(0))
+        hand = {"human/right": np.array([0.1, 0.0, 0.8])}
+        model.memory.record(Frame(0.0, {"cup": Detection(np.array([0.1, 0.0, 0.7]))}, hand))
+        for k in range(1, 4):
+            model.memory.record(Frame(0.1 * k, {}, {"human/right": np.array(hand_end)}))
+        model.memory.perceived_prev = model.memory.perceived(0.0)
+        modes = st.modes.copy()
+        modes[:, CUP] = HELD
+        perceived = model.memory.perceived(1.0)
+        assert not perceived[CUP] and model.memory.perceived_prev[CUP]
+        trk = model.memory.following_hand(Frame(1.0, {}, {"human/right": np.array(hand_end)})) if tracked \
+            else np.zeros(5, bool)
+        new, codes = model.release(modes, perceived, st.supported, np.random.default_rng(1), trk)
+        assert np.all((new[:, CUP] == FREE) == expect_released), (hand_end, tracked)
 
 
 def test_release_on_loss_and_later_releases():
@@ -215,7 +269,8 @@ def test_log_weight_of_one_particle_is_only_the_explosion_mask():
                   modes=np.ones((1, 5), np.int8), detected=np.ones(5, bool), teleported=np.zeros(5, bool),
                   perceived=np.ones(5, bool), detected_poses=np.zeros((5, 7)), has_orientation=np.zeros(5, bool),
                   detection_std=np.full(5, 0.01), visible=np.ones((1, 5)), queried=np.ones(5, bool),
-                  in_tracked_hand=np.zeros(5, bool), finite=np.ones(1, bool))
+                  in_tracked_hand=np.zeros(5, bool), finite=np.ones(1, bool),
+                  unseen_in_view=np.zeros((1, 5), np.int32))
     assert model.log_weight(np.zeros(1), ev)[0] == 0.0
     assert model.log_weight(np.zeros(1), replace(ev, finite=np.zeros(1, bool)))[0] == -np.inf
     two = make(EstimatorConfig(particles=2, noise=NoiseConfig()))

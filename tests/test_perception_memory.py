@@ -125,3 +125,22 @@ def test_detections_and_hands_outside_the_workspace_are_rejected_and_counted():
     assert kept.objects == {} and list(kept.hands) == ["human/left"] and mem.rejected == 3
     assert mem.admit(Frame(2.0, {"cup": inside})).objects == {"cup": inside} and mem.rejected == 3
     assert "nonsense" in mem.admit(Frame(3.0, {"nonsense": det([1e9, 0, 0])})).objects  # record() reports it
+
+
+
+def test_hand_travel_is_the_smoothed_hand_displacement_since_the_object_was_last_seen():
+    """The hand's position is the mean of its last HAND_SMOOTHING frames, remembered at each
+    detection of the object it holds; hand_travel is the distance from there to the hand now
+    (NaN for objects no hand held)."""
+    from estimator.perception_memory import HAND_SMOOTHING
+    mem = memory()
+    hands = [np.array([0.3, 0.3, 0.25 + 0.01 * k]) for k in range(HAND_SMOOTHING)]
+    for k, h in enumerate(hands):
+        mem.record(Frame(0.1 * k, {"cup": det([0.3, 0.3, 0.14])}, {"human/right": h}))
+    at_seen = np.mean(hands, axis=0)
+    np.testing.assert_allclose(mem.hold_hand_position[CUP], at_seen)
+    assert mem.hand_travel()[CUP] == pytest.approx(0.0) and np.isnan(mem.hand_travel()[BALL])
+    later = [np.array([0.5, 0.3, 0.3])] * HAND_SMOOTHING
+    for k, h in enumerate(later):
+        mem.record(Frame(1.0 + 0.1 * k, {}, {"human/right": h}))
+    assert mem.hand_travel()[CUP] == pytest.approx(np.linalg.norm(later[0] - at_seen))

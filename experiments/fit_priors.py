@@ -1,0 +1,190 @@
+"""Fit the held-object priors on the simulator's scenarios, on seeds the evaluation does not use.
+
+What is fitted (see :class:`actions.modes.ModePriors` and :class:`estimator.config.NoiseConfig`):
+
+* ``release_on_loss_carried`` / ``release_on_loss_still``: an object stops counting as perceived
+  (``t_perceived`` after its last detection) while the tracked hand that was within
+  :data:`~estimator.perception_memory.HAND_RADIUS` of it at that detection held it in truth. The
+  hand has *carried* it when it moved more than ``carry_distance`` (smoothed as the estimator does)
+  in between, else it is *still*. The prior is the fraction of such losses where the object was in
+  truth no longer held at the loss, with Laplace's rule ``(released + 1) / (losses + 2)`` (no data
+  gives 0.5).
+* ``held_offset_std``: over the frames where an object is held in truth and not detected, after a
+  detection with a tracked hand within that radius, the root-mean-square per axis of the true
+  position minus (the tracked hand + the object's offset to it at that detection).
+* ``hand_occlusion``: over the frames where an object is held in truth and the scene alone (the
+  estimator's worlds: no hand, no person) would show it to the camera, the fraction where the truth
+  (with the hand and the person) does not; again with Laplace's rule.
+
+Only scenarios whose perception tracks hands count. Pure counting over simulated streams, seeded by
+the scenario's seed; the result is a dictionary of the three values and their counts.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from actions.modes import ModePriors
+from estimator.config import EstimatorConfig, ReasonerConfig
+from estimator.perception_memory import HAND_RADIUS, HAND_SMOOTHING
+from physics.visibility import Camera, local_sample_points, visible_fraction
+from physics.world import PhysicsSettings, World
+
+from .scenarios import list_scenarios, load_scenario
+from .simulator import simulate
+
+FIT_SEEDS = range(100, 120)
+"""Default seeds of the fit: the evaluation uses 0 .. 19."""
+
+
+@dataclass
+class Spread:
+    """Sum of squared deviations ``ss`` (m^2) over ``n`` 3-vectors; ``std`` per axis (m)."""
+
+    ss: float = 0.0
+    n: int = 0
+
+    @property
+    def std(self) -> float:
+        return float(np.sqrt(self.ss / (3 * self.n))) if self.n else float("nan")
+
+
+@dataclass
+class Counts:
+    """Events counted for one prior: ``hits`` out of ``n``; ``p`` by Laplace's rule."""
+
+    hits: int = 0
+    n: int = 0
+
+    @property
+    def p(self) -> float:
+        return (self.hits + 1) / (self.n + 2)
+
+    def add(self, hit: bool) -> None:
+        self.hits += int(hit)
+        self.n += 1
+
+
+def _smoothed(hands: list[np.ndarray | None], f: int) -> np.ndarray | None:
+    """Mean of the last :data:`HAND_SMOOTHING` tracked hand positions up to frame ``f``."""
+    pts = [h for h in hands[max(0, f - 4 * HAND_SMOOTHING):f + 1] if h is not None][-HAND_SMOOTHING:]
+    return np.mean(pts, axis=0) if pts else None
+
+
+def count_losses(obs: list[dict], truth: list[dict], reasoner: ReasonerConfig, priors: ModePriors,
+                 carried: Counts, still: Counts, spread: Spread) -> None:
+    """Add the losses of held objects in one run (``obs``, ``truth``: the simulator's lines) and the
+    offset deviations of held, undetected objects to ``spread``."""
+    t_obs = np.array([o["t"] for o in obs])
+    t_true = np.array([r["t"] for r in truth])
+    hands = [None if not o.get("hands") else np.asarray(next(iter(o["hands"].values())), float) for o in obs]
+    ids = set().union(*(o["objects"].keys() for o in obs)) if obs else set()
+    for oid in sorted(ids):
+        seen = [i for i, o in enumerate(obs) if oid in o["objects"]]
+        for a, b in zip(seen, seen[1:] + [None]):
+            _add_spread(obs, truth, t_true, hands, oid, a, len(obs) if b is None else b, spread)
+            t0 = t_obs[a]
+            t_loss = t0 + reasoner.t_perceived
+            if (b is not None and t_obs[b] <= t_loss + 1e-9) or t_loss > t_obs[-1]:
+                continue
+            hand0 = _smoothed(hands, a)
+            pos0 = np.asarray(obs[a]["objects"][oid]["position"], float)
+            i0 = int(np.argmin(np.abs(t_true - t0)))
+            if hand0 is None or hands[a] is None or np.linalg.norm(hands[a] - pos0) >= HAND_RADIUS:
+                continue
+            if not truth[i0]["objects"][oid].get("held"):
+                continue
+            f_loss = int(np.searchsorted(t_obs, t_loss - 1e-9))
+            hand1 = _smoothed(hands, min(f_loss, len(obs) - 1))
+            if hand1 is None:
+                continue
+            i1 = int(np.argmin(np.abs(t_true - t_loss)))
+            released = not truth[i1]["objects"][oid].get("held")
+            moved = float(np.linalg.norm(hand1 - hand0)) > priors.carry_distance
+            (carried if moved else still).add(released)
+
+
+def _add_spread(obs, truth, t_true, hands, oid: str, a: int, b: int, spread: Spread) -> None:
+    """Deviations of ``oid`` in the frames ``a+1 .. b-1`` after its detection in frame ``a``."""
+    pos0 = np.asarray(obs[a]["objects"][oid]["position"], float)
+    if hands[a] is None or np.linalg.norm(hands[a] - pos0) >= HAND_RADIUS:
+        return
+    offset = pos0 - hands[a]
+    for f in range(a + 1, b):
+        i = int(np.argmin(np.abs(t_true - obs[f]["t"])))
+        o = truth[i]["objects"][oid]
+        if hands[f] is None or not o.get("held"):
+            return
+        d = np.asarray(o["position"], float) - (hands[f] + offset)
+        spread.ss += float(d @ d)
+        spread.n += 1
+
+
+def count_hand_occlusion(result, threshold: float, occluded: Counts) -> None:
+    """Add the frames of one run where a truly held object would be in view of the scene alone."""
+    scene = result.scene
+    if scene.camera is None:
+        return
+    camera = Camera(scene.camera)
+    with World(scene, PhysicsSettings()) as world:
+        points: dict[int, np.ndarray] = {}
+        for row in result.truth:
+            for oid, o in row["objects"].items():
+                if not o.get("held"):
+                    continue
+                m = scene.index(oid)
+                if m not in points:
+                    points[m] = local_sample_points(world, m, 2)
+                pose = np.concatenate([o["position"], o["orientation"]])[None]
+                world.set_poses(pose, [m])
+                if visible_fraction(world, camera, [m], points, pose)[0] >= threshold:
+                    occluded.add(not o["visible"])
+
+
+def fit_priors(scenarios: list[str] | None = None, seeds=FIT_SEEDS, config: EstimatorConfig | None = None) -> dict:
+    """Fit on ``scenarios`` (default: every built-in one with tracked hands) x ``seeds``.
+
+    Returns ``{"release_on_loss_carried": p, "release_on_loss_still": p, "hand_occlusion": p,
+    "held_offset_std": m,
+    "counts": {name: [hits, n]}, "scenarios": [...], "seeds": [...]}``."""
+    cfg = config or EstimatorConfig()
+    names = [n for n in (scenarios or list_scenarios()) if load_scenario(n).perception.hands_tracked]
+    carried, still, occluded, spread = Counts(), Counts(), Counts(), Spread()
+    for name in names:
+        for seed in seeds:
+            result = simulate(name, int(seed))
+            count_losses(result.observations, result.truth, cfg.reasoner, cfg.priors, carried, still, spread)
+            count_hand_occlusion(result, cfg.visibility_threshold, occluded)
+    return {"release_on_loss_carried": round(carried.p, 3), "release_on_loss_still": round(still.p, 3),
+            "hand_occlusion": round(occluded.p, 3), "held_offset_std": round(spread.std, 4),
+            "counts": {"held_offset_std": [round(spread.ss, 6), spread.n],"release_on_loss_carried": [carried.hits, carried.n],
+                       "release_on_loss_still": [still.hits, still.n],
+                       "hand_occlusion": [occluded.hits, occluded.n]},
+            "scenarios": names, "seeds": [int(s) for s in seeds]}
+
+
+def _seed_range(text: str) -> range:
+    try:
+        lo, _, hi = text.partition("-")
+        out = range(int(lo), int(hi or lo) + 1)
+    except ValueError:
+        raise ValueError(f"--seeds: expected FIRST-LAST (e.g. 100-119), got {text!r}") from None
+    if len(out) == 0:
+        raise ValueError(f"--seeds: empty range {text!r}")
+    return out
+
+
+def add_fit_arguments(p) -> None:
+    p.add_argument("--seeds", default=f"{FIT_SEEDS.start}-{FIT_SEEDS.stop - 1}",
+                   help="seed range FIRST-LAST (default 100-119: the evaluation uses 0-19)")
+    p.add_argument("--scenarios", default="all",
+                   help="'all' (every built-in scenario with tracked hands) or comma-separated names")
+
+
+def run_fit(args) -> int:
+    import json
+
+    names = None if args.scenarios == "all" else [s.strip() for s in args.scenarios.split(",") if s.strip()]
+    print(json.dumps(fit_priors(names, _seed_range(args.seeds)), indent=1))
+    return 0

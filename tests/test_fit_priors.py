@@ -1,0 +1,44 @@
+"""Fitting the held-object priors: counts of losses (carried / still) and of hand occlusions, by
+Laplace's rule, on hand-built streams (the simulator's line format)."""
+import numpy as np
+import pytest
+
+from actions.modes import ModePriors
+from estimator.config import ReasonerConfig
+from experiments.fit_priors import Counts, Spread, _seed_range, count_losses
+
+
+def _stream(hand_path, seen_until, held_until, t_end=2.0, dt=0.05):
+    """Observation and truth lines: the cup 8 cm under the hand, detected until ``seen_until`` s, held
+    in truth until ``held_until`` s (then it stays where it was let go)."""
+    obs, truth = [], []
+    for t in np.arange(0.0, t_end, dt):
+        hand = np.asarray(hand_path(t), float)
+        held = t < held_until
+        cup = hand - [0, 0, 0.08] if held else np.asarray(hand_path(held_until)) - [0, 0, 0.08]
+        o = {"t": float(t), "objects": {}, "hands": {"human/right": hand.tolist()}}
+        if t < seen_until:
+            o["objects"]["cup"] = {"position": cup.tolist()}
+        obs.append(o)
+        truth.append({"t": float(t), "objects": {"cup": {"position": cup.tolist(), "held": held, "visible": True}}})
+    return obs, truth
+
+
+def test_losses_are_counted_as_carried_or_still_with_their_outcome():
+    r, pr = ReasonerConfig(), ModePriors(carry_distance=0.05)
+    carried, still, spread = Counts(), Counts(), Spread()
+    obs, truth = _stream(lambda t: [0.3 * t, 0.0, 1.0], seen_until=0.5, held_until=9.0)  # carried on
+    count_losses(obs, truth, r, pr, carried, still, spread)
+    assert (carried.hits, carried.n, still.n) == (0, 1, 0)
+    assert spread.n > 0 and spread.std == pytest.approx(0.0, abs=1e-9)  # exactly at hand + offset
+    obs, truth = _stream(lambda t: [0.3, 0.0, 1.0], seen_until=0.5, held_until=0.5)  # still hand, let go
+    count_losses(obs, truth, r, pr, carried, still, spread)
+    assert (still.hits, still.n, carried.n) == (1, 1, 1)
+    assert carried.p == pytest.approx(1 / 3) and still.p == pytest.approx(2 / 3)  # Laplace's rule
+    assert Counts().p == 0.5
+
+
+def test_seed_range_is_checked():
+    assert list(_seed_range("100-102")) == [100, 101, 102] and list(_seed_range("7")) == [7]
+    with pytest.raises(ValueError, match="--seeds"):
+        _seed_range("a-b")
