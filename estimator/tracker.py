@@ -314,14 +314,17 @@ class PhysicsAwareTracker:
         return done
 
     # -- output -----------------------------------------------------------------------------------
-    def to_frame(self, t: float | None = None, hands: dict[str, np.ndarray] | None = None) -> Frame:
+    def to_frame(self, t: float | None = None, hands: dict[str, np.ndarray] | None = None,
+                 detected_only: bool = False) -> Frame:
         """The filtered poses as a :class:`Frame` at ``t`` (default: the tracker's time; a later
         ``t`` predicts first): position ``(3,)`` m, the orientation of the last detection or
         pseudo-measurement (``None`` if neither had one), ``position_std`` (m, :attr:`Track.position_std`); ``hands``
-        passed through."""
+        passed through. ``detected_only``: only the tracks a detection updated in the last frame (what
+        the estimator should take as perception: a coasting prediction is not one)."""
         if t is not None:
             self.predict(t)
-        objects = {oid: Detection(tr.position, tr.orientation, tr.position_std) for oid, tr in self.tracks.items()}
+        objects = {oid: Detection(tr.position, tr.orientation, tr.position_std) for oid, tr in self.tracks.items()
+                   if not detected_only or oid in self.detected}
         return Frame(float(self.t if self.t is not None else 0.0), objects, dict(hands or {}))
 
     def nees(self, oid: str, truth_position) -> float:

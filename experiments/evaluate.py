@@ -769,6 +769,7 @@ EXTRA_COLUMNS: tuple[Column, ...] = (
     Column("err_reappear_median", "err. at re-appearance (cm)", 100.0),
     Column("gate_rate_reappear", "re-appearance in 99% gate"),
     Column("nees_seen_median", "NEES seen (median; 2.37)"), Column("nees_hidden_median", "NEES hidden (median; 2.37)"),
+    Column("nees_hidden_mean", "NEES hidden (mean; 3)"),
     Column("timing.update_ms_p95", "update p95 (ms)"), Column("timing.peak_rss_mb", "peak memory (MB)"),
     Column("timing.trial_s", "trial (s)"),
 )
@@ -935,7 +936,8 @@ def write_report(rows: list[dict], out_dir: str | os.PathLike, plots: bool = Tru
     summary = summarize(rows)
     tests = paired_tests(rows)
     paths = {"summary.md": out / "summary.md", "summary.csv": out / "summary.csv"}
-    paths["summary.md"].write_text(markdown_summary(summary, tests), encoding="utf-8")
+    from .tracker_report import markdown_tracker_section
+    paths["summary.md"].write_text(markdown_summary(summary, tests) + markdown_tracker_section(rows), encoding="utf-8")
     write_summary_csv(summary, paths["summary.csv"])
     if tests:
         paths["tests.csv"] = out / "tests.csv"

@@ -364,7 +364,7 @@ class TrackerMethod:
         step. The tracker's :class:`~estimator.tracker.Outcome` of the frame is :attr:`outcome`."""
         self.outcome = self.tracker.update(frame)
         if self.mode == "input":
-            belief = self.estimator.update(self.tracker.to_frame(hands=frame.hands))
+            belief = self.estimator.update(self.tracker.to_frame(hands=frame.hands, detected_only=True))
             return None if belief is None else (step_from_belief(belief, self.ids), belief)
         if self.mode == "feedback":
             belief = self.estimator.update(frame)

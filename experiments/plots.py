@@ -29,7 +29,8 @@ from .metrics import merge_bins  # noqa: E402
 
 PINK = "#e75480"
 GREEN = "#2e8b57"
-OTHER = {"paper": "#1f77b4", "last-seen": "#7f7f7f"}
+OTHER = {"paper": "#1f77b4", "last-seen": "#7f7f7f", "tracker": "#ff7f0e", "tracker-feedback": "#d62728",
+         "particles-on-tracker": "#e377c2"}
 ABLATION = ["#9467bd", "#8c564b", "#bcbd22", "#17becf"]
 
 
@@ -39,7 +40,7 @@ def method_color(method: str) -> str:
         return GREEN
     if method in OTHER:
         return OTHER[method]
-    names = [m for m in METHODS if m.startswith("particles-")]
+    names = [m for m in METHODS if m.startswith("particles-") and m not in OTHER]
     return ABLATION[names.index(method) % len(ABLATION)] if method in names else "#d62728"
 
 
