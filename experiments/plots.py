@@ -5,6 +5,8 @@
   lines), its final particle cloud shaded by weight, the truth dashed;
 * ``error_<scenario>.png``: position error over time per method, with the particle estimator's
   uncertainty band (2 x the RMS radius of its covariance, sqrt(trace)) and hidden intervals shaded;
+* ``tracker_<scenario>.png``: the same for the Kalman tracker's experiment (tracker alone, with
+  feedback, estimator alone, estimator fed by the tracker), when the four methods ran;
 * ``reliability.png``: reliability diagrams of P(plausible), P(isIn), P(isOnTop) per method;
 * ``update_time.png``: time per reasoning step against the number of particles;
 * ``metrics.png``: hidden-object error and success per scenario and method, with 95 % intervals.
@@ -288,6 +290,10 @@ def make_figures(rows: list[dict], summary: list[dict], out_dir: str | Path) -> 
         tr = seeds[seed]
         paths.append(plot_views(tr, out / f"views_{sc}.png"))
         paths.append(plot_error_over_time(tr, out / f"error_{sc}.png"))
+        four = ("tracker", "tracker-feedback", "particles", "particles-on-tracker")
+        if all(m in tr for m in four):
+            paths.append(plot_error_over_time({m: tr[m] for m in four}, out / f"tracker_{sc}.png",
+                                              f"{sc} (seed {seed}): Kalman tracker with and without physics"))
     paths.append(plot_reliability(rows, out / "reliability.png"))
     paths.append(plot_update_time(rows, out / "update_time.png"))
     paths.append(plot_metrics([r for r in summary], out / "metrics.png"))
