@@ -36,7 +36,7 @@ from .model import Move, SceneModel, Settled, initial_poses
 from .observations import Frame
 from .perception_memory import PerceptionMemory
 from .pool import BatchOutput, WorldPool
-from .resampling import effective_sample_size, normalise_log_weights, systematic_resample
+from .resampling import effective_sample_size, keep_survivors_in_place, normalise_log_weights, systematic_resample
 from .state import ParticleState
 from .timeline import Timeline
 
@@ -251,7 +251,7 @@ class SceneEstimator:
     def _resample(self, weights: np.ndarray, hidden: np.ndarray) -> None:
         """Systematic resampling, then the model's regularisation of hidden objects ``hidden (M,)`` and
         of the physical parameters. The worlds keep what they hold (``_world_poses``)."""
-        anc = systematic_resample(weights, self.rng)
+        anc = keep_survivors_in_place(systematic_resample(weights, self.rng))
         kernels = self.model.regularisation_kernels(self.state.poses, weights, hidden)
         self.state = self.state.take(anc)
         if self._produced is not None:

@@ -47,3 +47,20 @@ def multinomial_resample(weights: np.ndarray, rng: np.random.Generator) -> np.nd
     """Ancestor indices ``(K,)`` drawn independently with probabilities ``weights``."""
     w = np.asarray(weights, dtype=float)
     return rng.choice(len(w), size=len(w), p=w / w.sum())
+
+
+def keep_survivors_in_place(ancestors: np.ndarray) -> np.ndarray:
+    """The same multiset of ancestor indices ``(K,)``, permuted so that every ancestor that survives
+    is copied into its own slot (``out[a] == a`` for each ``a`` in ``ancestors``); the extra copies
+    fill the slots of the particles that died, in increasing order. A particle world keeps what it
+    holds when its slot keeps its particle, so fewer worlds must load a new state (and wake).
+    Deterministic; the slots' order carries no meaning for the filter."""
+    anc = np.asarray(ancestors)
+    k = len(anc)
+    out = np.full(k, -1, dtype=anc.dtype)
+    survivors = np.unique(anc)
+    out[survivors] = survivors
+    counts = np.bincount(anc, minlength=k)
+    extra = np.repeat(np.arange(k), np.maximum(counts - 1, 0))  # one entry per extra copy, sorted
+    out[out < 0] = extra
+    return out

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from estimator.resampling import (effective_sample_size, multinomial_resample, normalise_log_weights,
+from estimator.resampling import (effective_sample_size, keep_survivors_in_place, multinomial_resample, normalise_log_weights,
                                   systematic_resample)
 
 
@@ -44,3 +44,18 @@ def test_systematic_never_returns_k_despite_round_off():
     # systematic resampling keeps each particle floor(K w) or ceil(K w) times
     counts = np.bincount(systematic_resample(np.array([0.55, 0.45]), rng), minlength=2)
     assert counts.tolist() in ([1, 1],)
+
+
+def test_keep_survivors_in_place_permutes_the_ancestors():
+    """Same counts per ancestor; every survivor sits in its own slot; extra copies fill the others."""
+    rng = np.random.default_rng(4)
+    for _ in range(200):
+        k = int(rng.integers(1, 40))
+        w = rng.dirichlet(np.full(k, 0.3))
+        anc = systematic_resample(w, rng)
+        out = keep_survivors_in_place(anc)
+        assert np.array_equal(np.bincount(out, minlength=k), np.bincount(anc, minlength=k))
+        survivors = np.unique(anc)
+        assert np.all(out[survivors] == survivors)
+    assert list(keep_survivors_in_place(np.array([0, 0, 2, 3, 3, 3]))) == [0, 0, 2, 3, 3, 3]
+    assert list(keep_survivors_in_place(np.array([2, 2, 2, 2, 3]))) == [2, 2, 2, 3, 2]
