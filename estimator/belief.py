@@ -1,8 +1,13 @@
 """The belief: what the weighted particles say about every object, and its JSON form.
 
-Per object: consensus pose (weighted mean position and covariance; weighted chordal mean orientation
-and angular spread), discrete hypotheses grouped by support ("on the floor" 0.8, "in blue_box" 0.2,
-"held"), P(isPhysicallyPlausible), P(held). Per pair: relation probabilities. Per update: events.
+Per object: discrete hypotheses grouped by support ("on the floor" 0.8, "in blue_box" 0.2, "held"),
+the headline position (the most probable hypothesis's weighted mean and covariance), the overall
+weighted mean position and covariance, the weighted chordal mean orientation and angular spread,
+P(isPhysicallyPlausible), P(held). Per pair: relation probabilities. Per update: events.
+
+A belief with several modes reports the most probable one as its position, never the average of
+the modes (a cup half held, half on the floor is not in the air between them); with one mode the
+two coincide.
 """
 from __future__ import annotations
 
@@ -36,8 +41,15 @@ class Hypothesis:
 
 @dataclass(frozen=True)
 class ObjectBelief:
-    """Belief about one object. ``position (3,)`` m, ``orientation (4,)`` x,y,z,w, ``position_cov
-    (3, 3)`` m^2, ``angular_std`` rad (weighted RMS angle to the mean orientation)."""
+    """Belief about one object.
+
+    ``position (3,)`` m and ``position_cov (3, 3)`` m^2: the weighted mean and covariance of the
+    particles of the most probable hypothesis (``hypotheses[0]``); ``mean_position (3,)`` and
+    ``mean_position_cov (3, 3)``: those of all particles (equal to the former when every particle
+    agrees on the support). ``orientation (4,)`` x,y,z,w and ``angular_std`` rad (weighted RMS
+    angle to it) are the weighted chordal mean over all particles. ``mean_position`` ``None``
+    (objects built by hand) means ``position``.
+    """
 
     position: np.ndarray
     orientation: np.ndarray
@@ -47,10 +59,15 @@ class ObjectBelief:
     p_plausible: float
     p_held: float
     hypotheses: tuple[Hypothesis, ...] = ()
+    mean_position: np.ndarray | None = None
+    mean_position_cov: np.ndarray | None = None
 
     def to_json(self) -> dict:
+        mean = self.position if self.mean_position is None else self.mean_position
+        mean_cov = self.position_cov if self.mean_position_cov is None else self.mean_position_cov
         return {"position": _r(self.position), "orientation": _r(self.orientation),
                 "position_cov": [_r(row, 8) for row in self.position_cov],
+                "mean_position": _r(mean), "mean_position_cov": [_r(row, 8) for row in mean_cov],
                 "angular_std": round(float(self.angular_std), 6), "perceived": bool(self.perceived),
                 "p_plausible": round(float(self.p_plausible), 4), "p_held": round(float(self.p_held), 4),
                 "hypotheses": [h.to_json() for h in self.hypotheses]}
@@ -150,6 +167,16 @@ def pose_stats(poses: np.ndarray, w: np.ndarray):
     return means, covs, quats, angs
 
 
+def _group_stats(positions: np.ndarray, weights: np.ndarray, members: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted mean ``(3,)`` and covariance ``(3, 3)`` of the ``positions (K, 3)`` of the particles
+    in ``members (K,)`` bool, their ``weights (K,)`` renormalised within the group."""
+    x, w = positions[members], weights[members]
+    w = w / w.sum()
+    mean = w @ x
+    dev = x - mean
+    return mean, (dev.T * w) @ dev
+
+
 def compute_belief(t: float, object_ids, known: np.ndarray, perceived: np.ndarray, poses: np.ndarray,
                    weights: np.ndarray, modes: np.ndarray, on_top: np.ndarray, is_in: np.ndarray,
                    events: list[EventRecord], ess: float, static: np.ndarray, min_p: float = 0.02,
@@ -159,7 +186,9 @@ def compute_belief(t: float, object_ids, known: np.ndarray, perceived: np.ndarra
     ``poses (K, M, 7)``, ``weights (K,)`` normalised, ``modes (K, M)``, ``on_top (K, M, M+1)``,
     ``is_in (K, M, M)``; ``known``, ``perceived``, ``static`` ``(M,)`` bool. Unknown objects are left
     out; static objects get their fixed pose and no hypotheses. ``cov_floor`` (m^2) is added to the
-    diagonal of the position covariance of dynamic objects.
+    diagonal of the position covariances of dynamic objects. A hypothesis is a support label
+    (:func:`support_labels`); the headline position and covariance are those of the heaviest one
+    (see :class:`ObjectBelief`), the first of ``hypotheses``.
     """
     object_ids = tuple(object_ids)
     k, m_count = modes.shape
@@ -181,8 +210,13 @@ def compute_belief(t: float, object_ids, known: np.ndarray, perceived: np.ndarra
         if not known[m]:
             continue
         mean, cov, q, ang = means[m], covs[m], quats[m], float(angs[m])
+        top = int(np.argmax(p_lab[m]))
+        if static[m] or n_lab[m, top] == k:  # one mode: the headline is the mean
+            pos, pos_cov = mean, cov
+        else:
+            pos, pos_cov = _group_stats(poses[:, m, :3], weights, labels[:, m] == top)
         if not static[m] and cov_floor > 0:
-            cov = cov + cov_floor * eye
+            cov, pos_cov = cov + cov_floor * eye, pos_cov + cov_floor * eye
         p_held = float(p_held_all[m])
         p_plausible = 1.0 - p_held if perceived[m] else 1.0
         hyps = []
@@ -192,7 +226,8 @@ def compute_belief(t: float, object_ids, known: np.ndarray, perceived: np.ndarra
                 rel, sup = _label_name(lab, object_ids)
                 hyps.append(Hypothesis(p, rel, sup, pos_lab[m, lab] / p if p > 0 else pos_lab[m, lab]))
             hyps.sort(key=lambda h: -h.p)
-        objects[oid] = ObjectBelief(mean, q, cov, ang, bool(perceived[m]), p_plausible, p_held, tuple(hyps))
+        objects[oid] = ObjectBelief(pos, q, pos_cov, ang, bool(perceived[m]), p_plausible, p_held, tuple(hyps),
+                                    mean, cov)
     p_on = np.tensordot(weights, on_top.astype(float), axes=1)
     p_in = np.tensordot(weights, is_in.astype(float), axes=1) if is_in.any() else np.zeros(is_in.shape[1:])
     relations = relation_list(None, None, object_ids, p_on, p_in, threshold=min_p)

@@ -14,29 +14,51 @@ import logging
 import os
 import sys
 import time
-from importlib import resources
 
 import numpy as np
 
-from estimator.config import (EstimatorConfig, NoiseConfig, ReasonerConfig, config_from_dict, config_to_dict,
-                              default_config, read_config_file)
+from estimator.config import (EstimatorConfig, ReasonerConfig, config_from_dict, config_to_dict, default_config,
+                              read_config_file)
 from estimator.filter import SceneEstimator
 from estimator.observations import ObservationReader
 from physics.scene import load_scene
 
 
+DEFAULT_PARTICLES = 64
+"""Particle worlds K of ``run``, ``config``, ``track --feedback`` and ``demo`` when neither the
+command line (``--particles``, ``--paper``) nor a configuration file says: every built-in scenario
+runs in real time at K = 64 on two cores (README, *Speed*)."""
+
+
+def _particles(args, file_data) -> int | None:
+    """K asked for: ``--paper`` is 1, else ``--particles``; ``None`` when a configuration file
+    decides (it names ``particles`` or ``base: paper``); else :data:`DEFAULT_PARTICLES`."""
+    if getattr(args, "paper", False):
+        if args.particles not in (None, 1) or args.noise:
+            raise ValueError("--paper is one world without noise: drop --particles / --noise")
+        return 1
+    if args.particles is not None:
+        return args.particles
+    if isinstance(file_data, dict) and ("particles" in file_data or file_data.get("base") == "paper"):
+        return None
+    return DEFAULT_PARTICLES
+
+
 def build_config(args) -> EstimatorConfig:
-    """Estimator configuration from ``run`` arguments. Without ``--config``, one particle is the
-    paper's reasoner unless ``--noise`` is given, more particles use the default noise unless
+    """Estimator configuration from ``run`` arguments. Without ``--config``, the particle filter
+    with :data:`DEFAULT_PARTICLES` worlds and its default noise; ``--paper`` (or ``--particles 1``)
+    is the paper's reasoner unless ``--noise`` is given; more particles use the default noise unless
     ``--no-noise``. A configuration file (``--config``) changes the fields it names; options given
     on the command line win over the file."""
-    base = "particles" if args.noise else ("paper" if args.no_noise else None)
+    paper = getattr(args, "paper", False)
+    base = "particles" if args.noise else ("paper" if args.no_noise or paper else None)
     file_data = None
     if args.config:
         file_data, lines = read_config_file(args.config)
-        cfg = config_from_dict(file_data, path=args.config, lines=lines, particles=args.particles, base=base)
+        cfg = config_from_dict(file_data, path=args.config, lines=lines, particles=_particles(args, file_data),
+                               base=base)
     else:
-        cfg = default_config(args.particles or 1, base)
+        cfg = default_config(_particles(args, None), base)
     given = {name: getattr(args, name) for name in ("horizon", "t_perceived", "d_sim_perc", "d_perc_prev")
              if getattr(args, name) is not None}
     if given:
@@ -169,7 +191,10 @@ def _add_estimator_arguments(p: argparse.ArgumentParser) -> None:
                    help="estimator configuration file (YAML or JSON): the fields to change, e.g. "
                         "'noise: {position_std: 0.02}'; `scene-estimator config` prints them all")
     p.add_argument("--particles", type=int, default=None,
-                   help="particle worlds K (default 1: the paper's reasoner)")
+                   help=f"particle worlds K (default {DEFAULT_PARTICLES}, or the configuration file's; "
+                        "1: the paper's reasoner)")
+    p.add_argument("--paper", action="store_true",
+                   help="the paper's reasoner: one world, no noise (same as --particles 1)")
     p.add_argument("--workers", type=int, default=None,
                    help="worker processes holding the particle worlds (0: in this process; "
                         "default: one per core when there is more than one particle)")
@@ -248,33 +273,6 @@ def cmd_run(args) -> int:
     return 0
 
 
-def demo_files() -> tuple[str, str]:
-    """Paths of the built-in demo scene and observation stream."""
-    base = resources.files("experiments.data")
-    return str(base / "demo_scene.yaml"), str(base / "demo_observations.jsonl")
-
-
-def cmd_demo(args) -> int:
-    scene, obs = demo_files()
-    who = ("The paper's reasoner (one world, no noise)" if args.particles <= 1
-           else f"The particle estimator ({args.particles} perturbed worlds)")
-    print("Built-in demo: a cup hidden behind a box; the box is pulled back and the cup falls off the\n"
-          f"table, unseen. {who} infers where it went.\n")
-    out = timeline = None
-    if args.out:
-        os.makedirs(args.out, exist_ok=True)
-        out = os.path.join(args.out, "estimates.jsonl")
-        timeline = os.path.join(args.out, "timeline.json")
-    cfg = EstimatorConfig.paper()
-    if args.particles > 1:
-        cfg = EstimatorConfig(particles=args.particles, workers=args.workers, noise=NoiseConfig())
-    summary = run_stream(scene, obs, cfg, args.seed, out, timeline, quiet=False)
-    print_summary(summary)
-    if out:
-        print(f"\nwrote {out} and {timeline}")
-    return 0
-
-
 def cmd_config(args) -> int:
     """Print the effective estimator configuration (every field) as YAML, or JSON with --json."""
     cfg = build_config(args)
@@ -297,12 +295,11 @@ def main(argv: list[str] | None = None) -> int:
     _add_estimator_arguments(p_cfg)
     p_cfg.add_argument("--json", action="store_true", help="JSON instead of YAML")
     p_cfg.set_defaults(func=cmd_config)
+    from .demo_cli import add_demo_arguments, run_demo
+
     p_demo = sub.add_parser("demo", help="run the built-in example")
-    p_demo.add_argument("--out", help="folder to write estimates.jsonl and timeline.json to")
-    p_demo.add_argument("--particles", type=int, default=1)
-    p_demo.add_argument("--workers", type=int, default=0)
-    p_demo.add_argument("--seed", type=int, default=0)
-    p_demo.set_defaults(func=cmd_demo)
+    add_demo_arguments(p_demo)
+    p_demo.set_defaults(func=run_demo)
     from .bench import add_bench_arguments, run_bench
     from .evaluate_cli import add_evaluate_arguments, run_evaluate
     from .fit_priors import add_fit_arguments, run_fit

@@ -18,6 +18,7 @@ import numpy as np
 import yaml
 
 from .errors import InputError, SceneError
+from .hollow import urdf_is_open
 
 PYBULLET_DATA_PREFIX = "pybullet_data://"
 SHAPES = ("urdf", "box", "sphere", "cylinder", "container")
@@ -34,8 +35,9 @@ class ObjectSpec:
     at the centre of their bounding box. ``position`` / ``orientation`` give the initial (for static
     objects: fixed) pose, or are ``None`` when the object is unknown until first perceived.
     ``mass`` ``None`` keeps the URDF's mass (primitives then default to 0.1 kg). ``hollow``: whether
-    the object may contain others (isIn); ``None`` (the default) means open containers and dynamic
-    URDF meshes (a mug, a tray) may, solid primitives and static URDFs (a table) may not.
+    the object may contain others (isIn); ``None`` (the default) decides it from the shape, static
+    or not: open containers may, solid primitives may not, and a URDF may when its geometry is open
+    (:func:`physics.hollow.urdf_is_open`: a tray, a mug, but not a table, a cube or a duck).
     """
 
     id: str
@@ -62,7 +64,9 @@ class ObjectSpec:
         """Whether this object may contain others (see ``hollow``)."""
         if self.hollow is not None:
             return self.hollow
-        return self.shape == "container" or (self.shape == "urdf" and not self.static)
+        if self.shape == "urdf":
+            return urdf_is_open(self.urdf, self.scale)
+        return self.shape == "container"
 
 
 @dataclass(frozen=True)

@@ -53,3 +53,64 @@ def test_hypotheses_group_particles_by_support():
     j = b.to_json()
     assert j["objects"]["ball"]["hypotheses"][0] == {"p": 0.7, "relation": "isOnTop", "support": "floor",
                                                       "position": [0.0, 0.0, pytest.approx(0.041429, abs=1e-6)]}
+
+
+def _cup_held_or_fallen(rng, k=400, p_floor=0.7):
+    """A bimodal particle set of a cup (object 1; object 0 is a static table): a fraction
+    ``p_floor`` of the weight on the floor near (1.0, 0.3, 0.05), the rest held near (0.2, 0.0, 1.0)."""
+    m = 2
+    floor = rng.random(k) < 0.5
+    poses = np.zeros((k, m, 7))
+    poses[..., 6] = 1
+    poses[floor, 1, :3] = rng.normal([1.0, 0.3, 0.05], 0.01, (floor.sum(), 3))
+    poses[~floor, 1, :3] = rng.normal([0.2, 0.0, 1.0], 0.02, ((~floor).sum(), 3))
+    w = np.where(floor, p_floor / floor.sum(), (1 - p_floor) / (~floor).sum())
+    modes = np.full((k, m), FREE)
+    modes[~floor, 1] = HELD
+    on_top = np.zeros((k, m, m + 1), bool)
+    on_top[floor, 1, m] = True  # on the floor
+    return poses, w, modes, on_top, np.zeros((k, m, m), bool), floor
+
+
+@pytest.mark.parametrize("p_floor", [0.7, 0.3])
+def test_a_bimodal_belief_reports_the_heavier_mode_not_the_mean(p_floor):
+    rng = np.random.default_rng(12)
+    poses, w, modes, on_top, is_in, floor = _cup_held_or_fallen(rng, p_floor=p_floor)
+    b = compute_belief(2.0, ["table", "cup"], np.ones(2, bool), np.zeros(2, bool), poses, w, modes, on_top,
+                       is_in, [], 100.0, np.array([True, False]), cov_floor=1e-6)
+    cup = b.objects["cup"]
+    heavy = floor if p_floor > 0.5 else ~floor
+    assert cup.hypotheses[0].p == pytest.approx(max(p_floor, 1 - p_floor))
+    # the headline is the heavier mode's weighted mean and covariance (+ the floor), where particles are
+    expected = w[heavy] @ poses[heavy, 1, :3] / w[heavy].sum()
+    assert np.allclose(cup.position, expected) and np.allclose(cup.position, cup.hypotheses[0].position)
+    dev = poses[heavy, 1, :3] - expected
+    assert np.allclose(cup.position_cov, (dev.T * w[heavy] / w[heavy].sum()) @ dev + 1e-6 * np.eye(3))
+    assert np.sqrt(np.trace(cup.position_cov)) < 0.05  # one mode's spread: centimetres, not the gap
+    # the overall mean lies between the modes, with the gap in its covariance, kept apart
+    assert np.allclose(cup.mean_position, w @ poses[:, 1, :3])
+    assert np.linalg.norm(cup.mean_position - cup.position) > 0.2
+    assert np.sqrt(np.trace(cup.mean_position_cov)) > 0.3
+    j = b.to_json()["objects"]["cup"]
+    assert j["position"] == pytest.approx(cup.position.tolist(), abs=1e-6)
+    assert j["mean_position"] == pytest.approx(cup.mean_position.tolist(), abs=1e-6)
+    assert np.allclose(j["mean_position_cov"], cup.mean_position_cov, atol=1e-8)
+
+
+def test_a_one_mode_belief_is_its_mean():
+    rng = np.random.default_rng(5)
+    poses, w, modes, on_top, is_in, floor = _cup_held_or_fallen(rng)
+    modes[:] = FREE
+    on_top[:, 1, 2] = True  # every particle says "on the floor"
+    b = compute_belief(2.0, ["table", "cup"], np.ones(2, bool), np.zeros(2, bool), poses, w, modes, on_top,
+                       is_in, [], 100.0, np.array([True, False]), cov_floor=1e-6)
+    cup = b.objects["cup"]
+    means, covs, _, _ = pose_stats(poses, w)
+    assert len(cup.hypotheses) == 1
+    assert np.array_equal(cup.position, means[1]) and np.array_equal(cup.mean_position, means[1])
+    assert np.array_equal(cup.position_cov, covs[1] + 1e-6 * np.eye(3))
+    assert np.array_equal(cup.mean_position_cov, cup.position_cov)
+    one = compute_belief(2.0, ["table", "cup"], np.ones(2, bool), np.zeros(2, bool), poses[:1], np.ones(1),
+                         modes[:1], on_top[:1], is_in[:1], [], 1.0, np.array([True, False]))
+    assert np.array_equal(one.objects["cup"].position, poses[0, 1, :3])
+    assert np.all(one.objects["cup"].position_cov == 0) and np.all(one.objects["cup"].mean_position_cov == 0)

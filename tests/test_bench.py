@@ -10,7 +10,8 @@ import pytest
 
 from experiments import bench_scenario
 from experiments.bench import StreamTiming, bench_one, bench_scene
-from experiments.cli import demo_files, main
+from experiments.cli import main
+from experiments.demo_cli import demo_files
 from experiments.scenarios import list_scenarios
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -142,7 +143,7 @@ def test_bench_json_is_all_of_stdout_with_worker_processes():
 def test_no_pybullet_banner_on_stdout(args):
     if args == ("run",):
         scene, obs = demo_files()
-        args = ("run", "--scene", scene, "--observations", obs)
+        args = ("run", "--scene", scene, "--observations", obs, "--paper")
     res = _cli(*args)
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip() and BANNER not in res.stdout

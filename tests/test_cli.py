@@ -1,6 +1,7 @@
 """The command line end to end."""
 import dataclasses
 import json
+import re
 import subprocess
 import sys
 
@@ -47,7 +48,7 @@ def test_run_writes_estimates_and_timeline(files, capsys):
     tmp, scene, obs = files
     out, tl = tmp / "e.jsonl", tmp / "t.json"
     assert main(["run", "--scene", str(scene), "--observations", str(obs), "--out", str(out),
-                 "--timeline", str(tl)]) == 0
+                 "--timeline", str(tl), "--paper"]) == 0
     lines = [json.loads(x) for x in out.read_text().splitlines()]
     assert len(lines) >= 15 and all(set(x) == {"t", "objects", "relations", "events", "ess"} for x in lines)
     box = lines[-1]["objects"]["box"]
@@ -58,6 +59,11 @@ def test_run_writes_estimates_and_timeline(files, capsys):
     assert any(f["predicate"] == "isOnTop" and f["end"] is None for f in timeline["facts"])
     printed = capsys.readouterr().out
     assert "Pick" in printed and "Final poses" in printed
+    # without --paper: the particle estimator (K = 64), with uncertainty
+    assert main(["run", "--scene", str(scene), "--observations", str(obs), "--out", str(out), "--workers", "0",
+                 "--quiet"]) == 0
+    box = json.loads(out.read_text().splitlines()[-1])["objects"]["box"]
+    assert np.trace(box["position_cov"]) > 0 and box["mean_position_cov"] == box["position_cov"]  # one mode
 
 
 def test_bad_frame_is_reported_with_location_or_skipped(files, capsys):
@@ -65,19 +71,19 @@ def test_bad_frame_is_reported_with_location_or_skipped(files, capsys):
     rows = stream(10)
     rows[4] = '{"t": 0.2, "objects": {"box": {"position": [0, NaN, 1]}}}'
     write_jsonl(obs, rows)
-    assert main(["run", "--scene", str(scene), "--observations", str(obs)]) == 2
+    assert main(["run", "--scene", str(scene), "--observations", str(obs), "--paper"]) == 2
     err = capsys.readouterr().err
     assert f"{obs}:5: objects.box.position[1]: non-finite" in err and "Traceback" not in err
-    assert main(["run", "--scene", str(scene), "--observations", str(obs), "--skip-bad-frames"]) == 0
+    assert main(["run", "--scene", str(scene), "--observations", str(obs), "--skip-bad-frames", "--paper"]) == 0
     assert "1 bad frame(s) skipped" in capsys.readouterr().err
 
 
 def test_missing_scene_or_urdf_is_a_clear_error(files, capsys):
     tmp, scene, obs = files
-    assert main(["run", "--scene", str(tmp / "nope.yaml"), "--observations", str(obs)]) == 2
+    assert main(["run", "--scene", str(tmp / "nope.yaml"), "--observations", str(obs), "--paper"]) == 2
     assert "scene file not found" in capsys.readouterr().err
     scene.write_text(SCENE.replace("table/table.urdf", "table/missing.urdf"))
-    assert main(["run", "--scene", str(scene), "--observations", str(obs)]) == 2
+    assert main(["run", "--scene", str(scene), "--observations", str(obs), "--paper"]) == 2
     err = capsys.readouterr().err
     assert "URDF file not found" in err and "objects[0].urdf" in err and ":5:" in err
 
@@ -87,41 +93,75 @@ def test_unknown_object_and_time_going_backwards(files, capsys):
     rows = stream(6)
     rows[2] = {"t": 0.5, "objects": {"mug": {"position": [0, 0, 1]}}}
     write_jsonl(obs, rows)
-    assert main(["run", "--scene", str(scene), "--observations", str(obs)]) == 2
+    assert main(["run", "--scene", str(scene), "--observations", str(obs), "--paper"]) == 2
     assert "unknown object id 'mug'" in capsys.readouterr().err
     rows[2] = {"t": 0.01, "objects": {}}
     rows[3] = {"t": 0.005, "objects": {}}
     write_jsonl(obs, rows)
-    assert main(["run", "--scene", str(scene), "--observations", str(obs)]) == 2
+    assert main(["run", "--scene", str(scene), "--observations", str(obs), "--paper"]) == 2
     assert "strictly increasing" in capsys.readouterr().err
 
 
-def test_demo_runs_without_arguments(tmp_path):
+def test_demo_runs_without_arguments_with_particles_beside_the_paper(tmp_path):
     res = subprocess.run([sys.executable, "-m", "experiments.cli", "demo", "--out", str(tmp_path)],
                          capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
     assert "Final poses" in res.stdout and "cup" in res.stdout
-    last = json.loads((tmp_path / "estimates.jsonl").read_text().splitlines()[-1])
-    cup = last["objects"]["cup"]
-    assert not cup["perceived"] and cup["position"][2] < 0.2  # the hidden cup is on the floor
-    assert cup["hypotheses"][0]["support"] == "floor"
+    cup_block = res.stdout[res.stdout.index("  cup (hidden)"):]
+    assert re.search(r"particle estimator \(K = 64\): +isOnTop floor +p=\d\.\d\d", cup_block)
+    assert re.search(r"paper's reasoner: +isOnTop floor", cup_block)
+    for name in ("estimates.jsonl", "paper_estimates.jsonl"):
+        last = json.loads((tmp_path / name).read_text().splitlines()[-1])
+        cup = last["objects"]["cup"]
+        assert not cup["perceived"] and cup["position"][2] < 0.2  # the hidden cup is on the floor
+        assert cup["hypotheses"][0]["support"] == "floor"
+    particles = json.loads((tmp_path / "estimates.jsonl").read_text().splitlines()[-1])["objects"]["cup"]
+    paper = json.loads((tmp_path / "paper_estimates.jsonl").read_text().splitlines()[-1])["objects"]["cup"]
+    assert np.trace(particles["position_cov"]) > 1e-4 and np.trace(paper["position_cov"]) == 0
 
 
-def test_one_particle_without_noise_is_exactly_the_papers_reasoner():
+def test_demo_paper_runs_the_papers_reasoner_alone(capsys):
+    assert main(["demo", "--paper"]) == 0
+    out = capsys.readouterr().out
+    assert "The paper's reasoner (one world, no noise)" in out and "Final poses" in out
+    assert "particle estimator" not in out
+
+
+def _run_args(**kw):
     import argparse
+    base = dict(config=None, particles=None, paper=False, workers=None, noise=False, no_noise=False, horizon=None,
+                t_perceived=None, d_sim_perc=None, d_perc_prev=None)
+    base.update(kw)
+    return argparse.Namespace(**base)
+
+
+def test_run_defaults_to_the_particle_estimator_and_paper_is_asked_for():
+    from estimator.config import EstimatorConfig, default_config
+    from experiments.cli import DEFAULT_PARTICLES, build_config
+
+    default = build_config(_run_args())
+    assert DEFAULT_PARTICLES == 64
+    assert dataclasses.replace(default, workers=0) == default_config(64) and not default.paper_mode
+    assert default.workers >= 1  # one worker per core
+    assert build_config(_run_args(paper=True)) == EstimatorConfig.paper()
+    assert build_config(_run_args(particles=1)) == EstimatorConfig.paper()
+    assert build_config(_run_args(particles=8, no_noise=True)).noise.is_off
+    many = build_config(_run_args(particles=8))
+    assert many.particles == 8 and not many.noise.is_off and many.workers >= 1 and not many.paper_mode
+    with pytest.raises(ValueError, match="--paper"):
+        build_config(_run_args(paper=True, particles=8))
+
+
+def test_a_configuration_file_decides_k_when_the_command_line_does_not(tmp_path):
     from estimator.config import EstimatorConfig
     from experiments.cli import build_config
 
-    def args(**kw):
-        base = dict(config=None, particles=1, workers=None, noise=False, no_noise=False, horizon=0.08, t_perceived=0.7,
-                    d_sim_perc=0.045, d_perc_prev=0.032)
-        base.update(kw)
-        return argparse.Namespace(**base)
-
-    assert build_config(args()) == EstimatorConfig.paper()
-    assert build_config(args(particles=8, no_noise=True)).noise.is_off
-    many = build_config(args(particles=8))
-    assert not many.noise.is_off and many.workers >= 1 and not many.paper_mode
+    for text, k in [("noise: {position_std: 0.02}\n", 64), ("particles: 16\n", 16), ("base: paper\n", 1)]:
+        (tmp_path / "c.yaml").write_text(text)
+        assert build_config(_run_args(config=str(tmp_path / "c.yaml"))).particles == k
+    assert build_config(_run_args(config=str(tmp_path / "c.yaml"))) == EstimatorConfig.paper()
+    (tmp_path / "c.yaml").write_text("particles: 16\n")
+    assert build_config(_run_args(config=str(tmp_path / "c.yaml"), paper=True)) == EstimatorConfig.paper()
 
 
 def test_interrupted_run_keeps_what_it_wrote(tmp_path):

@@ -282,7 +282,8 @@ def test_cli_end_to_end_with_bag_out(tmp_path, capsys, out_name):
     scene = write_scene(tmp_path)
     bag = frames_to_tf_bag(tmp_path / "in.bag", lift_frames(30))
     out, bag_out = tmp_path / "e.jsonl", tmp_path / out_name
-    code = main(["run", "--scene", scene, "--bag", bag, "--out", str(out), "--bag-out", str(bag_out), "--quiet"])
+    code = main(["run", "--scene", scene, "--bag", bag, "--out", str(out), "--bag-out", str(bag_out), "--quiet",
+                 "--paper"])
     assert code == 0
     lines = [json.loads(x) for x in out.read_text().splitlines()]
     assert len(lines) >= 5
@@ -305,18 +306,18 @@ def test_cli_end_to_end_with_bag_out(tmp_path, capsys, out_name):
 def test_cli_bad_input_exits_2_with_a_located_message(tmp_path, capsys):
     scene = write_scene(tmp_path)
     bag = frames_to_tf_bag(tmp_path / "in.bag", lift_frames(3))
-    assert main(["run", "--scene", scene, "--bag", str(tmp_path / "missing.bag"), "--quiet"]) == 2
+    assert main(["run", "--scene", scene, "--bag", str(tmp_path / "missing.bag"), "--quiet", "--paper"]) == 2
     assert f"error: {tmp_path / 'missing.bag'}: bag not found" in capsys.readouterr().err
     topics = tmp_path / "topics.yaml"
     topics.write_text("sources:\n  - topic: /tf\n    type: tf\n    objects: {box: bowl}\n")
-    assert main(["run", "--scene", scene, "--bag", bag, "--topics", str(topics), "--quiet"]) == 2
+    assert main(["run", "--scene", scene, "--bag", bag, "--topics", str(topics), "--quiet", "--paper"]) == 2
     assert f"error: {topics}:4: sources[0].objects.box: unknown object id 'bowl'" in capsys.readouterr().err
     topics.write_text("sources:\n  - topic: /camera/tags\n    type: tf\n")
-    assert main(["run", "--scene", scene, "--bag", bag, "--topics", str(topics), "--quiet"]) == 2
+    assert main(["run", "--scene", scene, "--bag", bag, "--topics", str(topics), "--quiet", "--paper"]) == 2
     assert f"error: {topics}:2: sources[0].topic: topic /camera/tags is not in" in capsys.readouterr().err
-    assert main(["run", "--scene", scene, "--bag", bag, "--bag-out", bag, "--quiet"]) == 2
+    assert main(["run", "--scene", scene, "--bag", bag, "--bag-out", bag, "--quiet", "--paper"]) == 2
     assert f"error: {bag}: output bag already exists" in capsys.readouterr().err
-    assert main(["run", "--scene", scene, "--observations", "o.jsonl", "--topics", str(topics)]) == 2
+    assert main(["run", "--scene", scene, "--observations", "o.jsonl", "--topics", str(topics), "--paper"]) == 2
     assert "error: --topics needs --bag" in capsys.readouterr().err
     with pytest.raises(SystemExit) as exc:
         main(["run", "--scene", scene, "--bag", bag, "--observations", "o.jsonl"])

@@ -52,7 +52,7 @@ def test_track_stream_is_an_observation_stream(cup_run, capsys):
                  "--fusion", "replace", "--particles", "4", "--workers", "0", "--seed", "1"]) == 0
     assert _ids_per_frame(replaced, ids) == _ids_per_frame(fed, ids)
     # `run` accepts the tracked stream
-    assert main(["run", "--scene", scene, "--observations", fed, "--quiet", "--out", str(out / "e.jsonl")]) == 0
+    assert main(["run", "--scene", scene, "--observations", fed, "--quiet", "--paper", "--out", str(out / "e.jsonl")]) == 0
     assert len((out / "e.jsonl").read_text().splitlines()) >= 10
 
 

@@ -38,3 +38,17 @@ def test_a_file_that_is_not_xml_is_left_to_pybullet(tmp_path):
     bad.write_text("<robot><link")
     assert collision_only_urdf(str(bad)) == str(bad)
     assert collision_only_urdf(str(tmp_path / "missing.urdf")) == str(tmp_path / "missing.urdf")
+
+
+def test_visual_geometry_copy_collides_as_its_look():
+    from physics.urdf import visual_geometry_urdf
+    src = os.path.join(DATA, "objects/mug.urdf")
+    out = visual_geometry_urdf(src)
+    assert out not in (src, collision_only_urdf(src)) and visual_geometry_urdf(src) == out
+    root = ET.parse(out).getroot()
+    assert not list(root.iter("visual"))
+    collisions = list(root.iter("collision"))
+    assert len(collisions) == len(list(ET.parse(src).getroot().iter("visual"))) == 1
+    assert collisions[0].get("concave") == "yes"
+    assert os.path.basename(collisions[0].find("geometry/mesh").get("filename")) == "mug.obj"
+    assert all(m.get("value") == "0" for m in root.iter("mass"))
