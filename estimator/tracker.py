@@ -104,6 +104,15 @@ class TrackerConfig:
         return float(chi2.ppf(self.gate_probability, 3))
 
 
+def moments(ob) -> tuple[np.ndarray, np.ndarray]:
+    """Mean ``(3,)`` and covariance ``(3, 3)`` of an object's whole belief (all its hypotheses: the
+    moment-matched Gaussian a Kalman filter can take), from an
+    :class:`~estimator.belief.ObjectBelief` (its ``position`` is the most probable hypothesis's)."""
+    mean = ob.position if ob.mean_position is None else ob.mean_position
+    cov = ob.position_cov if ob.mean_position_cov is None else ob.mean_position_cov
+    return np.asarray(mean, float).reshape(3), np.asarray(cov, float).reshape(3, 3)
+
+
 def transition(dt: float) -> np.ndarray:
     """Constant-velocity transition ``F (6, 6)`` over ``dt`` seconds."""
     f = np.eye(6)
@@ -268,8 +277,9 @@ class PhysicsAwareTracker:
     # -- physics feedback -------------------------------------------------------------------------
     def feedback(self, belief: Belief) -> list[str]:
         """Pseudo-measurements from the estimator's belief for every object it has that was not
-        detected (accepted) in the last frame: a Kalman update with ``z = belief position (3,)`` and
-        ``R = position_cov (3, 3) + pseudo_std_floor^2 I``. A pseudo-measurement outside the gate
+        detected (accepted) in the last frame: a Kalman update with ``z (3,)`` and ``R = cov (3, 3) +
+        pseudo_std_floor^2 I`` from the moments of the object's whole belief (:func:`moments`: with
+        several hypotheses, their mixture's mean and covariance). A pseudo-measurement outside the gate
         (physics says the hidden object fell or was pushed, which a constant-velocity model with
         ``accel_std`` cannot follow) is not rejected: the track restarts at the belief's position with
         its covariance and zero velocity (counted in :attr:`pseudo_resets`), so the track always lies
@@ -291,21 +301,22 @@ class PhysicsAwareTracker:
         for oid, ob in belief.objects.items():
             if oid in self.detected:
                 continue
-            r = np.asarray(ob.position_cov, float).reshape(3, 3) + floor2 * np.eye(3)
+            z, cov = moments(ob)
+            r = cov + floor2 * np.eye(3)
             r = 0.5 * (r + r.T)
             track = self.tracks.get(oid)
             if track is None:
                 if self.object_ids is None or oid not in self.object_ids:
                     continue
-                track = Track(self.new_filter(ob.position, r), -np.inf, self.t,
+                track = Track(self.new_filter(z, r), -np.inf, self.t,
                               np.asarray(ob.orientation, float))
                 self.tracks[oid] = track
             elif self.config.pseudo_fusion == "replace":
-                track.kf = self.new_filter(ob.position, r)
-            elif self.mahalanobis2(oid, ob.position, r) <= self._gate:
-                track.kf.update(np.asarray(ob.position, float).reshape(3, 1), R=r)
+                track.kf = self.new_filter(z, r)
+            elif self.mahalanobis2(oid, z, r) <= self._gate:
+                track.kf.update(z.reshape(3, 1), R=r)
             else:  # physics moved it beyond the constant-velocity model (a fall, a push): restart there
-                track.kf = self.new_filter(ob.position, r)
+                track.kf = self.new_filter(z, r)
                 self.pseudo_resets += 1
             track.orientation = np.asarray(ob.orientation, float)
             track.last_support = self.t

@@ -190,3 +190,18 @@ def test_config_is_checked():
     with pytest.raises(ValueError, match="gate_probability"):
         TrackerConfig(gate_probability=1.0)
     assert TrackerConfig().gate == pytest.approx(11.3449, abs=1e-3)
+
+
+def test_pseudo_measurement_is_the_whole_beliefs_moments_not_its_main_hypothesis():
+    """A belief with two hypotheses reports the heavier one's position; the tracker takes the
+    mixture's mean and covariance (mean_position, mean_position_cov), the Gaussian a Kalman filter
+    can hold."""
+    trk = PhysicsAwareTracker(TrackerConfig(pseudo_fusion="replace"), object_ids=("cup",))
+    trk.update(frame(0.0))
+    mode_cov, mix_cov = 1e-4 * np.eye(3), np.diag([4e-2, 1e-4, 1e-2])
+    ob = ObjectBelief(np.array([0.5, 0.0, 0.9]), np.array([0, 0, 0, 1.0]), mode_cov, 0.0, False, 1.0, 0.7,
+                      mean_position=np.array([0.3, 0.0, 0.6]), mean_position_cov=mix_cov)
+    trk.feedback(Belief(0.0, {"cup": ob}, [], [], 1.0))
+    tr = trk.tracks["cup"]
+    np.testing.assert_allclose(tr.position, [0.3, 0.0, 0.6])
+    np.testing.assert_allclose(tr.position_cov, mix_cov + trk.config.pseudo_std_floor ** 2 * np.eye(3))
