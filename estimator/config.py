@@ -216,6 +216,14 @@ class EstimatorConfig:
     * ``fresh_checks``: only objects detected since the previous update are tested for divergence
       (a released object is not pulled back to where it was last seen); the paper tests every object
       seen within ``t_perceived`` (off in paper mode).
+    * ``moving_teleports``: an object teleported to a detection while it was tracked at the previous
+      update (not a first sighting, nor a re-sighting after a loss) and moving along its support
+      (vertical speed under 0.2 m/s, ``model.MOVING_MAX_VERTICAL_SPEED``: not falling) keeps moving: it gets its
+      perceived velocity over the reasoning period (and keeps its particle's spin), and its divergence
+      test compares it with its detection carried on at that velocity through the update (Algorithm 2
+      teleports at rest and Algorithm 1 tests against the fixed detection: off in paper mode, where a
+      moving object that leaves view stops where it was last seen). A moving object that leaves view
+      then goes on as physics says.
     * ``physics``: the particle worlds' engine settings; the solver stops at a residual of 1e-4
       (the ground-truth simulator keeps pybullet's 1e-7): resting scenes step faster; URDFs are
       loaded without their visual meshes and textures (much less memory and start-up); objects at
@@ -241,6 +249,7 @@ class EstimatorConfig:
     follow_hands: bool = True
     lazy_checks: bool = True
     fresh_checks: bool = True
+    moving_teleports: bool = True
     visibility_threshold: float = 0.3
     hypothesis_min_p: float = 0.02
 
@@ -268,9 +277,9 @@ class EstimatorConfig:
     def paper(cls, reasoner: ReasonerConfig | None = None) -> "EstimatorConfig":
         """The single-world, noise-free physics reasoner of Sallami et al. (2019)."""
         return cls(particles=1, noise=NoiseConfig.off(), reasoner=reasoner or ReasonerConfig(),
-                   priors=ModePriors(release_on_loss=1.0, release_on_loss_carried=1.0,
-                                                    release_on_loss_still=1.0), negative_evidence=False, follow_hands=False,
-                   lazy_checks=False, fresh_checks=False)
+                   priors=ModePriors(release_on_loss=1.0, release_on_loss_carried=1.0, release_on_loss_still=1.0),
+                   negative_evidence=False, follow_hands=False, lazy_checks=False, fresh_checks=False,
+                   moving_teleports=False)
 
 
 SECTIONS: dict[str, type] = {"reasoner": ReasonerConfig, "noise": NoiseConfig, "priors": ModePriors,

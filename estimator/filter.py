@@ -162,7 +162,7 @@ class SceneEstimator:
         move = model.move(self.state, frame, detected, perceived, dt, self.rng)
         batch = model.batch(move, self.state, self._changed_slots(move.poses, move.velocities),
                             self._settled_entries(move.poses, move.velocities))
-        out = self.pool.run(batch, n_steps, cfg.reasoner.d_sim_perc, cfg.lazy_checks)
+        out = self.pool.run(batch, n_steps, cfg.reasoner.d_sim_perc, cfg.lazy_checks, cfg.moving_teleports)
         bad = self._reset_exploded(out, move.poses, move.modes, t)
         settled = model.settle(self.state, move, out, t, dt, detected, perceived)
         # weigh (the model's terms)

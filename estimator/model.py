@@ -33,6 +33,7 @@ from .held import hand_offset_walk
 from .likelihood import (DetectionTerm, Evidence, LogWeightTerm, ModeSwitchTerm, NegativeEvidenceTerm, add_terms,
                          exploded_log_likelihood)
 from .observations import Frame
+from .params import param_bounds, shrink_params
 from .perception_memory import PerceptionMemory
 from .pool import BatchInput, BatchOutput
 from .relations import relations_and_support
@@ -54,6 +55,12 @@ def initial_poses(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
         else:
             poses[i, :3] = [50.0 + 3.0 * i, 50.0, -50.0]  # parked until first perceived
     return poses, known
+
+
+MOVING_MAX_VERTICAL_SPEED = 0.2
+"""With ``moving_teleports``, only objects perceived moving along their support (vertical speed below
+this, m/s) keep their velocity when teleported: a falling object's finite-difference velocity (over
+a bounce, into a container) throws its particles off, and the paper's teleport at rest serves it well."""
 
 
 @dataclass(frozen=True)
@@ -177,16 +184,23 @@ class SceneModel:
         # teleports and first sightings
         newly_known = perceived & ~self.known
         tele = perceived & (~mem.perceived_prev | mem.jumped() | newly_known)
-        mem.perc_vel[tele] = 0.0  # a finite difference across a jump or a gap is no velocity
+        # a finite difference across a jump or a gap is no velocity; one across a reasoning period
+        # of continuous tracking is (moving_teleports: an object tracked in motion keeps moving)
+        tick_vel = mem.tick_velocity()
+        along = np.abs(tick_vel[:, 2]) < MOVING_MAX_VERTICAL_SPEED  # rolling or sliding, not falling
+        moving = tele & mem.perceived_prev & ~newly_known & detected & along if cfg.moving_teleports \
+            else tele & False
+        mem.perc_vel[tele] = 0.0
+        mem.perc_vel[moving, :3] = tick_vel[moving]
         if np.any(tele):
-            self.teleport(poses, vel, np.flatnonzero(tele), newly_known, state.is_in, rng)
+            self.teleport(poses, vel, np.flatnonzero(tele), newly_known, state.is_in, rng, moving)
         self.known |= perceived
         modes, release_codes = self.release(prev_modes, perceived, state.supported, rng,
                                             mem.following_hand(frame))
         let_go = state.let_go_unseen.copy()
         let_go[(release_codes != 0) & (mem.perceived_prev & ~perceived)[None, :]] = frame.t
         target, target_vel, hold_error = self.held_targets(frame, poses, modes, detected, perceived, dt, rng,
-                                                           state.hold_error)
+                                                           state.hold_error, tele)
         resting = state.supported & (np.linalg.norm(state.velocities[..., :3], axis=-1)
                                      < self.config.noise.rest_speed)
         jolted = self.process_noise(poses, modes, perceived, state.supported, resting, state.last_motion, dt, rng)
@@ -204,11 +218,13 @@ class SceneModel:
                     depen, vis_query, hold_error, let_go)
 
     def teleport(self, poses: np.ndarray, vel: np.ndarray, idx: np.ndarray, newly_known: np.ndarray,
-                 is_in: np.ndarray, rng: np.random.Generator) -> None:
+                 is_in: np.ndarray, rng: np.random.Generator, moving: np.ndarray | None = None) -> None:
         """Alg. 2, in place: put objects ``idx`` at their perceived pose (plus perception noise per
         particle) with the perceived velocity; the contents of each (``is_in (K, M, M)`` at the last
         update, per particle; not for ``newly_known (M,)`` objects) are carried rigidly, rotation
-        included, and given the container's velocity."""
+        included, and given the container's velocity. Objects ``moving (M,)`` bool keep each
+        particle's angular velocity (a rolling ball keeps rolling); the others are set at rest but
+        for the perceived linear velocity."""
         nz, mem, K = self.config.noise, self.memory, self.K
         new = poses[:, idx].copy()
         new[..., :3] = mem.last_pose[idx, :3]
@@ -229,8 +245,12 @@ class SceneModel:
                     poses[k, children] = carry_pose(poses[k, children], poses[k, b], new[k, j])
                     vel[k, children, :3] = mem.perc_vel[b, :3]
         poses[:, idx] = new
+        spin = vel[:, idx, 3:].copy()
         vel[:, idx] = 0.0
         vel[:, idx, :3] = mem.perc_vel[idx, :3]
+        if moving is not None:
+            keep = moving[idx]
+            vel[:, idx[keep], 3:] = spin[:, keep]
 
     def release(self, modes: np.ndarray, perceived: np.ndarray, supported: np.ndarray,
                 rng: np.random.Generator, tracked: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -260,14 +280,18 @@ class SceneModel:
 
     def held_targets(self, frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: np.ndarray,
                      perceived: np.ndarray, dt: float, rng: np.random.Generator,
-                     hold_error: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     hold_error: np.ndarray, teleported: np.ndarray | None = None
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Targets ``(K, M, 7)``, target velocities ``(K, M, 6)`` and offset errors ``(K, M, 3)``:
-        perceived objects at their perception (no noise: it would shake what a held object carries);
-        held objects not detected in this update follow the hand that held them when last detected,
-        if it is tracked, at its offset then plus each particle's error (``hold_error (K, M, 3)``
-        before, walked by :func:`~estimator.held.hand_offset_walk`), else stay where they were
-        perceived (while perceived) or where the particle has them, drifting by ``held_drift_std``
-        (m per sqrt(s)) when not perceived. Others: their pose in ``poses``."""
+        perceived objects at their perception (no noise: it would shake what a held object carries),
+        with their perceived velocity (with ``moving_teleports``, only those ``teleported (M,)`` now;
+        the divergence test then carries the target on at that velocity, see
+        :func:`~estimator.propagate.propagate_batch`); held objects not detected in this update follow
+        the hand that held them when last detected, if it is tracked, at its offset then plus each
+        particle's error (``hold_error (K, M, 3)`` before, walked by
+        :func:`~estimator.held.hand_offset_walk`), else stay where they were perceived (while
+        perceived) or where the particle has them, drifting by ``held_drift_std`` (m per sqrt(s)) when
+        not perceived. Others: their pose in ``poses``."""
         mem, nz = self.memory, self.config.noise
         new_error = np.zeros_like(hold_error)
         target = poses.copy()
@@ -277,7 +301,13 @@ class SceneModel:
             target[:, pidx, :3] = mem.last_pose[pidx, :3]
             has_q = mem.last_has_orientation[pidx]
             target[:, pidx[has_q], 3:] = mem.last_pose[pidx[has_q], 3:]
-            target_vel[:, pidx, :3] = mem.perc_vel[pidx, :3]
+            # with moving_teleports the divergence test carries a target on at its velocity: only
+            # objects teleported in motion (placed at their detection now) have one
+            with_vel = perceived
+            if self.config.moving_teleports:
+                with_vel = perceived & (np.zeros(self.M, bool) if teleported is None else teleported)
+            vidx = np.flatnonzero(with_vel)
+            target_vel[:, vidx, :3] = mem.perc_vel[vidx, :3]
         held = (modes == HELD) & ~detected[None, :]
         for m in np.flatnonzero(held.any(axis=0)):
             rows = held[:, m]
@@ -413,26 +443,3 @@ class SceneModel:
         if h > 0:
             dyn = np.flatnonzero(self.dynamic)
             state.params[:, dyn] = shrink_params(state.params[:, dyn], h, self.param_bounds, rng)
-
-
-def param_bounds(config: EstimatorConfig) -> np.ndarray:
-    """Bounds ``(5, 2)`` (low, high) of the physical parameters: their prior ranges where perturbed,
-    else ``[0, inf)``; masses at least 0.1 g."""
-    nz = config.noise
-    b = np.zeros((5, 2))
-    for col, r in enumerate([nz.friction_range, nz.rolling_friction_range,
-                             nz.spinning_friction_range, nz.restitution_range]):
-        b[col] = r if r is not None else (0.0, np.inf)
-    b[4] = (1e-4, np.inf)
-    return b
-
-
-def shrink_params(p: np.ndarray, h: float, bounds: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Liu-West shrinkage of parameters ``p (K, N, 5)``: ``a p + (1 - a) mean + h std eps`` with
-    ``a = sqrt(1 - h^2)`` (mean and std over the K particles; keeps both while avoiding collapse),
-    clipped to ``bounds (5, 2)``."""
-    a = math.sqrt(1.0 - h * h)
-    mean = np.mean(p, axis=0)
-    std = np.std(p, axis=0)
-    p = a * p + (1 - a) * mean + h * std * rng.standard_normal(p.shape)
-    return np.clip(p, bounds[:, 0], bounds[:, 1])

@@ -67,8 +67,9 @@ class _Shard:
                       d["restitution"], d["mass"]]
         return out
 
-    def run(self, batch: BatchInput, n_steps: int, d_sim_perc: float, lazy: bool = False) -> BatchOutput:
-        out = propagate_batch(self.worlds, batch, n_steps, d_sim_perc, lazy)
+    def run(self, batch: BatchInput, n_steps: int, d_sim_perc: float, lazy: bool = False,
+            moving: bool = False) -> BatchOutput:
+        out = propagate_batch(self.worlds, batch, n_steps, d_sim_perc, lazy, moving)
         q = np.flatnonzero(batch.vis_query) if batch.vis_query is not None else np.zeros(0, int)
         if self.camera is not None and len(q):
             out.visible[:, q] = self._visibility(out.poses, out.finite, q)
@@ -215,9 +216,9 @@ def _worker_main(conn, scene, settings, groups, buffer, n_particles):
                     getattr(shard, msg[0])()
                 conn.send(("ok", time.perf_counter() - t0))
                 continue
-            _, n_steps, d, lazy = msg
+            _, n_steps, d, lazy, moving = msg
             try:
-                shared.write_outputs(lo, hi, shard.run(shared.inputs(lo, hi), n_steps, d, lazy))
+                shared.write_outputs(lo, hi, shard.run(shared.inputs(lo, hi), n_steps, d, lazy, moving))
                 conn.send(("ok", time.perf_counter() - t0))  # the reply carries the worker's time
             except Exception:  # report, keep serving
                 conn.send(("error", traceback.format_exc()))
@@ -326,18 +327,19 @@ class WorldPool:
             raise RuntimeError(f"particle worker failed:\n{payload}")
         return payload
 
-    def run(self, batch: BatchInput, n_steps: int, d_sim_perc: float, lazy: bool = False) -> BatchOutput:
+    def run(self, batch: BatchInput, n_steps: int, d_sim_perc: float, lazy: bool = False,
+            moving: bool = False) -> BatchOutput:
         """Propagate all K particles by ``n_steps`` steps (see :func:`~estimator.propagate.propagate`)."""
         t0 = time.perf_counter()
         if self._local is not None:
-            out = self._local.run(batch, n_steps, d_sim_perc, lazy)
+            out = self._local.run(batch, n_steps, d_sim_perc, lazy, moving)
             self.last_run_seconds = time.perf_counter() - t0
             self.last_worker_seconds = [self.last_run_seconds]
             return out
         self._shared.write_inputs(batch)
         for conn in self._conns:
             try:
-                conn.send(("run", n_steps, d_sim_perc, lazy))
+                conn.send(("run", n_steps, d_sim_perc, lazy, moving))
             except OSError:
                 pass  # a dead worker: its reply says so
         replies = [self._recv(conn) for conn in self._conns]  # all of them: no reply is left unread

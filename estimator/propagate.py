@@ -132,11 +132,11 @@ few steps late, at the latest after the last step)."""
 
 
 def propagate(pw: ParticleWorld, inp: StepInput, n_steps: int, d_sim_perc: float,
-              lazy: bool = False) -> StepOutput:
+              lazy: bool = False, moving: bool = False) -> StepOutput:
     """Run Algorithm 1 for ``n_steps`` steps in one particle's world (see :func:`propagate_batch`)."""
     batch = BatchInput(*(None if getattr(inp, f) is None else np.asarray(getattr(inp, f))[None]
                          for f in PER_PARTICLE))
-    out = propagate_batch([pw], batch, n_steps, d_sim_perc, lazy)
+    out = propagate_batch([pw], batch, n_steps, d_sim_perc, lazy, moving)
     return StepOutput(out.poses[0], out.velocities[0], out.modes[0], out.max_divergence[0], out.aabbs[0],
                       bool(out.finite[0]))
 
@@ -167,7 +167,7 @@ regularisation jitter, so that an object whose support was jittered away does no
 
 
 def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d_sim_perc: float,
-                    lazy: bool = False) -> BatchOutput:
+                    lazy: bool = False, moving: bool = False) -> BatchOutput:
     """Run Algorithm 1 for ``n_steps`` steps in each of the K worlds ``pws`` (all built from the same
     scene), particle ``k`` from the state in row ``k`` of ``batch``.
 
@@ -180,6 +180,11 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     starting from its present divergence ``d`` and speed ``v`` and accelerating at most at
     :data:`A_MAX`, it could have crossed ``d_sim_perc``, and after the last step: exact for objects
     moving freely or resting, late by a few steps only when something hits an object hard.
+
+    With ``moving=True`` a tested object's target moves on at its ``target_vel`` (linear part) from
+    the start of the update: an object placed at its detection with its perceived velocity is
+    compared with that detection carried on, not with where it was (objects whose target velocity
+    is zero are tested against their fixed target, as always).
 
     With :attr:`PhysicsSettings.sleeping`, what an update moves (loads, held objects, pushes out of
     penetration) is woken together with everything that touched it, and free objects at rest at both
@@ -223,11 +228,12 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     # watched objects and the first step at which each one needs testing
     checked = batch.check & (batch.modes == FREE) & dyn_mask
     target_com = w0.com_frame(batch.target)[0][..., :3] + origins
+    tvel = np.where(checked[..., None], batch.target_vel[..., :3], 0.0) if moving else np.zeros((K, M, 3))
     due = np.ones((K, M), dtype=np.int64)
     if lazy:
         d0 = np.linalg.norm(com_p[..., :3] - target_com, axis=-1)
-        due = _due_steps(d0, np.linalg.norm(com_v[..., :3], axis=-1), d_sim_perc, dt)
-    checked_l, target_l, due_l = checked.tolist(), target_com.tolist(), due.tolist()
+        due = _due_steps(d0, np.linalg.norm(com_v[..., :3] - tvel, axis=-1), d_sim_perc, dt)
+    checked_l, target_l, due_l, tvel_l = checked.tolist(), target_com.tolist(), due.tolist(), tvel.tolist()
     glides = _glides(pws, batch, held_mask, n_steps)
     clients: dict[int, list[int]] = {}
     for k, pw in enumerate(pws):
@@ -261,8 +267,8 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
                 held.glide(*h)
             helds.append(held)
             # [index, body id, x, y, z of the perceived centre of mass, next step to test, largest
-            # divergence, position of the world in ks]
-            watches += [[i, w.uids[i], *target_l[k][i], due_l[k][i], 0.0, len(helds) - 1]
+            # divergence, position of the world in ks, velocity of the target x, y, z]
+            watches += [[i, w.uids[i], *target_l[k][i], due_l[k][i], 0.0, len(helds) - 1, *tvel_l[k][i]]
                         for i in dyn if checked_l[k][i]]
         switched = _simulate(client, dt, helds, watches, n_steps, d_sim_perc, lazy, restart)
         switched_at += [(ks[j], i, d) for j, i, d in switched]
@@ -282,7 +288,7 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
         still[k, i] = False
         modes_out[k, i] = HELD
     if lazy and n_steps > 0 and still.any():
-        d_end = np.where(still, np.linalg.norm(poses[..., :3] - target_com, axis=-1), 0.0)
+        d_end = np.where(still, np.linalg.norm(poses[..., :3] - target_com - tvel * (n_steps * dt), axis=-1), 0.0)
         np.maximum(max_d, d_end, out=max_d)
         for k in np.flatnonzero((d_end > d_sim_perc).any(axis=1)).tolist():
             late = np.flatnonzero(d_end[k] > d_sim_perc).tolist()
@@ -415,7 +421,9 @@ def _simulate(client: int, dt: float, helds: list["HeldObjects"], watch: list[li
             if item[5] > s:
                 continue
             p = get(item[1], physicsClientId=c)[0]
-            d = math.sqrt((p[0] - item[2]) ** 2 + (p[1] - item[3]) ** 2 + (p[2] - item[4]) ** 2)
+            ts = s * dt  # the target moves on at its velocity (zero but with moving targets)
+            d = math.sqrt((p[0] - item[2] - item[8] * ts) ** 2 + (p[1] - item[3] - item[9] * ts) ** 2
+                          + (p[2] - item[4] - item[10] * ts) ** 2)
             if d > item[6]:
                 item[6] = d
             if d > d_sim_perc:
@@ -423,7 +431,8 @@ def _simulate(client: int, dt: float, helds: list["HeldObjects"], watch: list[li
                 switched.append(item)
             elif lazy:
                 v = get_vel(item[1], physicsClientId=c)[0]
-                speed = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+                vx, vy, vz = v[0] - item[8], v[1] - item[9], v[2] - item[10]  # relative to the target
+                speed = math.sqrt(vx * vx + vy * vy + vz * vz)
                 # steps k with d + speed * k dt + A_MAX (k dt)^2 / 2 <= d_sim_perc are safe
                 tau = (-speed + math.sqrt(speed * speed + 2.0 * A_MAX * (d_sim_perc - d))) / A_MAX
                 item[5] = s + max(1, int(tau / dt))

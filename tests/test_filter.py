@@ -272,6 +272,57 @@ def test_held_object_lost_splits_into_released_and_held_hypotheses():
     assert np.allclose(held_pos, [1.0, 0.0, 0.95], atol=0.05)  # in the tracked hand
 
 
+def _flicked_ball(x_cut=-0.25):
+    """A ball at rest on the table flicked along x at 0.9 m/s at t = 0.5 s (rolling without slipping,
+    a little rolling friction), simulated for 3 s; detected at 30 Hz only while x < ``x_cut`` (the
+    camera sees the first part of its path). Returns the scene, the frames, the true final position
+    and the time and position of the last detection."""
+    r, v = 0.03, 0.9
+    scene = table_scene({"id": "ball", "sphere": {"radius": r}, "mass": 0.05, "rolling_friction": 0.002,
+                         "pose": {"position": [-0.5, 0.0, TABLE_TOP + r]}})
+    frs, seen = [], []
+    with World(scene) as w:
+        n = int(round(1 / HZ / w.settings.time_step))
+        for f in range(int(3.0 * HZ)):
+            t = f / HZ
+            if f == int(0.5 * HZ):
+                w.set_velocities(np.array([[v, 0.0, 0.0, 0.0, v / r, 0.0]]), [1])
+            pose = w.get_poses([1])[0]
+            visible = pose[0] < x_cut
+            frs.append(Frame(t, {"ball": det(pose[:3], pose[3:])} if visible else {}))
+            if visible:
+                seen.append((t, pose[:3].copy()))
+            w.step(n)
+        final = w.get_poses([1])[0, :3]
+    return scene, frs, final, seen[-1]
+
+
+def test_a_ball_rolling_out_of_view_goes_on_as_physics_says_and_paper_mode_pins_it():
+    scene, frs, final, (t_last, p_last) = _flicked_ball()
+    assert final[0] - p_last[0] > 0.3  # it rolled on well beyond where it was last seen
+    cfg = EstimatorConfig(particles=32, noise=NoiseConfig())
+    with SceneEstimator(scene, cfg, np.random.default_rng(4)) as est:
+        beliefs = est.run(frs)
+    ball = beliefs[-1].objects["ball"]
+    # it rolled on with its momentum and stopped where physics says, within the belief's spread
+    # (the particles' friction and restitution differ) plus the 5 mm perception noise floor
+    sd = np.sqrt(np.trace(ball.position_cov) + 3 * 0.005 ** 2)
+    assert np.linalg.norm(ball.position - final) < 3 * sd and sd < 0.1
+    assert ball.position[0] - p_last[0] > 0.25
+    # and it was moving on while it still counted as perceived (the stale detection does not pin it)
+    aged = [b for b in beliefs if t_last + 0.2 <= b.t <= t_last + 0.7]
+    assert aged and all(b.objects["ball"].perceived for b in aged)
+    assert all(b.objects["ball"].position[0] - p_last[0] > 0.15 for b in aged)
+    # paper mode keeps Algorithm 1's rule: perceived within 0.7 s, teleported at rest at its
+    # detections, so the ball stops where it was last seen
+    with SceneEstimator(scene, EstimatorConfig.paper()) as est:
+        paper = est.run(frs)
+    pinned = [b for b in paper if t_last <= b.t <= t_last + 0.7]
+    assert pinned and all(b.objects["ball"].perceived for b in pinned)
+    for b in pinned:
+        assert np.allclose(b.objects["ball"].position, p_last, atol=0.005)
+
+
 # ---------------------------------------------------------------------------------------------------
 # The five situations of the paper's Fig. 6, on the scenario simulator's streams
 

@@ -46,6 +46,23 @@ def test_divergence_switches_a_free_object_to_held(lazy):
         assert 0.005 < out.max_divergence[1] < 0.02
 
 
+@pytest.mark.parametrize("lazy", [False, True])
+def test_a_rolling_ball_tested_against_its_detection_carried_on_stays_free(lazy):
+    # the ball, placed at its detection rolling at 0.9 m/s along x, covers 7 cm in 19 steps
+    with World(SCENE) as w:
+        pw = ParticleWorld(w)
+        vel = np.zeros((3, 6))
+        vel[2] = [0.9, 0.0, 0.0, 0.0, 0.9 / 0.03, 0.0]
+        step = inputs(w, velocities=vel, check=np.array([False, False, True]), target_vel=vel.copy())
+        fixed = propagate(pw, step, 19, 0.045, lazy=lazy)
+        assert fixed.modes[2] == HELD  # against the fixed detection: pinned as implausible
+        assert np.allclose(fixed.poses[2], step.target[2], atol=1e-9)
+        moved = propagate(pw, step, 19, 0.045, lazy=lazy, moving=True)
+        assert moved.modes[2] == FREE and moved.max_divergence[2] < 0.01  # rolling as the detection goes on
+        assert moved.poses[2, 0] - step.poses[2, 0] == pytest.approx(0.9 * 19 / 240, abs=0.01)
+        assert moved.velocities[2, 0] == pytest.approx(0.9, abs=0.05)
+
+
 def test_held_object_glides_to_its_target_and_runaway_is_flagged():
     with World(SCENE) as w:
         pw = ParticleWorld(w)
