@@ -34,7 +34,7 @@ from .config import EstimatorConfig
 from .model import Move, SceneModel, Settled, initial_poses
 from .observations import Frame
 from .perception_memory import PerceptionMemory
-from .pool import BatchOutput, WorldPool
+from .pool import BatchOutput, WorldPool, camera_key
 from .resampling import effective_sample_size, normalise_log_weights, systematic_resample
 from .state import ParticleState
 from .timeline import Timeline
@@ -104,6 +104,8 @@ class SceneEstimator:
         self.t_frame: float | None = None
         self.t_tick: float | None = None
         self._detected_since_tick = np.zeros(M, dtype=bool)
+        self._cameras_since_tick: dict | None = None  # cameras of the frames since the last update
+        self._scene_camera_since_tick = False  # a frame without cameras (the scene's) since then
         # what each slot's world holds (None: not loaded yet), to load only what changed
         self._world_poses: np.ndarray | None = None
         self._world_vel: np.ndarray | None = None
@@ -140,16 +142,37 @@ class SceneEstimator:
         detected = self.memory.record(frame)
         self.t_frame = frame.t
         self._detected_since_tick |= detected
+        if frame.cameras is None:
+            self._scene_camera_since_tick = True
+        else:
+            own = self._cameras_since_tick if self._cameras_since_tick is not None else {}
+            own.update((camera_key(c), c) for c in frame.cameras.values())
+            self._cameras_since_tick = own
         if self.t_tick is not None and frame.t < self.t_tick + self.config.reasoner.horizon - 1e-9:
             return None
         detected = self._detected_since_tick
         self._detected_since_tick = np.zeros(self.M, bool)
-        belief = self._tick(frame, detected)
+        cameras = self._tick_cameras()
+        belief = self._tick(frame, detected, cameras)
         self.last_belief = belief
         return belief
 
-    def _tick(self, frame: Frame, detected: np.ndarray) -> Belief:
-        """One reasoning step at ``frame.t``; ``detected (M,)``: objects detected since the last one."""
+    def _tick_cameras(self) -> tuple | None:
+        """The cameras that took the frames since the last update, and forget them: None when every
+        frame was the scene camera's (old streams: the pool asks the scene camera, as always), else
+        each distinct camera once (the scene's too if one frame was its)."""
+        own, scene_cam = self._cameras_since_tick, self._scene_camera_since_tick
+        self._cameras_since_tick, self._scene_camera_since_tick = None, False
+        if own is None:
+            return None
+        cams = list(own.values())
+        if scene_cam and self.scene.camera is not None and camera_key(self.scene.camera) not in own:
+            cams.insert(0, self.scene.camera)
+        return tuple(cams)
+
+    def _tick(self, frame: Frame, detected: np.ndarray, cameras: tuple | None = None) -> Belief:
+        """One reasoning step at ``frame.t``; ``detected (M,)``: objects detected since the last one;
+        ``cameras``: those that took the frames since then (None: the scene's)."""
         cfg, model, K = self.config, self.model, self.K
         t = frame.t
         # the first update only places the objects; after a gap, at most max_gap is simulated
@@ -158,10 +181,13 @@ class SceneEstimator:
         # perceive
         perceived = self.memory.perceived(t)
         # move (model), propagate (pool), settle (model)
-        move = model.move(self.state, frame, detected, perceived, dt, self.rng)
+        move = model.move(self.state, frame, detected, perceived, dt, self.rng, cameras)
         batch = model.batch(move, self.state, self._changed_slots(move.poses, move.velocities),
                             self._settled_entries(move.poses, move.velocities))
-        out = self.pool.run(batch, n_steps, cfg.reasoner.d_sim_perc, cfg.lazy_checks)
+        if cameras is None:  # old streams: the pool's call as it always was
+            out = self.pool.run(batch, n_steps, cfg.reasoner.d_sim_perc, cfg.lazy_checks)
+        else:
+            out = self.pool.run(batch, n_steps, cfg.reasoner.d_sim_perc, cfg.lazy_checks, cameras=cameras)
         bad = self._reset_exploded(out, move.poses, move.modes, t)
         settled = model.settle(self.state, move, out, t, dt, detected, perceived)
         # weigh (the model's terms)

@@ -18,6 +18,7 @@ import numpy as np
 import yaml
 
 from .errors import InputError, SceneError
+from .transforms import quat_rotate
 
 PYBULLET_DATA_PREFIX = "pybullet_data://"
 SHAPES = ("urdf", "box", "sphere", "cylinder", "container")
@@ -342,24 +343,7 @@ def scene_from_dict(data: Any, *, path: str | None = None, lines: dict[str, int]
         raise f.error("floor", f"must be true or false, got {floor!r}")
     camera = None
     if data.get("camera") is not None:
-        c = f.mapping(data["camera"], "camera")
-        f.only(c, {"position", "target", "up", "fov_deg", "aspect", "near", "far"}, "camera")
-        for req in ("position", "target"):
-            if req not in c:
-                raise f.error("camera", f"missing field '{req}'")
-        camera = CameraSpec(
-            position=f.vector(c["position"], "camera.position", 3),
-            target=f.vector(c["target"], "camera.target", 3),
-            up=f.vector(c.get("up", [0, 0, 1]), "camera.up", 3),
-            fov_deg=f.number(c.get("fov_deg", 60.0), "camera.fov_deg", positive=True),
-            aspect=f.number(c.get("aspect", 4 / 3), "camera.aspect", positive=True),
-            near=f.number(c.get("near", 0.1), "camera.near", positive=True),
-            far=f.number(c.get("far", 4.0), "camera.far", positive=True),
-        )
-        if camera.far <= camera.near:
-            raise f.error("camera.far", "must be greater than camera.near")
-        if np.allclose(camera.position, camera.target):
-            raise f.error("camera.target", "must differ from camera.position")
+        camera = parse_camera(f, data["camera"], "camera")
     raw_objects = data.get("objects")
     if not isinstance(raw_objects, list) or not raw_objects:
         raise f.error("objects", "must be a non-empty list of objects")
@@ -384,6 +368,53 @@ def scene_from_dict(data: Any, *, path: str | None = None, lines: dict[str, int]
             raise f.error("workspace.max", f"must be greater than workspace.min on every axis, got {hi} and {lo}")
         workspace = (lo, hi)
     return Scene(name=name, objects=tuple(objects), floor=floor, camera=camera, source=path, workspace=workspace)
+
+
+def parse_camera(f: "_Fields", value: Any, where: str, *, extra: set[str] = frozenset(),
+                 orientation: bool = False) -> CameraSpec:
+    """Validate a camera mapping at field ``where`` (the scene's ``camera``, a frame's
+    ``cameras[i]``): ``position`` and ``target`` (or, with ``orientation=True``, an ``orientation``
+    quaternion x, y, z, w of the camera's optical frame: z forward, y down), optional ``up``,
+    ``fov_deg``, ``aspect``, ``near``, ``far``; ``extra``: further keys allowed (not read here)."""
+    c = f.mapping(value, where)
+    allowed = {"position", "target", "up", "fov_deg", "aspect", "near", "far"} | set(extra)
+    if orientation:
+        allowed.add("orientation")
+    f.only(c, allowed, where)
+    if "position" not in c:
+        raise f.error(where, "missing field 'position'")
+    position = f.vector(c["position"], f"{where}.position", 3)
+    up = f.vector(c.get("up", [0, 0, 1]), f"{where}.up", 3)
+    if orientation and "orientation" in c:
+        if "target" in c:
+            raise f.error(f"{where}.orientation", "give either target or orientation, not both")
+        q = f.quaternion(c["orientation"], f"{where}.orientation")
+        fwd, down = quat_rotate(np.array(q), np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0]]))
+        target = tuple(float(v) for v in np.asarray(position) + fwd)
+        if "up" not in c:
+            up = tuple(float(-v) for v in down)
+    elif "target" not in c:
+        raise f.error(where, "missing field 'target'" + (" (or orientation)" if orientation else ""))
+    else:
+        target = f.vector(c["target"], f"{where}.target", 3)
+    camera = CameraSpec(
+        position=position, target=target, up=up,
+        fov_deg=f.number(c.get("fov_deg", 60.0), f"{where}.fov_deg", positive=True),
+        aspect=f.number(c.get("aspect", 4 / 3), f"{where}.aspect", positive=True),
+        near=f.number(c.get("near", 0.1), f"{where}.near", positive=True),
+        far=f.number(c.get("far", 4.0), f"{where}.far", positive=True),
+    )
+    if camera.far <= camera.near:
+        raise f.error(f"{where}.far", f"must be greater than {where}.near")
+    if np.allclose(camera.position, camera.target):
+        raise f.error(f"{where}.target", f"must differ from {where}.position")
+    return camera
+
+
+def camera_to_dict(c: CameraSpec) -> dict[str, Any]:
+    """A camera as the file formats write it (look-at form)."""
+    return {"position": list(c.position), "target": list(c.target), "up": list(c.up),
+            "fov_deg": c.fov_deg, "aspect": c.aspect, "near": c.near, "far": c.far}
 
 
 def read_yaml_with_lines(path: str | os.PathLike, what: str = "scene file",
@@ -414,9 +445,7 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
     data_dir = os.path.realpath(pybullet_data.getDataPath())
     out: dict[str, Any] = {"version": SCENE_FORMAT_VERSION, "name": scene.name, "floor": scene.floor}
     if scene.camera is not None:
-        c = scene.camera
-        out["camera"] = {"position": list(c.position), "target": list(c.target), "up": list(c.up),
-                         "fov_deg": c.fov_deg, "aspect": c.aspect, "near": c.near, "far": c.far}
+        out["camera"] = camera_to_dict(scene.camera)
     objs = []
     for o in scene.objects:
         d: dict[str, Any] = {"id": o.id}
