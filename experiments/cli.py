@@ -3,7 +3,8 @@
 Subcommands: ``run`` (estimate a recorded stream), ``config`` (the configuration ``run`` would use),
 ``demo`` (the built-in example), ``simulate``
 (scenario simulator), ``evaluate`` (statistics over scenarios, seeds and methods), ``bench`` (speed
-against bare pybullet stepping), ``track`` (a Kalman pose tracker, fed back by the estimator).
+against bare pybullet stepping), ``track`` (a Kalman pose tracker, fed back by the estimator),
+``search`` (where to look first for a hidden object).
 """
 from __future__ import annotations
 
@@ -305,6 +306,7 @@ def main(argv: list[str] | None = None) -> int:
     p_demo.set_defaults(func=cmd_demo)
     from .bench import add_bench_arguments, run_bench
     from .evaluate_cli import add_evaluate_arguments, run_evaluate
+    from .search_cli import add_search_arguments, run_search
     from .simulate_cli import add_simulate_arguments, run_simulate
     from .track_cli import add_track_arguments, run_track
 
@@ -314,7 +316,9 @@ def main(argv: list[str] | None = None) -> int:
              run_evaluate),
             ("bench", "update time against bare pybullet stepping", add_bench_arguments, run_bench),
             ("track", "Kalman pose tracker over a stream, kept alive by the estimator with --feedback",
-             add_track_arguments, run_track)]:
+             add_track_arguments, run_track),
+            ("search", "where to look first for a hidden object: ranked places and a look plan",
+             add_search_arguments, run_search)]:
         p_sub = sub.add_parser(name, help=text)
         add(p_sub)
         p_sub.set_defaults(func=run)
