@@ -31,6 +31,10 @@ __all__ = ["ClosedLoopSearch", "ParticleSet", "PlannedLook", "Region", "SearchCo
            "ViewpointError", "ViewpointFile", "plan_search", "read_viewpoints"]
 
 
+DEFAULT_REFERENCE = (10.0, 0.0, 0.0)
+"""Where the robot is taken to look from when neither a camera nor a start is known (m)."""
+
+
 @dataclass(frozen=True)
 class PlannedLook:
     """One look of a plan: its ``viewpoint``, the ``regions`` it was chosen for, ``p_find`` (the
@@ -98,7 +102,8 @@ def search_regions(est, boxes: np.ndarray, hands, user: ViewpointFile | None, ca
 
 def plan_search(est, object_id: str, viewpoints: ViewpointFile | list[Viewpoint] | None = None,
                 config: SearchConfig | None = None, rng: np.random.Generator | None = None,
-                hands: dict | None = None, start: np.ndarray | None = None, boxes: np.ndarray | None = None) -> SearchPlan:
+                hands: dict | None = None, start: np.ndarray | None = None, boxes: np.ndarray | None = None,
+                reference: np.ndarray | None = None) -> SearchPlan:
     """The search plan for ``object_id`` from a :class:`~estimator.filter.SceneEstimator`'s present
     particles (its pool's worlds answer the ray tests).
 
@@ -111,6 +116,9 @@ def plan_search(est, object_id: str, viewpoints: ViewpointFile | list[Viewpoint]
         start: where the camera is (default: the file's ``start``, else the scene camera, else the
             first viewpoint).
         boxes: the scene's AABBs ``(M, 2, 3)`` at its given poses (computed when None).
+        reference: where the robot looks from ``(3,)``, naming the floor cells ("behind the table"
+            is away from it; default: the scene camera, else ``start``): fixed while the camera
+            moves, so that a region keeps its name over a search.
     Raises KeyError for an object the scene does not have, ValueError for one never perceived.
     """
     config = config or SearchConfig()
@@ -133,7 +141,11 @@ def plan_search(est, object_id: str, viewpoints: ViewpointFile | list[Viewpoint]
         start = np.asarray(est.scene.camera.position, float)
     ps = ParticleSet.from_estimator(est, hands)
     ti = table_of(est.scene, boxes)
-    camera_xy = np.asarray(start if start is not None else [10.0, 0.0, 0.0], float)[:2]
+    if reference is None and est.scene.camera is not None:
+        reference = est.scene.camera.position
+    if reference is None:
+        reference = start if start is not None else DEFAULT_REFERENCE
+    camera_xy = np.asarray(reference, float)[:2]
     regions = search_regions(est, boxes, ps.hands or {}, user, camera_xy)
     labels = assign(ps, obj, regions, boxes[ti] if ti is not None else None, camera_xy, est.scene.floor)
     probs = region_probabilities(labels, ps.weights, len(regions))
@@ -186,12 +198,19 @@ class ClosedLoopSearch:
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self.hands = dict(hands or {})
         self.start = None if start is None else np.asarray(start, float)
+        if self.start is None and isinstance(viewpoints, ViewpointFile):
+            self.start = viewpoints.start
+        if self.start is None and est.scene.camera is not None:
+            self.start = np.asarray(est.scene.camera.position, float)
+        # region names stay those seen from where the search began (no camera, no start: from +x)
+        self.reference = self.start if self.start is not None else np.array(DEFAULT_REFERENCE)
         self.boxes = static_boxes(est.scene)
         self.looks_done: list[PlannedLook] = []
 
     def plan(self) -> SearchPlan:
-        return plan_search(self.est, self.object_id, self.viewpoints, self.config, self.rng, self.hands,
-                           self.start, self.boxes)
+        plan = plan_search(self.est, self.object_id, self.viewpoints, self.config, self.rng, self.hands,
+                           self.start, self.boxes, self.reference)
+        return plan
 
     def next_time(self) -> float:
         """The stream time of the next look's frame: the estimator's next reasoning step."""
