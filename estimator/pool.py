@@ -117,8 +117,10 @@ class _Shard:
                 if place:
                     w.set_poses(poses[k, place], place)
             tp = poses[:, targets]
-            return np.array([visible_fractions(worlds, c, targets, self.points, tp) for c in cams]).reshape(
-                len(cams), len(worlds), len(targets))
+            boxes = np.stack([w.aabbs() for w in worlds])  # (K, M, 2, 3): what may hide the targets
+            convex = np.array([self.scene.objects[i].shape in CONVEX_SHAPES for i in targets])
+            return np.array([visible_fractions(worlds, c, targets, self.points, tp, boxes=boxes, convex=convex)
+                             for c in cams]).reshape(len(cams), len(worlds), len(targets))
         finally:
             for g, sid in zip(self.groups, ids):
                 g.restore_state(sid)
@@ -306,6 +308,10 @@ VISIBILITY_POINTS_PER_AXIS = 2
 """Sample points of an object for the particles' visibility test: its centre and 8 points towards
 the corners of its box (:func:`~physics.visibility.local_sample_points`; 3 would give 27, three
 times the ray tests, for a fraction that only decides whether it passes the visibility threshold)."""
+
+CONVEX_SHAPES = ("sphere", "box", "cylinder")
+"""Shapes whose visibility sample points lie inside a convex body: a ray to one that no other body's
+box is on reaches it (:func:`~physics.visibility.visible_fractions` skips its ray test)."""
 
 VISIBILITY_CACHED_CAMERAS = 4
 """Cameras whose last ray tests each shard keeps (the scene's and a few moving ones): a cached

@@ -269,3 +269,20 @@ def test_a_viewpoint_file_gives_the_looks_their_cameras_costs_and_regions(tmp_pa
         plan = plan_search(est, "cup", vf)
     assert [n for n, _ in plan.regions] == ["elsewhere"] or plan.regions[0][0] == "corner"
     assert math.isclose(sum(p for _, p in plan.regions), 1.0, abs_tol=1e-12)
+
+
+def test_ray_tests_skipped_for_segments_clear_of_every_other_box_change_no_answer():
+    from physics.visibility import visible_fractions
+    views = [FLOOR_VIEW, TABLE_VIEW, Viewpoint("low", CameraSpec(position=(1.2, 0.3, 0.4), target=(-1.0, 0.0, 0.1)))]
+    with _split_estimator(16, resample_threshold=0.0) as est:
+        ps = ParticleSet.from_estimator(est)
+        cup = est.object_ids.index("cup")
+        culled = est.pool.look(ps.poses, np.flatnonzero(est.known), np.array([cup]), tuple(v.camera for v in views))
+        shard = est.pool._local
+        worlds = [pw.world for pw in shard.worlds]
+        for w, p in zip(worlds, ps.poses):
+            w.set_poses(p)
+        plain = np.array([visible_fractions(worlds, shard.camera_for(v.camera), [cup], shard.points, ps.poses[:, [cup]])
+                          for v in views])
+    assert np.array_equal(culled, plain)
+    assert 0 < np.mean(culled > 0) < 1  # some particles seen, some hidden (the table hides the floor from "low")
