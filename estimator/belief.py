@@ -37,7 +37,8 @@ class Hypothesis:
 @dataclass(frozen=True)
 class ObjectBelief:
     """Belief about one object. ``position (3,)`` m, ``orientation (4,)`` x,y,z,w, ``position_cov
-    (3, 3)`` m^2, ``angular_std`` rad (weighted RMS angle to the mean orientation)."""
+    (3, 3)`` m^2, ``angular_std`` rad (weighted RMS angle to the mean orientation). ``person`` (only
+    when the scene names a person): ``{"id", "p_visible", "p_reachable"}`` (:mod:`estimator.person`)."""
 
     position: np.ndarray
     orientation: np.ndarray
@@ -47,13 +48,17 @@ class ObjectBelief:
     p_plausible: float
     p_held: float
     hypotheses: tuple[Hypothesis, ...] = ()
+    person: dict | None = None
 
     def to_json(self) -> dict:
-        return {"position": _r(self.position), "orientation": _r(self.orientation),
-                "position_cov": [_r(row, 8) for row in self.position_cov],
-                "angular_std": round(float(self.angular_std), 6), "perceived": bool(self.perceived),
-                "p_plausible": round(float(self.p_plausible), 4), "p_held": round(float(self.p_held), 4),
-                "hypotheses": [h.to_json() for h in self.hypotheses]}
+        out = {"position": _r(self.position), "orientation": _r(self.orientation),
+               "position_cov": [_r(row, 8) for row in self.position_cov],
+               "angular_std": round(float(self.angular_std), 6), "perceived": bool(self.perceived),
+               "p_plausible": round(float(self.p_plausible), 4), "p_held": round(float(self.p_held), 4),
+               "hypotheses": [h.to_json() for h in self.hypotheses]}
+        if self.person is not None:
+            out["person"] = self.person
+        return out
 
 
 @dataclass(frozen=True)

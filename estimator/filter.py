@@ -22,6 +22,7 @@ effective sample size is below the threshold, then regularise (model).
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 
 import numpy as np
@@ -34,6 +35,7 @@ from .config import EstimatorConfig
 from .model import Move, SceneModel, Settled, initial_poses
 from .observations import Frame
 from .perception_memory import PerceptionMemory
+from .person import person_probabilities
 from .pool import BatchOutput, WorldPool, camera_key
 from .resampling import effective_sample_size, normalise_log_weights, systematic_resample
 from .state import ParticleState
@@ -106,6 +108,7 @@ class SceneEstimator:
         self._detected_since_tick = np.zeros(M, dtype=bool)
         self._cameras_since_tick: dict | None = None  # cameras of the frames since the last update
         self._scene_camera_since_tick = False  # a frame without cameras (the scene's) since then
+        self.last_hands: dict = {}  # the tracked hands of the last frame that had any
         # what each slot's world holds (None: not loaded yet), to load only what changed
         self._world_poses: np.ndarray | None = None
         self._world_vel: np.ndarray | None = None
@@ -142,6 +145,8 @@ class SceneEstimator:
         detected = self.memory.record(frame)
         self.t_frame = frame.t
         self._detected_since_tick |= detected
+        if frame.hands:
+            self.last_hands = dict(frame.hands)
         if frame.cameras is None:
             self._scene_camera_since_tick = True
         else:
@@ -156,6 +161,22 @@ class SceneEstimator:
         belief = self._tick(frame, detected, cameras)
         self.last_belief = belief
         return belief
+
+    def _with_person(self, belief: Belief, poses: np.ndarray, weights: np.ndarray) -> Belief:
+        """The belief with P(visible to) and P(reachable by) the scene's person for every known
+        dynamic object (:mod:`estimator.person`; ray tests in the particle worlds)."""
+        person = self.scene.person
+        idx = np.flatnonzero(self.known & self.dynamic)
+        p_vis, p_reach = person_probabilities(self.pool, person, poses, weights, idx, self.known, self.last_hands,
+                                              self.config.visibility_threshold)
+        objects = dict(belief.objects)
+        for j, m in enumerate(idx):
+            oid = self.object_ids[m]
+            if oid in objects:
+                objects[oid] = dataclasses.replace(objects[oid], person={
+                    "id": person.id, "p_visible": None if np.isnan(p_vis[j]) else round(float(p_vis[j]), 4),
+                    "p_reachable": None if np.isnan(p_reach[j]) else round(float(p_reach[j]), 4)})
+        return dataclasses.replace(belief, objects=objects)
 
     def _tick_cameras(self) -> tuple | None:
         """The cameras that took the frames since the last update, and forget them: None when every
@@ -209,6 +230,8 @@ class SceneEstimator:
         belief = compute_belief(t, self.object_ids, self.known, perceived, settled.poses, weights, settled.modes,
                                 settled.on_top, settled.is_in, step_events, ess, self.static, cfg.hypothesis_min_p,
                                 cov_floor=cfg.noise.covariance_floor_std ** 2)
+        if self.scene.person is not None:
+            belief = self._with_person(belief, settled.poses, weights)
         self._update_timeline(t, belief)
         # resample; particles whose simulation exploded or whose worker died take a survivor's state
         if K > 1 and ess < cfg.resample_threshold * K:

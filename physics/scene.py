@@ -80,6 +80,17 @@ class CameraSpec:
     far: float = 4.0
 
 
+@dataclass(frozen=True)
+class PersonSpec:
+    """A person the robot works with: ``id`` (the owner of the tracked hands named ``"<id>/..."``),
+    an optional ``head`` camera (what the person sees) and the ``reach`` radius (m) around the
+    person's tracked hands (or head, when no hand is tracked) within which an object is reachable."""
+
+    id: str
+    head: CameraSpec | None = None
+    reach: float = 0.7
+
+
 WORKSPACE_MARGIN = 3.0
 """m: the default workspace extends this far beyond the scene's objects and camera (see
 :meth:`Scene.workspace_bounds`)."""
@@ -97,6 +108,7 @@ class Scene:
     camera: CameraSpec | None = None
     source: str | None = None
     workspace: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
+    person: PersonSpec | None = None
 
     def workspace_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """The box ``(lo (3,), hi (3,))`` (m) where perception can be believed: the scene's
@@ -330,7 +342,7 @@ def scene_from_dict(data: Any, *, path: str | None = None, lines: dict[str, int]
     """Validate a parsed scene mapping. ``base_dir`` resolves relative URDF paths."""
     f = _Fields(path, lines or {})
     data = f.mapping(data, "")
-    f.only(data, {"name", "floor", "camera", "objects", "version", "workspace"}, "")
+    f.only(data, {"name", "floor", "camera", "objects", "version", "workspace", "person"}, "")
     version = data.get("version", SCENE_FORMAT_VERSION)
     if version != SCENE_FORMAT_VERSION:
         raise f.error("version", f"unsupported scene format version {version!r} "
@@ -367,7 +379,17 @@ def scene_from_dict(data: Any, *, path: str | None = None, lines: dict[str, int]
         if not all(a < b for a, b in zip(lo, hi)):
             raise f.error("workspace.max", f"must be greater than workspace.min on every axis, got {hi} and {lo}")
         workspace = (lo, hi)
-    return Scene(name=name, objects=tuple(objects), floor=floor, camera=camera, source=path, workspace=workspace)
+    person = None
+    if data.get("person") is not None:
+        pd = f.mapping(data["person"], "person")
+        f.only(pd, {"id", "head", "reach"}, "person")
+        pid = pd.get("id", "human")
+        if not isinstance(pid, str) or not pid:
+            raise f.error("person.id", f"must be a non-empty string, got {pid!r}")
+        head = parse_camera(f, pd["head"], "person.head", orientation=True) if pd.get("head") is not None else None
+        person = PersonSpec(pid, head, f.number(pd.get("reach", 0.7), "person.reach", positive=True))
+    return Scene(name=name, objects=tuple(objects), floor=floor, camera=camera, source=path, workspace=workspace,
+                 person=person)
 
 
 def parse_camera(f: "_Fields", value: Any, where: str, *, extra: set[str] = frozenset(),
@@ -480,4 +502,8 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
     out["objects"] = objs
     if scene.workspace is not None:
         out["workspace"] = {"min": list(scene.workspace[0]), "max": list(scene.workspace[1])}
+    if scene.person is not None:
+        out["person"] = {"id": scene.person.id, "reach": scene.person.reach}
+        if scene.person.head is not None:
+            out["person"]["head"] = camera_to_dict(scene.person.head)
     return out

@@ -286,3 +286,36 @@ def test_ray_tests_skipped_for_segments_clear_of_every_other_box_change_no_answe
                           for v in views])
     assert np.array_equal(culled, plain)
     assert 0 < np.mean(culled > 0) < 1  # some particles seen, some hidden (the table hides the floor from "low")
+
+
+# -- what the person sees and reaches ----------------------------------------------------------------------
+
+def test_the_person_sees_and_reaches_a_cup_the_robot_cannot_see():
+    from physics.scene import scene_from_dict, scene_to_dict
+
+    scene = table_scene(
+        {"id": "screen", "static": True, "box": {"size": [0.05, 1.2, 0.6]}, "pose": {"position": [0.0, 0.0, TABLE_TOP + 0.3]}},
+        dict(CUP, pose={"position": [-0.3, 0.0, TABLE_TOP + 0.05]}),
+        camera={"position": [1.5, 0.0, 1.0], "target": [-0.3, 0.0, 0.7]})
+    data = scene_to_dict(scene)
+    data["person"] = {"id": "human", "reach": 0.7,
+                      "head": {"position": [-1.2, 0.0, 1.5], "target": [-0.3, 0.0, TABLE_TOP]}}
+    scene = scene_from_dict(data)
+    assert scene_from_dict(scene_to_dict(scene)).person == scene.person
+    cfg = EstimatorConfig(particles=8, noise=NoiseConfig(), workers=0)
+
+    def last_belief(hand):
+        with SceneEstimator(scene, cfg, np.random.default_rng(0)) as est:
+            for i in range(6):
+                b = est.update(Frame(0.08 * i, {}, {"human/right": np.array(hand)}))
+            cup = est.object_ids.index("cup")
+            robot = est.pool.look(est.state.poses, np.flatnonzero(est.known), np.array([cup]), (scene.camera,))
+            return b, robot
+
+    belief, robot = last_belief([-0.6, 0.2, 0.9])
+    assert np.all(robot == 0)  # the screen hides the cup from the robot's camera in every particle
+    person = belief.objects["cup"].person
+    assert person == {"id": "human", "p_visible": 1.0, "p_reachable": 1.0}
+    assert json.loads(json.dumps(belief.to_json()))["objects"]["cup"]["person"]["p_visible"] == 1.0
+    far, _ = last_belief([-2.5, 2.0, 0.9])  # the hand 2.8 m away: out of reach
+    assert far.objects["cup"].person["p_reachable"] == 0.0 and far.objects["cup"].person["p_visible"] == 1.0
