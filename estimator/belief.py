@@ -48,7 +48,8 @@ class ObjectBelief:
     ``mean_position_cov (3, 3)``: those of all particles (equal to the former when every particle
     agrees on the support). ``orientation (4,)`` x,y,z,w and ``angular_std`` rad (weighted RMS
     angle to it) are the weighted chordal mean over all particles. ``mean_position`` ``None``
-    (objects built by hand) means ``position``.
+    (objects built by hand) means ``position``. ``person`` (only when the scene names a person):
+    ``{"id", "p_visible", "p_reachable"}`` (:mod:`estimator.person`).
     """
 
     position: np.ndarray
@@ -61,16 +62,20 @@ class ObjectBelief:
     hypotheses: tuple[Hypothesis, ...] = ()
     mean_position: np.ndarray | None = None
     mean_position_cov: np.ndarray | None = None
+    person: dict | None = None
 
     def to_json(self) -> dict:
         mean = self.position if self.mean_position is None else self.mean_position
         mean_cov = self.position_cov if self.mean_position_cov is None else self.mean_position_cov
-        return {"position": _r(self.position), "orientation": _r(self.orientation),
-                "position_cov": [_r(row, 8) for row in self.position_cov],
-                "mean_position": _r(mean), "mean_position_cov": [_r(row, 8) for row in mean_cov],
-                "angular_std": round(float(self.angular_std), 6), "perceived": bool(self.perceived),
-                "p_plausible": round(float(self.p_plausible), 4), "p_held": round(float(self.p_held), 4),
-                "hypotheses": [h.to_json() for h in self.hypotheses]}
+        out = {"position": _r(self.position), "orientation": _r(self.orientation),
+               "position_cov": [_r(row, 8) for row in self.position_cov],
+               "mean_position": _r(mean), "mean_position_cov": [_r(row, 8) for row in mean_cov],
+               "angular_std": round(float(self.angular_std), 6), "perceived": bool(self.perceived),
+               "p_plausible": round(float(self.p_plausible), 4), "p_held": round(float(self.p_held), 4),
+               "hypotheses": [h.to_json() for h in self.hypotheses]}
+        if self.person is not None:
+            out["person"] = self.person
+        return out
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,7 @@ effective sample size is below the threshold, then regularise (model).
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 
 import numpy as np
@@ -35,7 +36,8 @@ from .likelihood import held_unseen_in_view
 from .model import Move, SceneModel, Settled, initial_poses
 from .observations import Frame
 from .perception_memory import PerceptionMemory
-from .pool import BatchOutput, WorldPool
+from .person import person_probabilities
+from .pool import BatchOutput, WorldPool, camera_key
 from .resampling import effective_sample_size, keep_survivors_in_place, normalise_log_weights, systematic_resample
 from .state import ParticleState
 from .timeline import Timeline
@@ -105,6 +107,9 @@ class SceneEstimator:
         self.t_frame: float | None = None
         self.t_tick: float | None = None
         self._detected_since_tick = np.zeros(M, dtype=bool)
+        self._cameras_since_tick: dict | None = None  # cameras of the frames since the last update
+        self._scene_camera_since_tick = False  # a frame without cameras (the scene's) since then
+        self.last_hands: dict = {}  # the tracked hands of the last frame that had any
         # what each slot's world holds (None: not loaded yet), to load only what changed
         self._world_poses: np.ndarray | None = None
         self._world_vel: np.ndarray | None = None
@@ -141,16 +146,55 @@ class SceneEstimator:
         detected = self.memory.record(frame)
         self.t_frame = frame.t
         self._detected_since_tick |= detected
+        if frame.hands:
+            self.last_hands = dict(frame.hands)
+        if frame.cameras is None:
+            self._scene_camera_since_tick = True
+        else:
+            own = self._cameras_since_tick if self._cameras_since_tick is not None else {}
+            own.update((camera_key(c), c) for c in frame.cameras.values())
+            self._cameras_since_tick = own
         if self.t_tick is not None and frame.t < self.t_tick + self.config.reasoner.horizon - 1e-9:
             return None
         detected = self._detected_since_tick
         self._detected_since_tick = np.zeros(self.M, bool)
-        belief = self._tick(frame, detected)
+        cameras = self._tick_cameras()
+        belief = self._tick(frame, detected, cameras)
         self.last_belief = belief
         return belief
 
-    def _tick(self, frame: Frame, detected: np.ndarray) -> Belief:
-        """One reasoning step at ``frame.t``; ``detected (M,)``: objects detected since the last one."""
+    def _with_person(self, belief: Belief, poses: np.ndarray, weights: np.ndarray) -> Belief:
+        """The belief with P(visible to) and P(reachable by) the scene's person for every known
+        dynamic object (:mod:`estimator.person`; ray tests in the particle worlds)."""
+        person = self.scene.person
+        idx = np.flatnonzero(self.known & self.dynamic)
+        p_vis, p_reach = person_probabilities(self.pool, person, poses, weights, idx, self.known, self.last_hands,
+                                              self.config.visibility_threshold)
+        objects = dict(belief.objects)
+        for j, m in enumerate(idx):
+            oid = self.object_ids[m]
+            if oid in objects:
+                objects[oid] = dataclasses.replace(objects[oid], person={
+                    "id": person.id, "p_visible": None if np.isnan(p_vis[j]) else round(float(p_vis[j]), 4),
+                    "p_reachable": None if np.isnan(p_reach[j]) else round(float(p_reach[j]), 4)})
+        return dataclasses.replace(belief, objects=objects)
+
+    def _tick_cameras(self) -> tuple | None:
+        """The cameras that took the frames since the last update, and forget them: None when every
+        frame was the scene camera's (old streams: the pool asks the scene camera, as always), else
+        each distinct camera once (the scene's too if one frame was its)."""
+        own, scene_cam = self._cameras_since_tick, self._scene_camera_since_tick
+        self._cameras_since_tick, self._scene_camera_since_tick = None, False
+        if own is None:
+            return None
+        cams = list(own.values())
+        if scene_cam and self.scene.camera is not None and camera_key(self.scene.camera) not in own:
+            cams.insert(0, self.scene.camera)
+        return tuple(cams)
+
+    def _tick(self, frame: Frame, detected: np.ndarray, cameras: tuple | None = None) -> Belief:
+        """One reasoning step at ``frame.t``; ``detected (M,)``: objects detected since the last one;
+        ``cameras``: those that took the frames since then (None: the scene's)."""
         cfg, model, K = self.config, self.model, self.K
         t = frame.t
         # the first update only places the objects; after a gap, at most max_gap is simulated
@@ -159,10 +203,14 @@ class SceneEstimator:
         # perceive
         perceived = self.memory.perceived(t)
         # move (model), propagate (pool), settle (model)
-        move = model.move(self.state, frame, detected, perceived, dt, self.rng)
+        move = model.move(self.state, frame, detected, perceived, dt, self.rng, cameras)
         batch = model.batch(move, self.state, self._changed_slots(move.poses, move.velocities),
                             self._settled_entries(move.poses, move.velocities))
-        out = self.pool.run(batch, n_steps, cfg.reasoner.d_sim_perc, cfg.lazy_checks, cfg.moving_teleports)
+        if cameras is None:  # old streams: the pool's call as it always was
+            out = self.pool.run(batch, n_steps, cfg.reasoner.d_sim_perc, cfg.lazy_checks, cfg.moving_teleports)
+        else:
+            out = self.pool.run(batch, n_steps, cfg.reasoner.d_sim_perc, cfg.lazy_checks, cfg.moving_teleports,
+                                cameras=cameras)
         bad = self._reset_exploded(out, move.poses, move.modes, t)
         settled = model.settle(self.state, move, out, t, dt, detected, perceived)
         # weigh (the model's terms)
@@ -184,6 +232,8 @@ class SceneEstimator:
         belief = compute_belief(t, self.object_ids, self.known, perceived, settled.poses, weights, settled.modes,
                                 settled.on_top, settled.is_in, step_events, ess, self.static, cfg.hypothesis_min_p,
                                 cov_floor=cfg.noise.covariance_floor_std ** 2)
+        if self.scene.person is not None:
+            belief = self._with_person(belief, settled.poses, weights)
         self._update_timeline(t, belief)
         # resample; particles whose simulation exploded or whose worker died take a survivor's state
         if K > 1 and ess < cfg.resample_threshold * K:

@@ -74,7 +74,8 @@ class Move:
     ``target (K, M, 7)`` / ``target_vel (K, M, 6)``: where held objects go and perceived objects
     are checked against; ``check (K, M)``: free objects to test for divergence; ``depenetrate (K, M)``:
     objects displaced without physics; ``vis_query (M,)``: objects whose visibility is wanted;
-    ``hold_error (K, M, 3)``, ``let_go_unseen (K, M)``: see :class:`~estimator.state.ParticleState`.
+    ``hold_error (K, M, 3)``, ``let_go_unseen (K, M)``: see :class:`~estimator.state.ParticleState`;
+    ``cameras``: the cameras that took the frames of the update (None: the scene's camera).
     """
 
     poses: np.ndarray
@@ -91,6 +92,7 @@ class Move:
     vis_query: np.ndarray
     hold_error: np.ndarray
     let_go_unseen: np.ndarray
+    cameras: tuple | None = None
 
 
 @dataclass(frozen=True)
@@ -174,9 +176,11 @@ class SceneModel:
 
     # -- the move -------------------------------------------------------------------------------------
     def move(self, state: ParticleState, frame: Frame, detected: np.ndarray, perceived: np.ndarray,
-             dt: float, rng: np.random.Generator) -> Move:
+             dt: float, rng: np.random.Generator, cameras: tuple | None = None) -> Move:
         """Everything before physics, for ``dt`` seconds since the last update: ``detected (M,)`` since
-        the last update, ``perceived (M,)`` now. Updates :attr:`known` and the memory's velocities."""
+        the last update, ``perceived (M,)`` now; ``cameras``: the cameras (:class:`CameraSpec`) that
+        took the frames since the last update (None: the scene's camera only). Updates :attr:`known`
+        and the memory's velocities."""
         cfg, mem = self.config, self.memory
         poses, vel = state.poses.copy(), state.velocities.copy()
         prev_modes = state.modes.copy()
@@ -206,7 +210,8 @@ class SceneModel:
         jolted = self.process_noise(poses, modes, perceived, state.supported, resting, state.last_motion, dt, rng)
         # what physics checks and reports
         vis_query = self.known & self.dynamic & ~detected
-        if not (cfg.negative_evidence and self.scene.camera is not None):
+        has_camera = self.scene.camera is not None if cameras is None else len(cameras) > 0
+        if not (cfg.negative_evidence and has_camera):
             vis_query = np.zeros(self.M, dtype=bool)
         fresh = detected if cfg.fresh_checks else perceived
         check = np.broadcast_to(perceived & fresh, (self.K, self.M)).copy()
@@ -215,7 +220,7 @@ class SceneModel:
         depen = (np.broadcast_to(placed & (cfg.noise.position_std > 0), (self.K, self.M)) | jolted
                  | state.jolted) & (modes == FREE)
         return Move(poses, vel, predicted, prev_modes, modes, release_codes, tele, target, target_vel, check,
-                    depen, vis_query, hold_error, let_go)
+                    depen, vis_query, hold_error, let_go, cameras)
 
     def teleport(self, poses: np.ndarray, vel: np.ndarray, idx: np.ndarray, newly_known: np.ndarray,
                  is_in: np.ndarray, rng: np.random.Generator, moving: np.ndarray | None = None) -> None:

@@ -8,7 +8,11 @@ One frame per line::
 ``t`` is in seconds and strictly increasing; positions in metres; quaternions (x, y, z, w), normalised
 on reading (a zero-length one is an error). ``orientation`` may be omitted (orientation not measured).
 An object missing from a frame is not perceived in it. ``hands`` is optional. ``position_std``
-(metres, per object) overrides the configured perception noise for that detection.
+(metres, per object) overrides the configured perception noise for that detection. ``cameras``
+(optional) lists the cameras that took the frame, ``[{"id": "head", "position": [..], "target": [..]
+| "orientation": [x, y, z, w], "fov_deg": 60, "aspect", "near", "far", "up"}]``, validated like the
+scene's ``camera`` (:func:`physics.scene.parse_camera`); it overrides the scene's camera for that
+frame (negative evidence then asks these cameras; an empty list: no camera, no negative evidence).
 
 Every malformed frame raises :class:`~physics.errors.ObservationError` naming file, line and field;
 with ``skip_bad_frames=True`` it is dropped instead, counted in :attr:`ObservationReader.skipped` and
@@ -24,6 +28,7 @@ from typing import Callable, Iterable, Iterator
 import numpy as np
 
 from physics.errors import ObservationError
+from physics.scene import CameraSpec, _Fields, camera_to_dict, parse_camera
 
 
 @dataclass(frozen=True)
@@ -38,12 +43,14 @@ class Detection:
 
 @dataclass(frozen=True)
 class Frame:
-    """A perception frame at time ``t`` (s): detections by object id and tracked hands ``(3,)``."""
+    """A perception frame at time ``t`` (s): detections by object id, tracked hands ``(3,)`` and
+    the cameras that took it by id (``None``: the scene's camera)."""
 
     t: float
     objects: dict[str, Detection] = field(default_factory=dict)
     hands: dict[str, np.ndarray] = field(default_factory=dict)
     line: int | None = None
+    cameras: dict[str, CameraSpec] | None = None
 
     def to_json(self) -> dict:
         objs = {}
@@ -57,6 +64,8 @@ class Frame:
         out = {"t": self.t, "objects": objs}
         if self.hands:
             out["hands"] = {k: [float(x) for x in v] for k, v in self.hands.items()}
+        if self.cameras is not None:
+            out["cameras"] = [{"id": cid, **camera_to_dict(c)} for cid, c in self.cameras.items()]
         return out
 
 
@@ -83,8 +92,8 @@ def parse_frame(data, *, known_ids: Iterable[str] | None = None, path: str | Non
     if not isinstance(data, dict):
         raise err("", f"a frame must be a JSON object, got {type(data).__name__}")
     for key in data:
-        if key not in ("t", "objects", "hands"):
-            raise err(key, "unknown field (expected t, objects, hands)")
+        if key not in ("t", "objects", "hands", "cameras"):
+            raise err(key, "unknown field (expected t, objects, hands, cameras)")
     if "t" not in data:
         raise err("t", "missing")
     t = data["t"]
@@ -127,7 +136,28 @@ def parse_frame(data, *, known_ids: Iterable[str] | None = None, path: str | Non
         raise err("hands", "must be a JSON object keyed by hand name")
     for name, value in raw_hands.items():
         hands[str(name)] = _finite_vector(value, 3, err, f"hands.{name}")
-    return Frame(float(t), objects, hands, line)
+    cameras = None
+    if data.get("cameras") is not None:
+        cameras = _parse_cameras(data["cameras"], path, line)
+    return Frame(float(t), objects, hands, line, cameras)
+
+
+def _parse_cameras(raw, path: str | None, line: int | None) -> dict[str, CameraSpec]:
+    """The ``cameras`` list of a frame, by id (ids unique; a missing id is the camera's index)."""
+    f = _Fields(path, {"": line} if line is not None else {}, ObservationError)
+    if not isinstance(raw, list):
+        raise f.error("cameras", f"must be a list of cameras, got {type(raw).__name__}")
+    out: dict[str, CameraSpec] = {}
+    for i, c in enumerate(raw):
+        where = f"cameras[{i}]"
+        spec = parse_camera(f, c, where, extra={"id"}, orientation=True)
+        cid = c.get("id", str(i))
+        if not isinstance(cid, str) or not cid:
+            raise f.error(f"{where}.id", f"must be a non-empty string, got {cid!r}")
+        if cid in out:
+            raise f.error(f"{where}.id", f"duplicate camera id {cid!r}")
+        out[cid] = spec
+    return out
 
 
 class ObservationReader:

@@ -84,7 +84,7 @@ class PerceptionMemory:
         if not dropped:
             return frame
         self.rejected += dropped
-        return Frame(frame.t, objects, hands, frame.line)
+        return Frame(frame.t, objects, hands, frame.line, frame.cameras)
 
     # -- a frame --------------------------------------------------------------------------------------
     def record(self, frame: Frame) -> np.ndarray:

@@ -17,14 +17,15 @@ import logging
 import multiprocessing as mp
 import time
 import traceback
+from collections import OrderedDict
 
 import numpy as np
 
 from physics.group import WorldGroup
-from physics.scene import Scene
+from physics.scene import CameraSpec, Scene
 from physics.transforms import quat_rotate
 from physics.visibility import Camera, local_box, local_sample_points, rays_clear_of, visible_fractions
-from physics.world import PhysicsSettings
+from physics.world import PhysicsSettings, World
 
 from .propagate import PER_PARTICLE, BatchInput, BatchOutput, ParticleWorld, propagate_batch
 
@@ -47,16 +48,37 @@ class _Shard:
             raise
         self.worlds = [ParticleWorld(w) for g in self.groups for w in g.worlds]
         self._saved: list[int] = []
-        self._vis_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # world -> (poses, fractions)
+        # per camera: world -> (poses, fractions) of its last ray tests (the most recent cameras)
+        self._vis_caches: OrderedDict[tuple, dict[int, tuple[np.ndarray, np.ndarray]]] = OrderedDict()
+        self._cameras: dict[tuple, Camera] = {}
+        self.scene, self.settings = scene, settings
         self.camera = Camera(scene.camera) if scene.camera is not None else None
         self.points = None
         if self.camera is not None:
-            w = self.worlds[0].world
-            self.points = {int(i): local_sample_points(w, int(i), VISIBILITY_POINTS_PER_AXIS)
-                           for i in range(w.num_objects)}
-            boxes = [local_box(w, i) for i in range(w.num_objects)]
-            self.box_centres = np.array([c for c, _ in boxes])  # (M, 3), object frame
-            self.radii = np.array([np.linalg.norm(h) for _, h in boxes])  # (M,) m
+            self._sample_points(self.worlds[0].world)
+
+    def _sample_points(self, w: World) -> None:
+        """Sample points, box centres and radii of every object, read from world ``w``."""
+        self.points = {int(i): local_sample_points(w, int(i), VISIBILITY_POINTS_PER_AXIS)
+                       for i in range(w.num_objects)}
+        boxes = [local_box(w, i) for i in range(w.num_objects)]
+        self.box_centres = np.array([c for c, _ in boxes])  # (M, 3), object frame
+        self.radii = np.array([np.linalg.norm(h) for _, h in boxes])  # (M,) m
+
+    def camera_for(self, spec: CameraSpec) -> Camera:
+        """The :class:`Camera` of ``spec`` (built once). The first camera of a scene without one reads
+        the objects' sample points in a scratch world, leaving the particle worlds untouched."""
+        if self.points is None:
+            scratch = World(self.scene, self.settings)
+            try:
+                self._sample_points(scratch)
+            finally:
+                scratch.close()
+        key = camera_key(spec)
+        if key not in self._cameras:
+            self._cameras[key] = self.camera if self.camera is not None and key == camera_key(
+                self.camera.spec) else Camera(spec)
+        return self._cameras[key]
 
     def initial_params(self) -> np.ndarray:
         w = self.worlds[0].world
@@ -68,24 +90,58 @@ class _Shard:
         return out
 
     def run(self, batch: BatchInput, n_steps: int, d_sim_perc: float, lazy: bool = False,
-            moving: bool = False) -> BatchOutput:
+            moving: bool = False, cameras: tuple[CameraSpec, ...] | None = None) -> BatchOutput:
         out = propagate_batch(self.worlds, batch, n_steps, d_sim_perc, lazy, moving)
         q = np.flatnonzero(batch.vis_query) if batch.vis_query is not None else np.zeros(0, int)
-        if self.camera is not None and len(q):
-            out.visible[:, q] = self._visibility(out.poses, out.finite, q)
+        if cameras is None:
+            cams = [self.camera] if self.camera is not None else []
+        else:
+            cams = [self.camera_for(c) for c in cameras]
+        if cams and len(q):  # several cameras: an object is as visible as the best of them shows it
+            out.visible[:, q] = np.max([self._visibility(c, out.poses, out.finite, q) for c in cams], axis=0)
         return out
 
-    def _visibility(self, poses: np.ndarray, finite: np.ndarray, q: np.ndarray) -> np.ndarray:
+    def look(self, poses: np.ndarray, place: np.ndarray, targets: np.ndarray,
+             cameras: tuple[CameraSpec, ...]) -> np.ndarray:
+        """Visible fractions ``(V, K, n)`` of objects ``targets (n,)`` to each of the V ``cameras`` in
+        each of this shard's K worlds with the objects ``place`` set at ``poses (K, M, 7)`` (the
+        others stay as the world holds them: parked when unknown). The worlds are returned to their
+        state before the call (saved and restored), so that the filter's next update is unchanged."""
+        cams = [self.camera_for(c) for c in cameras]
+        place = [int(i) for i in place]
+        targets = [int(i) for i in targets]
+        ids = [g.save_state() for g in self.groups]
+        try:
+            worlds = [pw.world for pw in self.worlds]
+            for k, w in enumerate(worlds):
+                if place:
+                    w.set_poses(poses[k, place], place)
+            tp = poses[:, targets]
+            boxes = np.stack([w.aabbs() for w in worlds])  # (K, M, 2, 3): what may hide the targets
+            convex = np.array([self.scene.objects[i].shape in CONVEX_SHAPES for i in targets])
+            return np.array([visible_fractions(worlds, c, targets, self.points, tp, boxes=boxes, convex=convex)
+                             for c in cams]).reshape(len(cams), len(worlds), len(targets))
+        finally:
+            for g, sid in zip(self.groups, ids):
+                g.restore_state(sid)
+                g.remove_state(sid)
+
+    def _visibility(self, camera: Camera, poses: np.ndarray, finite: np.ndarray, q: np.ndarray) -> np.ndarray:
         """Visible fractions ``(K, len(q))`` of objects ``q`` in the worlds at ``poses (K, M, 7)``
         (zero for exploded worlds). An object keeps the answer of its world's last ray tests when it
         has not moved (bit for bit) and nothing that moved since came near its rays
         (:func:`~physics.visibility.rays_clear_of`): most of a resting scene casts no ray."""
+        key = camera_key(camera.spec)
+        cache = self._vis_caches.pop(key, {})
+        self._vis_caches[key] = cache  # the most recent last
+        while len(self._vis_caches) > VISIBILITY_CACHED_CAMERAS:
+            self._vis_caches.popitem(last=False)
         K, n = len(self.worlds), len(q)
         vis = np.zeros((K, n))
         need = np.zeros((K, n), dtype=bool)
         for k in np.flatnonzero(finite).tolist():
             need[k] = True
-            cached = self._vis_cache.get(k)
+            cached = cache.get(k)
             if cached is None:
                 continue
             old, row = cached
@@ -95,18 +151,18 @@ class _Shard:
                 m = np.flatnonzero(moved)
                 centres = self._centres(poses[k, q], q)
                 for p in (old, poses[k]):
-                    keep &= rays_clear_of(self.camera, centres, self.radii[q], self._centres(p[m], m), self.radii[m])
+                    keep &= rays_clear_of(camera, centres, self.radii[q], self._centres(p[m], m), self.radii[m])
             vis[k, keep] = row[q][keep]
             need[k] = ~keep
         todo = np.flatnonzero(need.any(axis=1)).tolist()
         if todo:
-            fresh = visible_fractions([self.worlds[k].world for k in todo], self.camera, q, self.points,
+            fresh = visible_fractions([self.worlds[k].world for k in todo], camera, q, self.points,
                                       poses[np.ix_(todo, q)], need[todo])
             vis[todo] = np.where(need[todo], fresh, vis[todo])
         for k in np.flatnonzero(finite).tolist():
             row = np.full(poses.shape[1], np.nan)
             row[q] = vis[k]
-            self._vis_cache[k] = (poses[k].copy(), row)
+            cache[k] = (poses[k].copy(), row)
         return vis
 
     def _centres(self, poses: np.ndarray, idx: np.ndarray) -> np.ndarray:
@@ -209,6 +265,12 @@ def _worker_main(conn, scene, settings, groups, buffer, n_particles):
             if msg[0] == "close":
                 break
             t0 = time.perf_counter()
+            if msg[0] == "look":
+                try:
+                    conn.send(("ok", shard.look(*msg[1:])))
+                except Exception:
+                    conn.send(("error", traceback.format_exc()))
+                continue
             if msg[0] in ("bare", "save", "restore"):
                 if msg[0] == "bare":
                     shard.bare_step(msg[1])
@@ -216,9 +278,9 @@ def _worker_main(conn, scene, settings, groups, buffer, n_particles):
                     getattr(shard, msg[0])()
                 conn.send(("ok", time.perf_counter() - t0))
                 continue
-            _, n_steps, d, lazy, moving = msg
+            _, n_steps, d, lazy, moving, cameras = msg
             try:
-                shared.write_outputs(lo, hi, shard.run(shared.inputs(lo, hi), n_steps, d, lazy, moving))
+                shared.write_outputs(lo, hi, shard.run(shared.inputs(lo, hi), n_steps, d, lazy, moving, cameras))
                 conn.send(("ok", time.perf_counter() - t0))  # the reply carries the worker's time
             except Exception:  # report, keep serving
                 conn.send(("error", traceback.format_exc()))
@@ -246,6 +308,21 @@ VISIBILITY_POINTS_PER_AXIS = 2
 """Sample points of an object for the particles' visibility test: its centre and 8 points towards
 the corners of its box (:func:`~physics.visibility.local_sample_points`; 3 would give 27, three
 times the ray tests, for a fraction that only decides whether it passes the visibility threshold)."""
+
+CONVEX_SHAPES = ("sphere", "box", "cylinder")
+"""Shapes whose visibility sample points lie inside a convex body: a ray to one that no other body's
+box is on reaches it (:func:`~physics.visibility.visible_fractions` skips its ray test)."""
+
+VISIBILITY_CACHED_CAMERAS = 4
+"""Cameras whose last ray tests each shard keeps (the scene's and a few moving ones): a cached
+answer is exact, so a camera pushed out only costs its next ray tests again."""
+
+
+def camera_key(spec: CameraSpec) -> tuple:
+    """A hashable key of a camera's numbers (positions may be tuples, lists or arrays)."""
+    return tuple(float(x) for v in (spec.position, spec.target, spec.up) for x in np.ravel(v)) + (
+        float(spec.fov_deg), float(spec.aspect), float(spec.near), float(spec.far))
+
 
 DEFAULT_WORLDS = 8
 """Default number of pybullet clients the particle slots are packed into."""
@@ -328,18 +405,21 @@ class WorldPool:
         return payload
 
     def run(self, batch: BatchInput, n_steps: int, d_sim_perc: float, lazy: bool = False,
-            moving: bool = False) -> BatchOutput:
-        """Propagate all K particles by ``n_steps`` steps (see :func:`~estimator.propagate.propagate`)."""
+            moving: bool = False, cameras: tuple[CameraSpec, ...] | None = None) -> BatchOutput:
+        """Propagate all K particles by ``n_steps`` steps (see :func:`~estimator.propagate.propagate`;
+        ``moving``: divergence tests of objects teleported in motion carry their target on at its
+        velocity); visibility of ``batch.vis_query`` to ``cameras`` (None: the scene's camera;
+        several: the largest fraction any of them sees)."""
         t0 = time.perf_counter()
         if self._local is not None:
-            out = self._local.run(batch, n_steps, d_sim_perc, lazy, moving)
+            out = self._local.run(batch, n_steps, d_sim_perc, lazy, moving, cameras)
             self.last_run_seconds = time.perf_counter() - t0
             self.last_worker_seconds = [self.last_run_seconds]
             return out
         self._shared.write_inputs(batch)
         for conn in self._conns:
             try:
-                conn.send(("run", n_steps, d_sim_perc, lazy, moving))
+                conn.send(("run", n_steps, d_sim_perc, lazy, moving, cameras))
             except OSError:
                 pass  # a dead worker: its reply says so
         replies = [self._recv(conn) for conn in self._conns]  # all of them: no reply is left unread
@@ -361,6 +441,18 @@ class WorldPool:
         self.last_run_seconds = time.perf_counter() - t0
         self.last_worker_seconds = [payload if status == "ok" else 0.0 for status, payload in replies]
         return out
+
+    def look(self, poses: np.ndarray, place: np.ndarray, targets: np.ndarray,
+             cameras: tuple[CameraSpec, ...]) -> np.ndarray:
+        """Visible fractions ``(V, K, n)`` of objects ``targets (n,)`` to each of the V ``cameras``
+        in every particle world, the objects ``place`` set at the particles' ``poses (K, M, 7)``
+        (occlusion by everything each particle believes); the worlds are left as they were."""
+        poses = np.asarray(poses, dtype=float)
+        if self._local is not None:
+            return self._local.look(poses, place, targets, tuple(cameras))
+        for conn, (lo, hi) in zip(self._conns, self._bounds):
+            conn.send(("look", poses[lo:hi], place, targets, tuple(cameras)))
+        return np.concatenate([self._receive(conn) for conn in self._conns], axis=1)
 
     def bare_step(self, n_steps: int) -> None:
         """Step every world ``n_steps`` times, with the same sharding and nothing else."""

@@ -3,7 +3,8 @@
 Subcommands: ``run`` (estimate a recorded stream), ``config`` (the configuration ``run`` would use),
 ``demo`` (the built-in example), ``simulate``
 (scenario simulator), ``evaluate`` (statistics over scenarios, seeds and methods), ``bench`` (speed
-against bare pybullet stepping), ``track`` (a Kalman pose tracker, fed back by the estimator).
+against bare pybullet stepping), ``track`` (a Kalman pose tracker, fed back by the estimator),
+``search`` (where to look first for a hidden object).
 """
 from __future__ import annotations
 
@@ -303,6 +304,7 @@ def main(argv: list[str] | None = None) -> int:
     from .bench import add_bench_arguments, run_bench
     from .evaluate_cli import add_evaluate_arguments, run_evaluate
     from .fit_priors import add_fit_arguments, run_fit
+    from .search_cli import add_search_arguments, run_search
     from .simulate_cli import add_simulate_arguments, run_simulate
     from .track_cli import add_track_arguments, run_track
 
@@ -314,7 +316,9 @@ def main(argv: list[str] | None = None) -> int:
             ("track", "Kalman pose tracker over a stream, kept alive by the estimator with --feedback",
              add_track_arguments, run_track),
             ("fit-priors", "fit the held-object priors on simulated scenarios (seeds 100-119)", add_fit_arguments,
-             run_fit)]:
+             run_fit),
+            ("search", "where to look first for a hidden object: ranked places and a look plan",
+             add_search_arguments, run_search)]:
         p_sub = sub.add_parser(name, help=text)
         add(p_sub)
         p_sub.set_defaults(func=run)

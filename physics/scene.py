@@ -19,6 +19,7 @@ import yaml
 
 from .errors import InputError, SceneError
 from .hollow import urdf_is_open
+from .transforms import quat_rotate
 
 PYBULLET_DATA_PREFIX = "pybullet_data://"
 SHAPES = ("urdf", "box", "sphere", "cylinder", "container")
@@ -83,6 +84,17 @@ class CameraSpec:
     far: float = 4.0
 
 
+@dataclass(frozen=True)
+class PersonSpec:
+    """A person the robot works with: ``id`` (the owner of the tracked hands named ``"<id>/..."``),
+    an optional ``head`` camera (what the person sees) and the ``reach`` radius (m) around the
+    person's tracked hands (or head, when no hand is tracked) within which an object is reachable."""
+
+    id: str
+    head: CameraSpec | None = None
+    reach: float = 0.7
+
+
 WORKSPACE_MARGIN = 3.0
 """m: the default workspace extends this far beyond the scene's objects and camera (see
 :meth:`Scene.workspace_bounds`)."""
@@ -100,6 +112,7 @@ class Scene:
     camera: CameraSpec | None = None
     source: str | None = None
     workspace: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
+    person: PersonSpec | None = None
 
     def workspace_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """The box ``(lo (3,), hi (3,))`` (m) where perception can be believed: the scene's
@@ -333,7 +346,7 @@ def scene_from_dict(data: Any, *, path: str | None = None, lines: dict[str, int]
     """Validate a parsed scene mapping. ``base_dir`` resolves relative URDF paths."""
     f = _Fields(path, lines or {})
     data = f.mapping(data, "")
-    f.only(data, {"name", "floor", "camera", "objects", "version", "workspace"}, "")
+    f.only(data, {"name", "floor", "camera", "objects", "version", "workspace", "person"}, "")
     version = data.get("version", SCENE_FORMAT_VERSION)
     if version != SCENE_FORMAT_VERSION:
         raise f.error("version", f"unsupported scene format version {version!r} "
@@ -346,24 +359,7 @@ def scene_from_dict(data: Any, *, path: str | None = None, lines: dict[str, int]
         raise f.error("floor", f"must be true or false, got {floor!r}")
     camera = None
     if data.get("camera") is not None:
-        c = f.mapping(data["camera"], "camera")
-        f.only(c, {"position", "target", "up", "fov_deg", "aspect", "near", "far"}, "camera")
-        for req in ("position", "target"):
-            if req not in c:
-                raise f.error("camera", f"missing field '{req}'")
-        camera = CameraSpec(
-            position=f.vector(c["position"], "camera.position", 3),
-            target=f.vector(c["target"], "camera.target", 3),
-            up=f.vector(c.get("up", [0, 0, 1]), "camera.up", 3),
-            fov_deg=f.number(c.get("fov_deg", 60.0), "camera.fov_deg", positive=True),
-            aspect=f.number(c.get("aspect", 4 / 3), "camera.aspect", positive=True),
-            near=f.number(c.get("near", 0.1), "camera.near", positive=True),
-            far=f.number(c.get("far", 4.0), "camera.far", positive=True),
-        )
-        if camera.far <= camera.near:
-            raise f.error("camera.far", "must be greater than camera.near")
-        if np.allclose(camera.position, camera.target):
-            raise f.error("camera.target", "must differ from camera.position")
+        camera = parse_camera(f, data["camera"], "camera")
     raw_objects = data.get("objects")
     if not isinstance(raw_objects, list) or not raw_objects:
         raise f.error("objects", "must be a non-empty list of objects")
@@ -387,7 +383,64 @@ def scene_from_dict(data: Any, *, path: str | None = None, lines: dict[str, int]
         if not all(a < b for a, b in zip(lo, hi)):
             raise f.error("workspace.max", f"must be greater than workspace.min on every axis, got {hi} and {lo}")
         workspace = (lo, hi)
-    return Scene(name=name, objects=tuple(objects), floor=floor, camera=camera, source=path, workspace=workspace)
+    person = None
+    if data.get("person") is not None:
+        pd = f.mapping(data["person"], "person")
+        f.only(pd, {"id", "head", "reach"}, "person")
+        pid = pd.get("id", "human")
+        if not isinstance(pid, str) or not pid:
+            raise f.error("person.id", f"must be a non-empty string, got {pid!r}")
+        head = parse_camera(f, pd["head"], "person.head", orientation=True) if pd.get("head") is not None else None
+        person = PersonSpec(pid, head, f.number(pd.get("reach", 0.7), "person.reach", positive=True))
+    return Scene(name=name, objects=tuple(objects), floor=floor, camera=camera, source=path, workspace=workspace,
+                 person=person)
+
+
+def parse_camera(f: "_Fields", value: Any, where: str, *, extra: set[str] = frozenset(),
+                 orientation: bool = False) -> CameraSpec:
+    """Validate a camera mapping at field ``where`` (the scene's ``camera``, a frame's
+    ``cameras[i]``): ``position`` and ``target`` (or, with ``orientation=True``, an ``orientation``
+    quaternion x, y, z, w of the camera's optical frame: z forward, y down), optional ``up``,
+    ``fov_deg``, ``aspect``, ``near``, ``far``; ``extra``: further keys allowed (not read here)."""
+    c = f.mapping(value, where)
+    allowed = {"position", "target", "up", "fov_deg", "aspect", "near", "far"} | set(extra)
+    if orientation:
+        allowed.add("orientation")
+    f.only(c, allowed, where)
+    if "position" not in c:
+        raise f.error(where, "missing field 'position'")
+    position = f.vector(c["position"], f"{where}.position", 3)
+    up = f.vector(c.get("up", [0, 0, 1]), f"{where}.up", 3)
+    if orientation and "orientation" in c:
+        if "target" in c:
+            raise f.error(f"{where}.orientation", "give either target or orientation, not both")
+        q = f.quaternion(c["orientation"], f"{where}.orientation")
+        fwd, down = quat_rotate(np.array(q), np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0]]))
+        target = tuple(float(v) for v in np.asarray(position) + fwd)
+        if "up" not in c:
+            up = tuple(float(-v) for v in down)
+    elif "target" not in c:
+        raise f.error(where, "missing field 'target'" + (" (or orientation)" if orientation else ""))
+    else:
+        target = f.vector(c["target"], f"{where}.target", 3)
+    camera = CameraSpec(
+        position=position, target=target, up=up,
+        fov_deg=f.number(c.get("fov_deg", 60.0), f"{where}.fov_deg", positive=True),
+        aspect=f.number(c.get("aspect", 4 / 3), f"{where}.aspect", positive=True),
+        near=f.number(c.get("near", 0.1), f"{where}.near", positive=True),
+        far=f.number(c.get("far", 4.0), f"{where}.far", positive=True),
+    )
+    if camera.far <= camera.near:
+        raise f.error(f"{where}.far", f"must be greater than {where}.near")
+    if np.allclose(camera.position, camera.target):
+        raise f.error(f"{where}.target", f"must differ from {where}.position")
+    return camera
+
+
+def camera_to_dict(c: CameraSpec) -> dict[str, Any]:
+    """A camera as the file formats write it (look-at form)."""
+    return {"position": list(c.position), "target": list(c.target), "up": list(c.up),
+            "fov_deg": c.fov_deg, "aspect": c.aspect, "near": c.near, "far": c.far}
 
 
 def read_yaml_with_lines(path: str | os.PathLike, what: str = "scene file",
@@ -418,9 +471,7 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
     data_dir = os.path.realpath(pybullet_data.getDataPath())
     out: dict[str, Any] = {"version": SCENE_FORMAT_VERSION, "name": scene.name, "floor": scene.floor}
     if scene.camera is not None:
-        c = scene.camera
-        out["camera"] = {"position": list(c.position), "target": list(c.target), "up": list(c.up),
-                         "fov_deg": c.fov_deg, "aspect": c.aspect, "near": c.near, "far": c.far}
+        out["camera"] = camera_to_dict(scene.camera)
     objs = []
     for o in scene.objects:
         d: dict[str, Any] = {"id": o.id}
@@ -455,4 +506,8 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
     out["objects"] = objs
     if scene.workspace is not None:
         out["workspace"] = {"min": list(scene.workspace[0]), "max": list(scene.workspace[1])}
+    if scene.person is not None:
+        out["person"] = {"id": scene.person.id, "reach": scene.person.reach}
+        if scene.person.head is not None:
+            out["person"]["head"] = camera_to_dict(scene.person.head)
     return out

@@ -98,8 +98,26 @@ def rays_clear_of(camera: Camera, centres: np.ndarray, radii: np.ndarray, others
     return np.all(d > radii[:, None] + other_radii[None, :], axis=1)
 
 
+def segments_miss_boxes(starts: np.ndarray, ends: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Whether each segment ``starts -> ends (N, 3)`` misses every box ``lo, hi (N, B, 3)`` (its own
+    B boxes; the slab test, boxes closed): bool ``(N,)``."""
+    d = (ends - starts)[:, None, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / d
+        t0 = (lo - starts[:, None, :]) * inv
+        t1 = (hi - starts[:, None, :]) * inv
+    parallel = d == 0.0  # parallel to a slab: inside it or never
+    inside = (starts[:, None, :] >= lo) & (starts[:, None, :] <= hi)
+    tmin = np.where(parallel, np.where(inside, -np.inf, np.inf), np.minimum(t0, t1))
+    tmax = np.where(parallel, np.where(inside, np.inf, -np.inf), np.maximum(t0, t1))
+    enter = np.maximum(tmin.max(axis=2), 0.0)
+    leave = np.minimum(tmax.min(axis=2), 1.0)
+    return ~np.any(enter <= leave, axis=1)
+
+
 def visible_fractions(worlds: list[World], camera: Camera, indices, local_points: dict[int, np.ndarray],
-                      poses: np.ndarray, need: np.ndarray | None = None) -> np.ndarray:
+                      poses: np.ndarray, need: np.ndarray | None = None, boxes: np.ndarray | None = None,
+                      convex: np.ndarray | None = None) -> np.ndarray:
     """Fraction ``(G, n)`` of each object's sample points that the camera sees, in each of the G
     worlds (copies of one scene, usually sharing a client: all their rays go to pybullet in one
     batched ray test).
@@ -113,6 +131,12 @@ def visible_fractions(worlds: list[World], camera: Camera, indices, local_points
             :func:`local_sample_points`).
         poses: ``(G, n, 7)`` current link-frame poses of ``indices`` in each world (scene frame).
         need: ``(G, n)`` bool, the fractions wanted (None: all); the others are returned as 0.
+        boxes: optional ``(G, B, 2, 3)`` world AABBs (scene frame, lo and hi) of every body that
+            could hide the objects in each world, object indices first (B >= max index + 1; an
+            object's own box is left out of its test); with ``convex (n,)`` (objects whose sample
+            points lie inside a convex shape), a ray to a point of a convex object above the floor,
+            from a camera above the floor, that misses every other box is seen without a ray test
+            (exactly what the ray test would say: nothing else is on the segment).
     """
     indices = [int(i) for i in np.atleast_1d(indices)]
     G, n = len(worlds), len(indices)
@@ -132,6 +156,20 @@ def visible_fractions(worlds: list[World], camera: Camera, indices, local_points
     if need is not None:
         sel &= np.asarray(need, dtype=bool)[:, :, None]
     seen = np.zeros((G, n, P), dtype=bool)
+    if sel.any() and boxes is not None and convex is not None and camera.position[2] > 0:
+        g_idx, o_idx, _ = np.nonzero(sel)
+        p_sel = pts[sel]
+        lo = boxes[g_idx, :, 0].copy()
+        hi = boxes[g_idx, :, 1].copy()
+        own = np.asarray(indices)[o_idx]
+        lo[np.arange(len(own)), own] = 1e9  # a point far away: the object does not hide itself
+        hi[np.arange(len(own)), own] = 1e9
+        clear = segments_miss_boxes(np.broadcast_to(camera.position, p_sel.shape), p_sel, lo - 1e-3, hi + 1e-3)
+        clear &= np.asarray(convex, dtype=bool)[o_idx] & (p_sel[:, 2] > 0)
+        rows = np.flatnonzero(sel.ravel())[clear]
+        seen.reshape(-1)[rows] = True
+        sel = sel.copy()
+        sel.reshape(-1)[rows] = False
     if sel.any():
         g_idx, o_idx, _ = np.nonzero(sel)
         origins = np.array([w.origin for w in worlds])[g_idx]

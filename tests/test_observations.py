@@ -117,3 +117,73 @@ def test_a_recording_replayed_twice_is_an_error_or_its_replay_is_skipped(tmp_pat
     reader = ObservationReader(str(path), ["cup"], skip_bad_frames=True)
     frames = list(reader)
     assert [f.t for f in frames] == [0.0, 0.1, 0.2, 0.3, 0.4] and reader.skipped == 5
+
+
+# -- per-frame cameras -----------------------------------------------------------------------------------
+
+HEAD = {"id": "head", "position": [0.3, 0.2, 1.5], "target": [0.3, 0.2, 0.6], "up": [1, 0, 0], "fov_deg": 20}
+
+
+def test_frame_cameras_are_read_written_back_and_may_be_given_by_orientation(tmp_path):
+    s = 0.5 ** 0.5
+    down = {"id": "wrist", "position": [0.0, 0.0, 1.0], "orientation": [1.0, 0.0, 0.0, 0.0]}  # z forward -> -z
+    side = {"position": [1.0, 0.0, 1.0], "orientation": [0.0, s, 0.0, s]}  # z forward -> +x... turned
+    frame = parse_frame({"t": 0.0, "objects": {}, "cameras": [HEAD, down, side]}, known_ids=IDS)
+    assert list(frame.cameras) == ["head", "wrist", "2"]
+    assert np.allclose(frame.cameras["wrist"].target, [0.0, 0.0, 0.0])  # one metre along -z
+    assert np.allclose(frame.cameras["2"].target, [2.0, 0.0, 1.0])  # rotated +90 deg about y: z -> +x
+    assert frame.cameras["head"].fov_deg == 20 and frame.cameras["head"].far == 4.0
+    p = tmp_path / "o.jsonl"
+    write_observations(str(p), [frame, parse_frame({"t": 0.1, "objects": {}})])
+    again = read_observations(str(p), IDS)
+    assert again[0].cameras == frame.cameras and again[1].cameras is None
+    assert "cameras" not in json.loads(p.read_text().splitlines()[1])  # old frames stay as they were
+
+
+@pytest.mark.parametrize("cameras, field, message", [
+    ({"id": "head"}, "cameras", "must be a list"),
+    ([{"id": "head", "target": [0, 0, 0]}], r"cameras\[0\]", "missing field 'position'"),
+    ([{"id": "head", "position": [0, 0, 1]}], r"cameras\[0\]", "missing field 'target'"),
+    ([dict(HEAD, fov_deg=-3)], r"cameras\[0\].fov_deg", "must be > 0"),
+    ([dict(HEAD, far=0.05)], r"cameras\[0\].far", "greater than"),
+    ([dict(HEAD, lens="wide")], r"cameras\[0\].lens", "unknown field"),
+    ([dict(HEAD, orientation=[0, 0, 0, 1])], r"cameras\[0\].orientation", "either target or orientation"),
+    ([HEAD, HEAD], r"cameras\[1\].id", "duplicate camera id"),
+    ([dict(HEAD, id=3)], r"cameras\[0\].id", "non-empty string"),
+])
+def test_bad_frame_cameras_are_located_errors(tmp_path, cameras, field, message):
+    p = tmp_path / "o.jsonl"
+    write_jsonl(p, [{"t": 0.0, "objects": {}}, {"t": 0.1, "objects": {}, "cameras": cameras}])
+    with pytest.raises(ObservationError, match=rf"o.jsonl:2: {field}: .*{message}"):
+        read_observations(str(p), IDS)
+
+
+def test_a_frame_camera_gives_negative_evidence_where_it_looks_and_the_scene_camera_no_longer_does():
+    from estimator.config import EstimatorConfig, NoiseConfig
+    from estimator.filter import SceneEstimator
+    from estimator.observations import Frame
+    from helpers import TABLE_TOP, table_scene
+    from physics.scene import CameraSpec
+
+    spot_a, spot_b = [0.3, 0.2, TABLE_TOP + 0.05], [-0.3, -0.2, TABLE_TOP + 0.05]
+    scene_cam = {"position": [-0.3, -0.2, 1.5], "target": [-0.3, -0.2, 0.6], "up": [1, 0, 0], "fov_deg": 20}
+    scene = table_scene({"id": "cup", "cylinder": {"radius": 0.04, "height": 0.1}, "pose": {"position": spot_a}},
+                        camera=scene_cam)
+    head = CameraSpec(position=(0.3, 0.2, 1.5), target=(0.3, 0.2, 0.6), up=(1.0, 0.0, 0.0), fov_deg=20.0)
+
+    def weights(frame_cameras):
+        cfg = EstimatorConfig(particles=2, noise=NoiseConfig.off(), resample_threshold=0.0)
+        with SceneEstimator(scene, cfg, np.random.default_rng(0)) as est:
+            est.update(Frame(0.0, {}))
+            cup = est.object_ids.index("cup")
+            est.state.poses[0, cup, :3], est.state.poses[1, cup, :3] = spot_a, spot_b
+            belief = est.update(Frame(0.08, {}, cameras=frame_cameras))
+            return belief.weights
+
+    miss = NoiseConfig.off().miss_prob
+    # the scene's camera (no cameras in the frame) sees spot B: particle 1 pays the miss probability
+    assert np.allclose(weights(None), [1 / (1 + miss), miss / (1 + miss)])
+    # the head camera took this frame: it sees spot A, and the scene camera no longer counts
+    assert np.allclose(weights({"head": head}), [miss / (1 + miss), 1 / (1 + miss)])
+    # no camera took it: no negative evidence at all
+    assert np.allclose(weights({}), [0.5, 0.5])

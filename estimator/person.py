@@ -1,0 +1,41 @@
+"""What the person sees and reaches: per object, the probability that it is visible to the person
+named by the scene (``person: {id, head, reach}``) and that it is within the person's reach, from
+the particles (hidden objects included; the paper's use of the reasoner for objects the robot cannot
+observe).
+
+P(visible to the person) is the weight of the particles in which ray tests from the person's head
+camera, in that particle's world (occlusion by everything it believes), see at least the
+visibility threshold of the object's sample points; P(reachable) the weight of those in which the
+object is within ``reach`` of one of the person's tracked hands (hands named ``"<id>/..."``, or all
+tracked hands when none is), or of the head when no hand is tracked.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from physics.scene import PersonSpec
+
+
+def person_probabilities(pool, person: PersonSpec, poses: np.ndarray, weights: np.ndarray, objects: np.ndarray,
+                         place: np.ndarray, hands: dict, threshold: float) -> tuple[np.ndarray, np.ndarray]:
+    """P(visible to the person) and P(reachable by the person), each ``(n,)`` for objects ``objects
+    (n,)`` (NaN when there is no head camera / nothing to reach from), from particle ``poses (K, M,
+    7)`` with normalised ``weights (K,)``; ``place (M,)``: the objects to set in the worlds (the
+    known ones); ``hands``: tracked hand positions by name."""
+    objects = np.asarray(objects, dtype=int)
+    n = len(objects)
+    p_vis = np.full(n, np.nan)
+    if person.head is not None and n:
+        frac = pool.look(poses, np.flatnonzero(place), objects, (person.head,))[0]  # (K, n)
+        p_vis = weights @ (frac >= threshold)
+    own = [np.asarray(p, float) for h, p in hands.items() if h.split("/")[0] == person.id]
+    if not own:
+        own = [np.asarray(p, float) for p in hands.values()]
+    if not own and person.head is not None:
+        own = [np.asarray(person.head.position, float)]
+    p_reach = np.full(n, np.nan)
+    if own and n:
+        pts = np.array(own)  # (H, 3)
+        d = np.linalg.norm(poses[:, objects, None, :3] - pts[None, None], axis=-1).min(axis=-1)  # (K, n)
+        p_reach = weights @ (d <= person.reach)
+    return p_vis, p_reach

@@ -1,0 +1,231 @@
+"""Hidden-object search: where to look first for an object the camera has lost, from the particle
+belief, and the closed loop that feeds every failed look back to the filter.
+
+:func:`plan_search` ranks the search regions (:mod:`.regions`) by the weight of the particles in
+each, chooses one viewpoint per likely region (the candidate with the largest probability of
+finding the object there per unit of cost from the camera's place; candidates from the user's list
+or sampled around the particles, :mod:`.looks`), and orders the looks to minimise the expected cost
+of finding the object, with Bayes' rule after every failed look, at the particle level
+(:mod:`.plan`: exact over all orders up to :data:`~.plan.EXACT_MAX_LOOKS` looks, greedy beyond).
+Detection probabilities are per particle, from ray tests in that particle's world.
+
+:class:`ClosedLoopSearch` runs the loop: after a failed look, the estimator gets a frame taken by
+that look's camera without the object (and with whatever was seen on the way), so that physics and
+negative evidence re-weight the particles; the plan is then recomputed from the new belief. The
+open-loop alternative updates only the particle weights by Bayes' rule
+(:meth:`SearchPlan.after_miss`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..observations import Detection, Frame
+from .looks import (SearchConfig, Viewpoint, ViewpointError, ViewpointFile, detection, read_viewpoints,
+                    sample_viewpoints, static_boxes, travel_costs)
+from .plan import bayes_after_miss, find_probabilities, plan_order
+from .regions import ELSEWHERE, ParticleSet, Region, assign, derive_regions, region_probabilities, table_of
+
+__all__ = ["ClosedLoopSearch", "ParticleSet", "PlannedLook", "Region", "SearchConfig", "SearchPlan", "Viewpoint",
+           "ViewpointError", "ViewpointFile", "plan_search", "read_viewpoints"]
+
+
+DEFAULT_REFERENCE = (10.0, 0.0, 0.0)
+"""Where the robot is taken to look from when neither a camera nor a start is known (m)."""
+
+
+@dataclass(frozen=True)
+class PlannedLook:
+    """One look of a plan: its ``viewpoint``, the ``regions`` it was chosen for, ``p_find`` (the
+    probability that it finds the object if the looks before it failed), ``p_first`` (that it is the
+    look that finds it) and ``cost`` (fixed cost plus travel from the previous viewpoint)."""
+
+    viewpoint: Viewpoint
+    regions: tuple[str, ...]
+    p_find: float
+    p_first: float
+    cost: float
+
+    def to_json(self) -> dict:
+        c = self.viewpoint.camera
+        return {"viewpoint": self.viewpoint.id, "position": [round(float(v), 4) for v in c.position],
+                "target": [round(float(v), 4) for v in c.target], "regions": list(self.regions),
+                "p_find": round(self.p_find, 4), "p_first": round(self.p_first, 4), "cost": round(self.cost, 4)}
+
+
+@dataclass(frozen=True)
+class SearchPlan:
+    """A search plan for ``object_id`` at time ``t``: ``regions`` (name, probability) ranked, with
+    ``elsewhere`` last; ``looks`` in order; ``expected_cost`` of finding the object (looks after it
+    is found are not paid; if every look fails, all are); ``p_found`` by the whole plan; ``method``
+    ``"exact"`` or ``"greedy"``. Kept for Bayes' rule: ``weights (K,)``, region index per particle
+    ``labels (K,)`` (``len(region_names)``: elsewhere), ``region_names``, the detection
+    probabilities of the planned looks ``d (L, K)``."""
+
+    object_id: str
+    t: float | None
+    regions: list[tuple[str, float]]
+    looks: list[PlannedLook]
+    expected_cost: float
+    p_found: float
+    method: str
+    weights: np.ndarray
+    labels: np.ndarray
+    region_names: tuple[str, ...]
+    d: np.ndarray
+
+    def to_json(self) -> dict:
+        return {"object": self.object_id, "t": self.t,
+                "regions": [{"region": n, "p": round(float(p), 4)} for n, p in self.regions],
+                "plan": [lk.to_json() for lk in self.looks], "expected_cost": round(self.expected_cost, 4),
+                "p_found": round(self.p_found, 4), "method": self.method}
+
+    def region_p(self, name: str) -> float:
+        return dict(self.regions).get(name, 0.0)
+
+    def after_miss(self, i: int = 0) -> tuple[dict[str, float], np.ndarray]:
+        """Open loop: the region probabilities (name -> p, elsewhere included) and particle weights
+        ``(K,)`` after look ``i`` of the plan failed, by Bayes' rule on the particles."""
+        w = bayes_after_miss(self.weights, self.d[i])
+        p = region_probabilities(self.labels, w, len(self.region_names))
+        return dict(zip(self.region_names + (ELSEWHERE,), p.tolist())), w
+
+
+def search_regions(est, boxes: np.ndarray, hands, user: ViewpointFile | None, camera_xy) -> list[Region]:
+    """The user's box regions, then (unless they replace them) the scene's derived ones."""
+    own = list(user.regions) if user is not None else []
+    if user is not None and user.replace_regions:
+        return own
+    return own + derive_regions(est.scene, boxes, hands, camera_xy)
+
+
+def plan_search(est, object_id: str, viewpoints: ViewpointFile | list[Viewpoint] | None = None,
+                config: SearchConfig | None = None, rng: np.random.Generator | None = None,
+                hands: dict | None = None, start: np.ndarray | None = None, boxes: np.ndarray | None = None,
+                reference: np.ndarray | None = None) -> SearchPlan:
+    """The search plan for ``object_id`` from a :class:`~estimator.filter.SceneEstimator`'s present
+    particles (its pool's worlds answer the ray tests).
+
+    Args:
+        viewpoints: candidate viewpoints (a list, or a :class:`ViewpointFile` with costs, start and
+            regions); None: sampled around the likely regions with ``rng``.
+        config: costs, detection model, sampling (defaults: :class:`SearchConfig`; the detection
+            model defaults to the estimator's ``miss_prob`` and ``visibility_threshold``).
+        hands: the tracked hands of the last frame (name -> position), for "held by" regions.
+        start: where the camera is (default: the file's ``start``, else the scene camera, else the
+            first viewpoint).
+        boxes: the scene's AABBs ``(M, 2, 3)`` at its given poses (computed when None).
+        reference: where the robot looks from ``(3,)``, naming the floor cells ("behind the table"
+            is away from it; default: the scene camera, else ``start``): fixed while the camera
+            moves, so that a region keeps its name over a search.
+    Raises KeyError for an object the scene does not have, ValueError for one never perceived.
+    """
+    config = config or SearchConfig()
+    rng = rng if rng is not None else np.random.default_rng(0)
+    if object_id not in est.object_ids:
+        raise KeyError(f"unknown object {object_id!r} (the scene has: {', '.join(est.object_ids)})")
+    obj = list(est.object_ids).index(object_id)
+    if not est.known[obj]:
+        raise ValueError(f"object {object_id!r} has no pose yet: never perceived and none in the scene")
+    user = viewpoints if isinstance(viewpoints, ViewpointFile) else None
+    views = list(user.viewpoints if user is not None else viewpoints or [])
+    fixed = user.fixed_cost if user is not None and user.fixed_cost is not None else config.fixed_cost
+    per_m = user.travel_cost if user is not None and user.travel_cost is not None else config.travel_cost
+    miss = config.miss_prob if config.miss_prob is not None else est.config.noise.miss_prob
+    thr = config.visibility_threshold if config.visibility_threshold is not None else est.config.visibility_threshold
+    boxes = static_boxes(est.scene) if boxes is None else boxes
+    if start is None and user is not None:
+        start = user.start
+    if start is None and est.scene.camera is not None:
+        start = np.asarray(est.scene.camera.position, float)
+    ps = ParticleSet.from_estimator(est, hands)
+    ti = table_of(est.scene, boxes)
+    if reference is None and est.scene.camera is not None:
+        reference = est.scene.camera.position
+    if reference is None:
+        reference = start if start is not None else DEFAULT_REFERENCE
+    camera_xy = np.asarray(reference, float)[:2]
+    regions = search_regions(est, boxes, ps.hands or {}, user, camera_xy)
+    labels = assign(ps, obj, regions, boxes[ti] if ti is not None else None, camera_xy, est.scene.floor)
+    probs = region_probabilities(labels, ps.weights, len(regions))
+    likely = [r for r in np.argsort(-probs[:-1], kind="stable") if probs[r] >= max(config.min_region_p, 1e-12)]
+    if not views:
+        centres = []
+        for r in likely:
+            m = labels == r
+            centres.append((regions[r].name, np.average(ps.poses[m, obj, :3], axis=0, weights=ps.weights[m])))
+        views = sample_viewpoints(centres, config, rng)
+    if start is None:
+        start = views[0].position if views else np.zeros(3)
+    D = detection(est.pool, ps, obj, est.known, views, miss, thr)  # (V, K)
+    first_cost = travel_costs(start, views, fixed, per_m)[-1] if views else np.zeros(0)
+    chosen: dict[int, list[str]] = {}
+    for r in likely:
+        m = labels == r
+        d_r = D[:, m] @ ps.weights[m] / probs[r]  # (V,) P(found | in region r)
+        if len(d_r) and d_r.max() > 0:
+            chosen.setdefault(int(np.argmax(d_r / first_cost)), []).append(regions[r].name)
+    look_views = [views[v] for v in chosen]
+    d = D[list(chosen)] if chosen else np.zeros((0, len(ps.weights)))
+    cost = travel_costs(start, look_views, fixed, per_m)
+    order, expected, method = plan_order(d, ps.weights, cost, config.exact_max_looks)
+    cond, first = find_probabilities(order, d, ps.weights)
+    looks, prev = [], len(look_views)
+    for i, v in enumerate(order):
+        looks.append(PlannedLook(look_views[v], tuple(chosen[list(chosen)[v]]), float(cond[i]), float(first[i]),
+                                 float(cost[prev, v])))
+        prev = v
+    names = tuple(r.name for r in regions)
+    ranked = sorted(zip(names, probs[:-1].tolist()), key=lambda x: -x[1])
+    ranked = [(n, p) for n, p in ranked if p > 0] + [(ELSEWHERE, float(probs[-1]))]
+    return SearchPlan(object_id, est.last_belief.t if est.last_belief is not None else None, ranked, looks,
+                      expected, float(first.sum()), method, ps.weights, labels, names, d[order])
+
+
+class ClosedLoopSearch:
+    """The closed loop: plan, look, and on a miss feed the look to the estimator and plan again.
+
+    ``search.plan()`` gives the present plan; ``search.look_failed(plan.looks[0], seen)`` feeds the
+    estimator a frame at its next reasoning time, taken by that look's camera, in which the object
+    is absent (``seen``: detections of other objects made on the way, by id), and moves the camera
+    there (the next plan's travel starts from it). Randomness: ``rng`` (sampled viewpoints)."""
+
+    def __init__(self, est, object_id: str, viewpoints=None, config: SearchConfig | None = None,
+                 rng: np.random.Generator | None = None, hands: dict | None = None, start=None):
+        self.est, self.object_id, self.viewpoints = est, object_id, viewpoints
+        self.config = config or SearchConfig()
+        self.rng = rng if rng is not None else np.random.default_rng(0)
+        self.hands = dict(hands or {})
+        self.start = None if start is None else np.asarray(start, float)
+        if self.start is None and isinstance(viewpoints, ViewpointFile):
+            self.start = viewpoints.start
+        if self.start is None and est.scene.camera is not None:
+            self.start = np.asarray(est.scene.camera.position, float)
+        # region names stay those seen from where the search began (no camera, no start: from +x)
+        self.reference = self.start if self.start is not None else np.array(DEFAULT_REFERENCE)
+        self.boxes = static_boxes(est.scene)
+        self.looks_done: list[PlannedLook] = []
+
+    def plan(self) -> SearchPlan:
+        plan = plan_search(self.est, self.object_id, self.viewpoints, self.config, self.rng, self.hands,
+                           self.start, self.boxes, self.reference)
+        return plan
+
+    def next_time(self) -> float:
+        """The stream time of the next look's frame: the estimator's next reasoning step."""
+        est = self.est
+        last = max(t for t in (est.t_frame, est.t_tick, 0.0) if t is not None)
+        return last + est.config.reasoner.horizon + 1e-6
+
+    def look_failed(self, look: PlannedLook, seen: dict[str, Detection] | None = None, t: float | None = None):
+        """Feed the failed ``look`` to the estimator; returns its new belief."""
+        if seen and self.object_id in seen:
+            raise ValueError(f"{self.object_id!r} was seen: the look did not fail")
+        frame = Frame(self.next_time() if t is None else float(t), dict(seen or {}),
+                      {k: np.asarray(v, float) for k, v in self.hands.items() if v is not None},
+                      cameras={look.viewpoint.id: look.viewpoint.camera})
+        belief = self.est.update(frame)
+        self.start = look.viewpoint.position
+        self.looks_done.append(look)
+        return belief
