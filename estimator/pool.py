@@ -49,7 +49,7 @@ class _Shard:
         self.worlds = [ParticleWorld(w) for g in self.groups for w in g.worlds]
         self._saved: list[int] = []
         # per camera: world -> (poses, fractions) of its last ray tests (the most recent cameras)
-        self._vis_caches: OrderedDict[tuple, dict[int, tuple[np.ndarray, np.ndarray]]] = OrderedDict()
+        self._vis_caches: OrderedDict[tuple, dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]] = OrderedDict()
         self._cameras: dict[tuple, Camera] = {}
         self.scene, self.settings = scene, settings
         self.camera = Camera(scene.camera) if scene.camera is not None else None
@@ -139,19 +139,20 @@ class _Shard:
         K, n = len(self.worlds), len(q)
         vis = np.zeros((K, n))
         need = np.zeros((K, n), dtype=bool)
+        now = poses[..., :3] + quat_rotate(poses[..., 3:], self.box_centres[None])  # (K, M, 3), at once
         for k in np.flatnonzero(finite).tolist():
             need[k] = True
             cached = cache.get(k)
             if cached is None:
                 continue
-            old, row = cached
+            old, row, old_centres = cached
             moved = np.any(poses[k] != old, axis=-1)
             keep = ~np.isnan(row[q]) & ~moved[q]
             if keep.any() and moved.any():
                 m = np.flatnonzero(moved)
-                centres = self._centres(poses[k, q], q)
-                for p in (old, poses[k]):
-                    keep &= rays_clear_of(camera, centres, self.radii[q], self._centres(p[m], m), self.radii[m])
+                centres = now[k, q]
+                for c in (old_centres, now[k]):
+                    keep &= rays_clear_of(camera, centres, self.radii[q], c[m], self.radii[m])
             vis[k, keep] = row[q][keep]
             need[k] = ~keep
         todo = np.flatnonzero(need.any(axis=1)).tolist()
@@ -162,12 +163,8 @@ class _Shard:
         for k in np.flatnonzero(finite).tolist():
             row = np.full(poses.shape[1], np.nan)
             row[q] = vis[k]
-            cache[k] = (poses[k].copy(), row)
+            cache[k] = (poses[k].copy(), row, now[k])
         return vis
-
-    def _centres(self, poses: np.ndarray, idx: np.ndarray) -> np.ndarray:
-        """World centres ``(n, 3)`` of the bounding boxes of objects ``idx`` at ``poses (n, 7)``."""
-        return poses[:, :3] + quat_rotate(poses[:, 3:], self.box_centres[idx])
 
     def bare_step(self, n_steps: int) -> None:
         """Step every client ``n_steps`` times and nothing else (the benchmark's reference)."""
