@@ -206,11 +206,8 @@ class SceneEstimator:
         move = model.move(self.state, frame, detected, perceived, dt, self.rng, cameras)
         batch = model.batch(move, self.state, self._changed_slots(move.poses, move.velocities),
                             self._settled_entries(move.poses, move.velocities))
-        if cameras is None:  # old streams: the pool's call as it always was
-            out = self.pool.run(batch, n_steps, cfg.reasoner.d_sim_perc, cfg.lazy_checks, cfg.moving_teleports)
-        else:
-            out = self.pool.run(batch, n_steps, cfg.reasoner.d_sim_perc, cfg.lazy_checks, cfg.moving_teleports,
-                                cameras=cameras)
+        out = self.pool.run(batch, n_steps, cfg.reasoner.d_sim_perc, cfg.lazy_checks, cfg.moving_teleports,
+                            cameras=cameras)  # None: the scene's camera
         bad = self._reset_exploded(out, move.poses, move.modes, t)
         settled = model.settle(self.state, move, out, t, dt, detected, perceived)
         # weigh (the model's terms)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import time
 
 import numpy as np
 
@@ -40,6 +41,8 @@ def add_search_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fixed-cost", type=float, default=d.fixed_cost, help=f"cost of a look ({d.fixed_cost})")
     parser.add_argument("--travel-cost", type=float, default=d.travel_cost,
                         help=f"cost per metre of camera travel ({d.travel_cost})")
+    parser.add_argument("--views-per-region", type=int, default=d.views_per_region,
+                        help=f"viewpoints sampled around each likely region without --viewpoints ({d.views_per_region})")
     parser.add_argument("--json", action="store_true", help="print one JSON object and nothing else")
     _add_estimator_arguments(parser)
 
@@ -51,7 +54,8 @@ def run_search(args: argparse.Namespace) -> int:
     if args.particles is None and not args.config:
         args.particles = 64
     cfg = build_config(args)
-    search_cfg = SearchConfig(fixed_cost=args.fixed_cost, travel_cost=args.travel_cost)
+    search_cfg = SearchConfig(fixed_cost=args.fixed_cost, travel_cost=args.travel_cost,
+                              views_per_region=args.views_per_region)
     scene = load_scene(args.scene)
     if args.object not in scene.object_ids:
         raise InputError(f"unknown object {args.object!r} (the scene {args.scene} has: "
@@ -72,14 +76,17 @@ def run_search(args: argparse.Namespace) -> int:
                 break
             est.update(f)
             hands = dict(f.hands) if f.hands else hands
+        t0 = time.perf_counter()
         try:
             plan = plan_search(est, args.object, views, search_cfg, np.random.default_rng(args.seed), hands)
         except ValueError as exc:
             raise InputError(str(exc), field="--object") from None
+        planning_ms = 1e3 * (time.perf_counter() - t0)
     if args.json:
-        print(json.dumps(plan.to_json()))
+        print(json.dumps({**plan.to_json(), "planning_ms": round(planning_ms, 1)}))
         return 0
     print_plan(plan, cfg.particles)
+    print(f"\nPlanned in {planning_ms:.0f} ms ({plan.candidates} candidate viewpoints).")
     return 0
 
 

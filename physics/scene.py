@@ -248,6 +248,12 @@ class _Fields:
                 sub = f"{where}.{key}" if where else str(key)
                 raise self.error(sub, f"unknown field (expected one of: {', '.join(sorted(allowed))})")
 
+    def require(self, mapping: dict, names, where: str) -> None:
+        """A located error for the first of ``names`` missing from ``mapping``."""
+        for name in names:
+            if name not in mapping:
+                raise self.error(where, f"missing field '{name}'")
+
 
 def resolve_urdf(ref: str, scene_dir: Path | None) -> str:
     """Absolute path of a URDF reference: ``pybullet_data://...``, absolute, or relative to the scene."""
@@ -376,9 +382,7 @@ def scene_from_dict(data: Any, *, path: str | None = None, lines: dict[str, int]
     if data.get("workspace") is not None:
         ws = f.mapping(data["workspace"], "workspace")
         f.only(ws, {"min", "max"}, "workspace")
-        for req in ("min", "max"):
-            if req not in ws:
-                raise f.error("workspace", f"missing field '{req}'")
+        f.require(ws, ("min", "max"), "workspace")
         lo, hi = f.vector(ws["min"], "workspace.min", 3), f.vector(ws["max"], "workspace.max", 3)
         if not all(a < b for a, b in zip(lo, hi)):
             raise f.error("workspace.max", f"must be greater than workspace.min on every axis, got {hi} and {lo}")

@@ -61,7 +61,8 @@ class SearchPlan:
     is found are not paid; if every look fails, all are); ``p_found`` by the whole plan; ``method``
     ``"exact"`` or ``"greedy"``. Kept for Bayes' rule: ``weights (K,)``, region index per particle
     ``labels (K,)`` (``len(region_names)``: elsewhere), ``region_names``, the detection
-    probabilities of the planned looks ``d (L, K)``."""
+    probabilities of the planned looks ``d (L, K)``; ``candidates``: the viewpoints the plan chose
+    from (the user's, or those sampled around the likely regions)."""
 
     object_id: str
     t: float | None
@@ -74,12 +75,13 @@ class SearchPlan:
     labels: np.ndarray
     region_names: tuple[str, ...]
     d: np.ndarray
+    candidates: int = 0
 
     def to_json(self) -> dict:
         return {"object": self.object_id, "t": self.t,
                 "regions": [{"region": n, "p": round(float(p), 4)} for n, p in self.regions],
                 "plan": [lk.to_json() for lk in self.looks], "expected_cost": round(self.expected_cost, 4),
-                "p_found": round(self.p_found, 4), "method": self.method}
+                "p_found": round(self.p_found, 4), "method": self.method, "candidates": self.candidates}
 
     def region_p(self, name: str) -> float:
         return dict(self.regions).get(name, 0.0)
@@ -180,7 +182,7 @@ def plan_search(est, object_id: str, viewpoints: ViewpointFile | list[Viewpoint]
     ranked = sorted(zip(names, probs[:-1].tolist()), key=lambda x: -x[1])
     ranked = [(n, p) for n, p in ranked if p > 0] + [(ELSEWHERE, float(probs[-1]))]
     return SearchPlan(object_id, est.last_belief.t if est.last_belief is not None else None, ranked, looks,
-                      expected, float(first.sum()), method, ps.weights, labels, names, d[order])
+                      expected, float(first.sum()), method, ps.weights, labels, names, d[order], len(views))
 
 
 class ClosedLoopSearch:

@@ -125,9 +125,7 @@ def read_viewpoints(path: str) -> ViewpointFile:
         where = f"regions[{i}]"
         r = f.mapping(r, where)
         f.only(r, {"name", "min", "max"}, where)
-        for req in ("name", "min", "max"):
-            if req not in r:
-                raise f.error(where, f"missing field '{req}'")
+        f.require(r, ("name", "min", "max"), where)
         if not isinstance(r["name"], str) or not r["name"]:
             raise f.error(f"{where}.name", f"must be a non-empty string, got {r['name']!r}")
         lo, hi = f.vector(r["min"], f"{where}.min", 3), f.vector(r["max"], f"{where}.max", 3)

@@ -394,9 +394,7 @@ def scenario_from_dict(data: Any, *, path: str | None = None, lines: dict[str, i
     if data.get("torso") is not None:
         t = f.mapping(data["torso"], "torso")
         f.only(t, {"size", "position"}, "torso")
-        for req in ("size", "position"):
-            if req not in t:
-                raise f.error("torso", f"missing field '{req}'")
+        f.require(t, ("size", "position"), "torso")
         torso = TorsoSpec(size=f.vector(t["size"], "torso.size", 3, positive=True),
                           position=f.vector(t["position"], "torso.position", 3))
     perception = _parse_perception(f, data.get("perception", {}) or {}, "perception")
