@@ -8,10 +8,11 @@ from pathlib import Path
 
 import pytest
 
-from experiments import bench_scenario
-from experiments.bench import StreamTiming, bench_one, bench_scene
+from experiments.bench import scenarios as bench_scenario
+from experiments.bench.synthetic import bench_one, bench_scene
+from experiments.bench.timing import StreamTiming
 from experiments.cli import main
-from experiments.demo_cli import demo_files
+from experiments.cli.demo import demo_files
 from experiments.scenarios import list_scenarios
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -159,10 +160,10 @@ def test_bag_mode_times_the_same_stream_from_jsonl_and_from_a_two_source_bag(tmp
     import numpy as np
 
     from estimator.observations import Detection, Frame
-    from experiments.bag_bench import write_two_source_bag
+    from experiments.bench.bag import write_two_source_bag
     from experiments.cli import main
-    from experiments.rosbag_io import read_bag_frames
-    from experiments.rosbag_topics import load_topics
+    from experiments.ros.reader import read_bag_frames
+    from experiments.ros.topics import load_topics
 
     frames = [Frame(0.1 * i, {"cup": Detection(np.array([0.1 * i, 0.0, 0.7]), np.array([0, 0, 0, 1.0]))},
                     {"human/right": np.array([0.3, 0.0, 1.0])}) for i in range(5)]

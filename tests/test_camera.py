@@ -4,7 +4,7 @@ import numpy as np
 import pybullet as pb
 import pytest
 
-from experiments.camera import SyntheticCamera, sample_points
+from experiments.simulation.camera import SyntheticCamera, sample_points
 from physics.scene import ObjectSpec, scene_from_dict
 from physics.world import World
 

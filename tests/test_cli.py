@@ -137,7 +137,7 @@ def _run_args(**kw):
 
 def test_run_defaults_to_the_particle_estimator_and_paper_is_asked_for():
     from estimator.config import EstimatorConfig, default_config
-    from experiments.cli import DEFAULT_PARTICLES, build_config
+    from experiments.cli.common import DEFAULT_PARTICLES, build_config
 
     default = build_config(_run_args())
     assert DEFAULT_PARTICLES == 64
@@ -154,7 +154,7 @@ def test_run_defaults_to_the_particle_estimator_and_paper_is_asked_for():
 
 def test_a_configuration_file_decides_k_when_the_command_line_does_not(tmp_path):
     from estimator.config import EstimatorConfig
-    from experiments.cli import build_config
+    from experiments.cli.common import build_config
 
     for text, k in [("noise: {position_std: 0.02}\n", 64), ("particles: 16\n", 16), ("base: paper\n", 1)]:
         (tmp_path / "c.yaml").write_text(text)

@@ -6,7 +6,7 @@ import pytest
 
 from estimator.config import EstimatorConfig, NoiseConfig
 from estimator.filter import SceneEstimator
-from experiments.bench import bench_frames, bench_scene
+from experiments.bench.synthetic import bench_frames, bench_scene
 
 
 def _clients(est):

@@ -1,4 +1,5 @@
-"""Trials, sweeps, resumption and backends of experiments.evaluate (small, short sweeps)."""
+"""Trials, scoring, sweeps, resumption, backends and the report of experiments.evaluation (small, short
+sweeps)."""
 from __future__ import annotations
 
 import csv
@@ -12,12 +13,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from experiments import evaluate_cli
-from experiments.evaluate import (SweepConfig, TrialSpec, deterministic_part, paired_tests, read_rows,
-                                  run_sweep, run_trial, score_run, summarize, trial_rng)
-from experiments.methods import MethodRun, StepEstimate
-from experiments.metrics import truth_supports
-from experiments.simulator import simulate
+from experiments.cli import evaluate as evaluate_cli
+from experiments.evaluation.report import paired_tests, summarize
+from experiments.evaluation.scoring import score_run
+from experiments.evaluation.sweep import SweepConfig, read_rows, run_sweep
+from experiments.evaluation.trials import TrialSpec, deterministic_part, run_trial, trial_rng
+from experiments.evaluation.methods import MethodRun, StepEstimate
+from experiments.evaluation.metrics import truth_supports
+from experiments.simulation.simulator import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = ("ball_dropped_into_box", "cup_falls_behind_box")
@@ -158,7 +161,7 @@ def test_a_rerun_with_everything_done_runs_nothing(reference, tmp_path):
 def test_a_sweep_killed_half_way_and_rerun_gives_the_same_table(reference, tmp_path):
     rows, ref_out = reference
     out = tmp_path / "killed"
-    cmd = [sys.executable, "-m", "experiments.evaluate_cli", *CLI_ARGS, "--out", str(out)]
+    cmd = [sys.executable, "-m", "experiments.cli.evaluate", *CLI_ARGS, "--out", str(out)]
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     path = out / "trials.jsonl"
     deadline = time.monotonic() + 120
@@ -240,7 +243,7 @@ def test_an_estimator_configuration_file_changes_the_particle_methods_only(tmp_p
     assert rows["particles"]["key"].split("__")[-1].startswith("cfg") and "cfg" not in rows["paper"]["key"]
     assert "estimator configuration" in (out / "summary.md").read_text()
     # the configuration reaches the estimator: the same trial without the file is another row
-    from experiments.methods import method_config
+    from experiments.evaluation.methods import method_config
     with_file = method_config("particles", K, rows["particles"]["config"])
     assert with_file.noise.position_std == 0.03 and with_file.reasoner.d_sim_perc == 0.06
     assert with_file.noise.motion_noise == method_config("particles", K).noise.motion_noise
@@ -273,7 +276,8 @@ def test_rerun_recording_of_a_trial_does_not_change_its_row(tmp_path):
 
 
 def test_a_failing_trial_is_reported_and_retried_by_the_next_run(tmp_path, monkeypatch):
-    import experiments.evaluate as ev
+    import experiments.evaluation.sweep as ev
+    import experiments.evaluation.trials as trials
 
     cfg = SweepConfig(("cup_falls_behind_box",), (0, 1), ("paper",), (K,), 1.0)
     bad = "cup_falls_behind_box__s1__paper__K1__1s"
@@ -287,13 +291,13 @@ def test_a_failing_trial_is_reported_and_retried_by_the_next_run(tmp_path, monke
             raise FloatingPointError("exploded")
         return fine(spec)
 
-    monkeypatch.setattr(ev, "run_trial", fake)
+    monkeypatch.setattr(trials, "run_trial", fake)
     with pytest.raises(ev.TrialFailures, match="1 of 2"):
         run_sweep(cfg, tmp_path, workers=1, progress=False, report=False)
     assert [r["key"] for r in read_rows(tmp_path / "trials.jsonl")] == ["cup_falls_behind_box__s0__paper__K1__1s"]
     err = json.loads((tmp_path / "errors.jsonl").read_text().splitlines()[0])
     assert err["key"] == bad and "FloatingPointError" in err["error"]
-    monkeypatch.setattr(ev, "run_trial", fine)
+    monkeypatch.setattr(trials, "run_trial", fine)
     ran = []
     run_sweep(cfg, tmp_path, workers=1, progress=False, report=False, on_row=ran.append)
     assert [r["key"] for r in ran] == [bad]

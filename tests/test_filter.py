@@ -329,7 +329,7 @@ def test_a_ball_rolling_out_of_view_goes_on_as_physics_says_and_paper_mode_pins_
 from scipy.stats import chi2  # noqa: E402
 
 from estimator.observations import parse_frame  # noqa: E402
-from experiments.simulator import simulate  # noqa: E402
+from experiments.simulation.simulator import simulate  # noqa: E402
 
 
 def _estimate(name, seed, k=32):

@@ -5,7 +5,8 @@ import pytest
 
 from actions.modes import ModePriors
 from estimator.config import ReasonerConfig
-from experiments.fit_priors import Counts, Spread, _seed_range, count_losses
+from experiments.cli.fit import seed_range as _seed_range
+from experiments.evaluation.fit_priors import Counts, Spread, count_losses
 
 
 def _stream(hand_path, seen_until, held_until, t_end=2.0, dt=0.05):

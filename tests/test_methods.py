@@ -1,11 +1,11 @@
-"""The method registry of experiments.methods and the last-seen baseline."""
+"""The method registry of experiments.evaluation.methods and the last-seen baseline."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
 from estimator.config import EstimatorConfig, NoiseConfig
-from experiments.methods import (METHODS, LastSeenBaseline, effective_particles, get_method, method_config,
+from experiments.evaluation.methods import (METHODS, LastSeenBaseline, effective_particles, get_method, method_config,
                                  run_method, top_from_relations)
 
 from helpers import TABLE_TOP, frames, table_scene

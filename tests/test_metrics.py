@@ -1,4 +1,4 @@
-"""Metrics of experiments.metrics on hand-made inputs with known answers."""
+"""Metrics of experiments.evaluation.metrics on hand-made inputs with known answers."""
 from __future__ import annotations
 
 import math
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.stats import multivariate_normal
 
-from experiments import metrics as M
+from experiments.evaluation import metrics as M
 
 
 # -- positions ---------------------------------------------------------------------------------------

@@ -11,9 +11,9 @@ import math
 import numpy as np
 import pytest
 
-from experiments.perception import PerceptionConfig, PerceptionModel
+from experiments.simulation.perception import PerceptionConfig, PerceptionModel
 from experiments.scenarios import load_scenario
-from experiments.simulator import simulate
+from experiments.simulation.simulator import simulate
 from physics.transforms import quat_angle, quat_conjugate, quat_multiply, quat_to_rotvec
 
 M = 5

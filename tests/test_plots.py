@@ -1,12 +1,13 @@
-"""Figures of experiments.plots on a real short trial and on hand-made rows."""
+"""Figures of experiments.evaluation.plots on a real short trial and on hand-made rows."""
 from __future__ import annotations
 
 import matplotlib.image as mpimg
 import numpy as np
 import pytest
 
-from experiments import plots
-from experiments.evaluate import TrialSpec, run_trial, summarize
+from experiments.evaluation import plots
+from experiments.evaluation.report import summarize
+from experiments.evaluation.trials import TrialSpec, run_trial
 
 
 @pytest.fixture(scope="module")

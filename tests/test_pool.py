@@ -91,7 +91,7 @@ def _scenario_run(workers, name="cup_hidden_behind_back", seconds=4.5):
     from estimator.config import EstimatorConfig, NoiseConfig
     from estimator.filter import SceneEstimator
     from estimator.observations import parse_frame
-    from experiments.simulator import simulate
+    from experiments.simulation.simulator import simulate
 
     res = simulate(name, 0)
     frames = [parse_frame(o, known_ids=res.scene.object_ids) for o in res.observations if o["t"] <= seconds]
@@ -114,7 +114,7 @@ import os, sys, numpy as np, psutil
 from estimator.config import EstimatorConfig, NoiseConfig
 from estimator.filter import SceneEstimator
 from estimator.observations import parse_frame
-from experiments.simulator import simulate
+from experiments.simulation.simulator import simulate
 
 def main():
     res = simulate("cluttered_table", 0, duration=1.0)

@@ -10,7 +10,7 @@ from rerun.chunk import RrdReader
 from estimator.config import EstimatorConfig, NoiseConfig
 from estimator.filter import SceneEstimator
 from experiments.recording import APPLICATION_ID, Recorder, RecorderOptions, covariance_ellipsoids
-from experiments.simulate_cli import add_simulate_arguments, run_simulate
+from experiments.cli.simulate import add_simulate_arguments, run_simulate
 
 from helpers import TABLE_TOP, frames, table_scene
 
@@ -284,7 +284,7 @@ def test_simulate_writes_a_readable_recording(tmp_path):
     args = parser.parse_args(["ball_dropped_into_box", "--duration", "2.0", "--out", str(tmp_path / "sim"),
                               "--rerun", str(rrd), "--quiet"])
     assert run_simulate(args) == 0
-    from experiments.simulator import read_jsonl
+    from experiments.simulation.simulator import read_jsonl
 
     truth = read_jsonl(tmp_path / "sim" / "truth.jsonl")
     obs = read_jsonl(tmp_path / "sim" / "observations.jsonl")

@@ -11,9 +11,9 @@ from estimator.config import EstimatorConfig
 from estimator.filter import SceneEstimator
 from estimator.observations import Frame, ObservationReader, write_observations
 from experiments.cli import main
-from experiments.rosbag_io import BagFrameReader, read_bag_frames
-from experiments.rosbag_out import ESTIMATE_TOPIC
-from experiments.rosbag_topics import default_topics, load_topics
+from experiments.ros.reader import BagFrameReader, read_bag_frames
+from experiments.ros.writer import ESTIMATE_TOPIC
+from experiments.ros.topics import default_topics, load_topics
 from physics.errors import ObservationError
 from physics.transforms import pose_compose, quat_from_axis_angle
 

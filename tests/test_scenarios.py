@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from experiments.scenarios import list_scenarios, load_scenario
-from experiments.simulator import sample_variant, simulate, write_outputs
+from experiments.simulation.simulator import sample_variant, simulate, write_outputs
 from physics.errors import InputError
 from physics.scene import load_scene
 

@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from experiments.perception import PerceptionConfig
+from experiments.simulation.perception import PerceptionConfig
 from experiments.scenarios import load_scenario
-from experiments.simulate_cli import add_simulate_arguments, run_simulate
-from experiments.simulator import HAND_ID, sample_variant, simulate
+from experiments.cli.simulate import add_simulate_arguments, run_simulate
+from experiments.simulation.simulator import HAND_ID, sample_variant, simulate
 
 SEEDS = range(5)
 DT = 1.0 / 240.0
@@ -198,7 +198,7 @@ def test_demo_files_are_shipped_and_consistent():
 
     lines = (data / "demo_observations.jsonl").read_text().splitlines()
     assert [json.loads(x) for x in lines] == res.observations, (
-        "demo files are stale: regenerate with `python -m experiments.simulate_cli cup_falls_behind_box "
+        "demo files are stale: regenerate with `python -m experiments.cli.simulate cup_falls_behind_box "
         "--seed 0 --out /tmp/demo` and copy scene.yaml / observations.jsonl / truth.jsonl / meta.json "
         "to experiments/data/demo_*")
     assert math.isclose(json.loads(lines[-1])["t"], res.observations[-1]["t"])

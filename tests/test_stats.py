@@ -1,4 +1,4 @@
-"""Bootstrap intervals and the paired Wilcoxon test of experiments.stats."""
+"""Bootstrap intervals and the paired Wilcoxon test of experiments.evaluation.stats."""
 from __future__ import annotations
 
 import math
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.stats import wilcoxon
 
-from experiments.stats import bootstrap_ci, group_rng, paired_wilcoxon
+from experiments.evaluation.stats import bootstrap_ci, group_rng, paired_wilcoxon
 
 
 def test_bootstrap_of_a_constant_is_the_constant():

@@ -5,7 +5,7 @@ import pytest
 
 from estimator.observations import ObservationReader
 from experiments.cli import main
-from experiments.simulator import simulate, write_outputs
+from experiments.simulation.simulator import simulate, write_outputs
 from physics.scene import load_scene
 
 

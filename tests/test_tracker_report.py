@@ -5,8 +5,8 @@ import math
 import pytest
 from scipy.stats import binomtest
 
-from experiments.tracker_report import TRACKER_METHODS, clopper_pearson, markdown_tracker_section, method_stats
-from experiments.tracking_metrics import nees_band
+from experiments.evaluation.tracker_report import TRACKER_METHODS, clopper_pearson, markdown_tracker_section, method_stats
+from experiments.evaluation.tracking_metrics import nees_band
 
 
 @pytest.mark.parametrize("hits, n", [(0, 40), (40, 40), (28, 40), (3, 7)])

@@ -24,7 +24,7 @@ Format (units: metres, kilograms, seconds, degrees)::
         - {t: 2.0, by: [0, 0, 0.1], rpy: [0, -90, 0]}
         - {t: 2.2, release: cup, collide: true}
     torso: {size: [0.2, 0.4, 0.7], position: [-1.0, 0, 1.1]}   # optional occluder (no collisions)
-    perception: {...}              # fields of experiments.perception.PerceptionConfig
+    perception: {...}              # fields of experiments.simulation.perception.PerceptionConfig
     randomize:
       timing: {scale: [0.9, 1.1], delay: [0.0, 0.2]}
       objects:
@@ -51,7 +51,7 @@ from typing import Any
 from physics.errors import InputError, SceneError
 from physics.scene import Scene, _Fields, read_yaml_with_lines, scene_from_dict
 
-from ..perception import PerceptionConfig
+from experiments.simulation.perception import PerceptionConfig
 
 SCENARIO_DIR = Path(__file__).resolve().parent
 
@@ -130,7 +130,7 @@ class Randomization:
 
 @dataclass(frozen=True)
 class Scenario:
-    """A validated scenario file (nominal values; :func:`experiments.simulator.sample_variant` draws a
+    """A validated scenario file (nominal values; :func:`experiments.simulation.simulator.sample_variant` draws a
     seeded variant)."""
 
     name: str

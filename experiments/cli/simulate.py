@@ -34,8 +34,8 @@ def add_simulate_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run_simulate(args: argparse.Namespace) -> int:
     """Run the ``simulate`` subcommand; returns the process exit code (0 ok, 2 bad input)."""
-    from .scenarios import list_scenarios, load_scenario
-    from .simulator import simulate, write_outputs
+    from experiments.scenarios import list_scenarios, load_scenario
+    from experiments.simulation.simulator import simulate, write_outputs
 
     if args.list:
         for name in list_scenarios():
@@ -58,7 +58,7 @@ def run_simulate(args: argparse.Namespace) -> int:
         out = args.out or f"runs/{scenario.name}_seed{args.seed}"
         paths = write_outputs(result, out)
         if getattr(args, "rerun", None):
-            from .recording import record_simulation
+            from experiments.recording import record_simulation
 
             paths["rerun"] = record_simulation(args.rerun, result.scene, result.truth, result.observations)
     except InputError as exc:
@@ -78,7 +78,7 @@ def run_simulate(args: argparse.Namespace) -> int:
 
 
 def main(argv=None) -> int:
-    """Stand-alone entry point (``python -m experiments.simulate_cli``)."""
+    """Stand-alone entry point (``python -m experiments.cli.simulate``)."""
     parser = argparse.ArgumentParser(prog="scene-estimator simulate", description=__doc__.splitlines()[0])
     add_simulate_arguments(parser)
     return run_simulate(parser.parse_args(argv))

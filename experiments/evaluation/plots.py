@@ -26,8 +26,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .methods import METHODS, get_method  # noqa: E402
-from .metrics import merge_bins  # noqa: E402
+from experiments.evaluation.methods import METHODS, get_method  # noqa: E402
+from experiments.evaluation.metrics import merge_bins  # noqa: E402
 
 PINK = "#e75480"
 GREEN = "#2e8b57"
@@ -72,7 +72,7 @@ def _primary(traces: dict[str, dict]) -> str | None:
 
 def plot_views(traces: dict[str, dict], path: str | Path, title: str = "") -> Path:
     """Top and side views of one scenario and seed. ``traces``: method name -> trace (as written by
-    :func:`experiments.evaluate.run_trial`)."""
+    :func:`experiments.evaluation.trials.run_trial`)."""
     path = Path(path)
     fig, axes = plt.subplots(1, 2, figsize=(11, 5))
     main = _primary(traces)

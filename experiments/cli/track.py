@@ -31,7 +31,7 @@ from physics.scene import load_scene
 
 def add_track_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``track`` to ``parser`` (the estimator's options are those of ``run``)."""
-    from .cli import _add_estimator_arguments
+    from experiments.cli.common import add_estimator_arguments
 
     d = TrackerConfig()
     parser.add_argument("--scene", required=True, help="scene file (YAML or JSON)")
@@ -48,7 +48,7 @@ def add_track_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fusion", choices=("kalman", "replace"), default=d.pseudo_fusion,
                         help="how a pseudo-measurement from the estimator enters a hidden object's track: a "
                              f"Kalman update, or a restart at the belief ({d.pseudo_fusion})")
-    _add_estimator_arguments(parser)
+    add_estimator_arguments(parser)
     parser.add_argument("--skip-bad-frames", action="store_true",
                         help="drop malformed frames with a counted warning instead of stopping")
     parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
@@ -111,7 +111,7 @@ def _rounded(value, digits: int = 7):
 
 def run_track(args: argparse.Namespace) -> int:
     """Run the ``track`` subcommand; bad input raises :class:`ValueError` (reported by ``main``)."""
-    from .cli import build_config
+    from experiments.cli.common import build_config
 
     tracker_config = TrackerConfig(accel_std=args.accel_std, measurement_std=args.measurement_std,
                                    coast_time=args.coast, use_feedback=args.feedback,

@@ -21,9 +21,9 @@ import numpy as np
 from estimator.filter import SceneEstimator
 from estimator.observations import Frame, ObservationReader, write_observations
 
-from .rosbag_io import BagFrameReader
-from .rosbag_out import pose_stamped, transform_stamped
-from .rosbag_topics import load_topics
+from experiments.ros.reader import BagFrameReader
+from experiments.ros.writer import pose_stamped, transform_stamped
+from experiments.ros.topics import load_topics
 
 NS = 1_000_000_000
 

@@ -88,9 +88,9 @@ def add_evaluate_arguments(parser: argparse.ArgumentParser) -> None:
 def run_evaluate(args: argparse.Namespace) -> int:
     """Run the ``evaluate`` subcommand; returns the exit code (0 ok, 1 some trials failed, 2 bad input,
     130 interrupted)."""
-    from .evaluate import SweepConfig, TrialFailures, run_sweep
-    from .methods import METHODS
-    from .scenarios import list_scenarios, load_scenario
+    from experiments.evaluation.sweep import SweepConfig, TrialFailures, run_sweep
+    from experiments.evaluation.methods import METHODS
+    from experiments.scenarios import list_scenarios, load_scenario
 
     def fail(msg: str) -> int:
         print(f"scene-estimator evaluate: {msg}", file=sys.stderr)
@@ -129,7 +129,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
         return fail(str(exc))
     if args.rerun_dir:
         try:
-            from . import recording  # noqa: F401
+            from experiments import recording  # noqa: F401
         except ImportError as exc:
             return fail(f"--rerun-dir needs rerun recording support (experiments.recording): {exc}")
     n = len(config.trials())
@@ -159,7 +159,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
 
 
 def main(argv=None) -> int:
-    """Stand-alone entry point (``python -m experiments.evaluate_cli``)."""
+    """Stand-alone entry point (``python -m experiments.cli.evaluate``)."""
     parser = argparse.ArgumentParser(prog="scene-estimator evaluate", description=__doc__.splitlines()[0])
     add_evaluate_arguments(parser)
     return run_evaluate(parser.parse_args(argv))

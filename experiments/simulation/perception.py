@@ -1,6 +1,6 @@
 """Perception faults of a synthetic 6D pose tracker.
 
-The synthetic camera (:mod:`experiments.camera`) decides *whether* an object can be seen; this module
+The synthetic camera (:mod:`experiments.simulation.camera`) decides *whether* an object can be seen; this module
 decides *what the tracker reports* about a seen object. Every fault is configurable in a
 :class:`PerceptionConfig` and every random draw comes from the ``numpy.random.Generator`` handed to
 :class:`PerceptionModel` (never from numpy's global state), so a seed fixes the whole stream.
@@ -44,7 +44,7 @@ class PerceptionConfig:
     rate_hz: float = 30.0
     latency_s: float = 0.0
     visibility_threshold: float = 0.3
-    """An object is perceivable when its visible fraction (see :mod:`experiments.camera`) is >= this."""
+    """An object is perceivable when its visible fraction (see :mod:`experiments.simulation.camera`) is >= this."""
     points_per_object: int = 64
     """Sample points per object used by the camera's ray tests."""
     position_std: float = 0.0

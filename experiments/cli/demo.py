@@ -20,7 +20,8 @@ import numpy as np
 
 from estimator.config import EstimatorConfig, NoiseConfig
 
-from .cli import DEFAULT_PARTICLES, print_summary, run_stream
+from experiments.cli.common import DEFAULT_PARTICLES, print_summary
+from experiments.cli.run import run_stream
 
 
 def demo_files() -> tuple[str, str]:

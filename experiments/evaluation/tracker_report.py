@@ -1,6 +1,6 @@
 """The Kalman-tracker experiment's section of the evaluation report (issue: tracker feedback).
 
-Four methods of :mod:`experiments.methods` compared on the scenarios with hidden objects: the
+Four methods of :mod:`experiments.evaluation.methods` compared on the scenarios with hidden objects: the
 tracker alone, the tracker kept alive by the estimator (``tracker-feedback``), the estimator alone
 (``particles``) and the estimator fed by the tracker (``particles-on-tracker``). Per method, pooled
 over those scenarios and seeds:
@@ -10,7 +10,7 @@ over those scenarios and seeds:
   its count), with a Clopper-Pearson 95 % interval;
 * NEES seen / hidden: the mean over trials of the per-trial median (chi-square(3) median 2.37), and
   the mean over trials of the per-trial mean NEES while hidden against its 95 % band
-  (:func:`~experiments.tracking_metrics.nees_band`);
+  (:func:`~experiments.evaluation.tracking_metrics.nees_band`);
 * the paired Wilcoxon test of ``particles-on-tracker`` against ``particles`` (hidden-object error,
   by scenario and seed).
 """
@@ -22,8 +22,8 @@ import math
 import numpy as np
 from scipy.stats import beta
 
-from .stats import paired_wilcoxon
-from .tracking_metrics import nees_band
+from experiments.evaluation.stats import paired_wilcoxon
+from experiments.evaluation.tracking_metrics import nees_band
 
 TRACKER_METHODS = ("tracker", "tracker-feedback", "particles", "particles-on-tracker")
 

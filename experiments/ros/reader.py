@@ -2,7 +2,7 @@
 the estimator's :class:`~estimator.observations.Frame` stream.
 
 Read with the pure-Python ``rosbags`` library (``AnyReader`` reads both formats). Sources (see
-:mod:`experiments.rosbag_topics`): ``tf2_msgs/TFMessage`` topics, whose transforms of mapped child
+:mod:`experiments.ros.topics`): ``tf2_msgs/TFMessage`` topics, whose transforms of mapped child
 frames are object poses, and ``geometry_msgs/PoseStamped`` topics, one object each. Every pose is
 chained to the world frame through the TF tree *at the message's time*: the transforms of ``/tf`` and
 ``/tf_static`` (and of every tf source) are applied in stamp order, the latest transform of each
@@ -39,7 +39,7 @@ from estimator.observations import Detection, Frame
 from physics.errors import ObservationError
 from physics.transforms import pose_compose, pose_inverse
 
-from .rosbag_topics import SOURCE_TYPES, TF_STATIC_TOPIC, TF_TOPIC, SourceSpec, TopicsSpec
+from experiments.ros.topics import SOURCE_TYPES, TF_STATIC_TOPIC, TF_TOPIC, SourceSpec, TopicsSpec
 
 TF_TYPE = SOURCE_TYPES["tf"]
 POSE_TYPE = SOURCE_TYPES["pose"]
@@ -143,7 +143,7 @@ class BagFrameReader:
 
     Args:
         path: a ROS 1 ``.bag`` file or a ROS 2 bag folder.
-        topics: the sources (:func:`~experiments.rosbag_topics.load_topics` or ``default_topics``).
+        topics: the sources (:func:`~experiments.ros.topics.load_topics` or ``default_topics``).
         skip_bad_frames: a pose that cannot be placed (no transform chain to the world frame, a
             zero quaternion) is dropped with a counted warning instead of raising.
         warn: called with a message for each dropped pose or late message.

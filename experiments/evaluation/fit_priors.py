@@ -31,8 +31,8 @@ from estimator.perception_memory import HAND_RADIUS, HAND_SMOOTHING
 from physics.visibility import Camera, local_sample_points, visible_fraction
 from physics.world import PhysicsSettings, World
 
-from .scenarios import list_scenarios, load_scenario
-from .simulator import simulate
+from experiments.scenarios import list_scenarios, load_scenario
+from experiments.simulation.simulator import simulate
 
 FIT_SEEDS = range(100, 120)
 """Default seeds of the fit: the evaluation uses 0 .. 19."""
@@ -162,29 +162,3 @@ def fit_priors(scenarios: list[str] | None = None, seeds=FIT_SEEDS, config: Esti
                        "release_on_loss_still": [still.hits, still.n],
                        "hand_occlusion": [occluded.hits, occluded.n]},
             "scenarios": names, "seeds": [int(s) for s in seeds]}
-
-
-def _seed_range(text: str) -> range:
-    try:
-        lo, _, hi = text.partition("-")
-        out = range(int(lo), int(hi or lo) + 1)
-    except ValueError:
-        raise ValueError(f"--seeds: expected FIRST-LAST (e.g. 100-119), got {text!r}") from None
-    if len(out) == 0:
-        raise ValueError(f"--seeds: empty range {text!r}")
-    return out
-
-
-def add_fit_arguments(p) -> None:
-    p.add_argument("--seeds", default=f"{FIT_SEEDS.start}-{FIT_SEEDS.stop - 1}",
-                   help="seed range FIRST-LAST (default 100-119: the evaluation uses 0-19)")
-    p.add_argument("--scenarios", default="all",
-                   help="'all' (every built-in scenario with tracked hands) or comma-separated names")
-
-
-def run_fit(args) -> int:
-    import json
-
-    names = None if args.scenarios == "all" else [s.strip() for s in args.scenarios.split(",") if s.strip()]
-    print(json.dumps(fit_priors(names, _seed_range(args.seeds)), indent=1))
-    return 0

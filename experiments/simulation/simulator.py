@@ -9,8 +9,8 @@ scenario's scene, plus a hand and an optional torso), never in the estimator's. 
 2. :class:`GroundTruth` builds the world, lets it settle for ``scenario.settle`` seconds (the settled
    poses are the true initial poses), then steps it at 240 Hz while the hand follows its script;
 3. at every camera frame (``perception.rate_hz``) it records the truth (poses, visibility, held
-   objects, relations, events) and, through :class:`~experiments.camera.SyntheticCamera` and
-   :class:`~experiments.perception.PerceptionModel`, what the tracker reports;
+   objects, relations, events) and, through :class:`~experiments.simulation.camera.SyntheticCamera` and
+   :class:`~experiments.simulation.perception.PerceptionModel`, what the tracker reports;
 4. :func:`write_outputs` writes ``scene.yaml``, ``observations.jsonl``, ``truth.jsonl`` and
    ``meta.json``; the same scenario and seed give byte-identical files.
 
@@ -52,9 +52,9 @@ from physics.transforms import pose_compose, pose_inverse, quat_from_axis_angle,
 from physics.bodies import DEFAULT_PRIMITIVE_MASS
 from physics.world import PhysicsSettings, World
 
-from .camera import SyntheticCamera
-from .perception import PerceptionModel
-from .scenarios import HandTarget, Scenario, Waypoint, load_scenario
+from experiments.simulation.camera import SyntheticCamera
+from experiments.simulation.perception import PerceptionModel
+from experiments.scenarios import HandTarget, Scenario, Waypoint, load_scenario
 
 FORMAT_VERSION = 1
 HAND_ID = "human/right"

@@ -1,4 +1,4 @@
-"""Statistics across seeds: bootstrap confidence intervals and the paired Wilcoxon signed-rank test.
+"""Statistics across seeds: bootstrap confidence intervals (scipy) and the paired Wilcoxon signed-rank test.
 
 Randomness only from a passed :class:`numpy.random.Generator`; :func:`group_rng` derives a
 reproducible one from a group's name, so a summary does not depend on the order of its rows.
@@ -10,7 +10,7 @@ import zlib
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import wilcoxon
+from scipy.stats import bootstrap, wilcoxon
 
 
 @dataclass(frozen=True)
@@ -25,7 +25,8 @@ class Interval:
 
 def bootstrap_ci(values, rng: np.random.Generator, *, n_resamples: int = 2000, confidence: float = 0.95,
                  statistic=np.mean) -> Interval:
-    """Percentile-bootstrap interval of ``statistic`` of ``values`` (NaNs are dropped).
+    """Percentile-bootstrap interval of ``statistic`` of ``values`` (NaNs are dropped), by
+    :func:`scipy.stats.bootstrap`.
 
     Args:
         values: 1-D sample (e.g. one metric over seeds).
@@ -45,11 +46,9 @@ def bootstrap_ci(values, rng: np.random.Generator, *, n_resamples: int = 2000, c
     est = float(statistic(v))
     if n < 2:
         return Interval(est, math.nan, math.nan, n)
-    idx = rng.integers(0, n, size=(n_resamples, n))
-    stats = statistic(v[idx], axis=-1)
-    alpha = (1.0 - confidence) / 2.0
-    lo, hi = np.quantile(stats, [alpha, 1.0 - alpha])
-    return Interval(est, float(lo), float(hi), n)
+    res = bootstrap((v,), statistic, n_resamples=n_resamples, confidence_level=confidence, method="percentile",
+                    vectorized=True, axis=-1, rng=rng)
+    return Interval(est, float(res.confidence_interval.low), float(res.confidence_interval.high), n)
 
 
 @dataclass(frozen=True)

@@ -27,7 +27,7 @@ from physics.scene import load_scene
 
 
 def add_search_arguments(parser: argparse.ArgumentParser) -> None:
-    from .cli import _add_estimator_arguments
+    from experiments.cli.common import add_estimator_arguments
 
     d = SearchConfig()
     parser.add_argument("--scene", required=True, help="scene file (YAML or JSON)")
@@ -44,12 +44,12 @@ def add_search_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--views-per-region", type=int, default=d.views_per_region,
                         help=f"viewpoints sampled around each likely region without --viewpoints ({d.views_per_region})")
     parser.add_argument("--json", action="store_true", help="print one JSON object and nothing else")
-    _add_estimator_arguments(parser)
+    add_estimator_arguments(parser)
 
 
 def run_search(args: argparse.Namespace) -> int:
     """Run the ``search`` subcommand; bad input raises :class:`ValueError` (reported by ``main``)."""
-    from .cli import build_config
+    from experiments.cli.common import build_config
 
     if args.particles is None and not args.config:
         args.particles = 64

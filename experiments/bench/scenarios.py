@@ -1,9 +1,9 @@
 """``scene-estimator bench --scenario NAME``: the estimator's speed on a simulated scenario's stream.
 
-The scenario is simulated once (seed 0, :func:`experiments.simulator.simulate`), its files written to
+The scenario is simulated once (seed 0, :func:`experiments.simulation.simulator.simulate`), its files written to
 a temporary folder and read back as ``scene-estimator run`` reads them
 (:class:`~estimator.observations.ObservationReader`); then, for each particle count, every frame of
-the stream goes through a new estimator (:func:`experiments.bench.time_stream`). Besides the update
+the stream goes through a new estimator (:func:`experiments.bench.timing.time_stream`). Besides the update
 and bare-stepping figures of the synthetic benchmark, a row has the stream's duration
 (``stream_s``: the frames' time span plus one frame period), the time all ``update`` calls took
 (``processing_s``, frames between reasoning steps included) and their quotient, the real-time factor
@@ -13,7 +13,6 @@ simulated: all but the first, which only places the objects.
 from __future__ import annotations
 
 import contextlib
-import os
 import sys
 import tempfile
 from typing import Iterator
@@ -23,8 +22,10 @@ import numpy as np
 from estimator.observations import Frame, ObservationReader
 from physics.scene import Scene, load_scene
 
-from .bench import RESOURCE_COLUMNS, TIMING_COLUMNS, particle_configs, report, time_stream, timing_row
-from .scenarios import list_scenarios, load_scenario
+from estimator.config import EstimatorConfig
+
+from experiments.bench.timing import RESOURCE_COLUMNS, TIMING_COLUMNS, time_stream, timing_row
+from experiments.scenarios import list_scenarios, load_scenario
 
 SEED = 0
 
@@ -52,7 +53,7 @@ def resolve_scenarios(names: list[str]) -> list[str]:
 def scenario_stream(name: str, seed: int = SEED) -> Iterator[tuple[Scene, list[Frame]]]:
     """The estimator's scene and the observation frames of ``name``'s simulation (``seed``), read back
     from the files ``scene-estimator simulate`` writes (in a temporary folder, kept while in use)."""
-    from .simulator import simulate, write_outputs
+    from experiments.simulation.simulator import simulate, write_outputs
 
     result = simulate(name, seed)
     with tempfile.TemporaryDirectory(prefix="bench_") as tmp:
@@ -62,33 +63,27 @@ def scenario_stream(name: str, seed: int = SEED) -> Iterator[tuple[Scene, list[F
         yield scene, frames
 
 
-def run_scenario_bench(args) -> int:
-    names = resolve_scenarios(args.scenario)
-    configs = particle_configs(args)
-    if getattr(args, "bag", False):
-        from .bag_bench import BAG_COLUMNS, bag_rows
+def bag_table(names: list[str], configs: list[tuple[int, EstimatorConfig]]) -> Iterator[dict]:
+    """``bench --bag`` rows: for each scenario and configuration, a run of the stream read from JSON
+    Lines against one read from a ROS 2 bag of the same detections (:func:`experiments.bench.bag.bag_rows`)."""
+    from experiments.bench.bag import bag_rows
 
-        def bag_table():
-            for name in names:
-                with scenario_stream(name) as (scene, frames):
-                    yield from bag_rows(name, scene, frames, configs)
+    for name in names:
+        with scenario_stream(name) as (scene, frames):
+            yield from bag_rows(name, scene, frames, configs)
 
-        meta = {"mode": "bag", "seed": SEED, "workers": args.workers, "cpu_count": os.cpu_count(),
-                "config": args.config}
-        return report(args, BAG_COLUMNS, bag_table(), meta)
 
-    def rows():
-        for name in names:
-            print(f"bench: simulating {name} (seed {SEED})", file=sys.stderr, flush=True)
-            with scenario_stream(name) as (scene, frames):
-                for k, cfg in configs:
-                    print(f"bench: {name}, K={k}: {len(frames)} frames", file=sys.stderr, flush=True)
-                    st = time_stream(scene, cfg, frames, np.random.default_rng(SEED), max_updates=args.updates)
-                    yield {"scenario": name, "particles": k, "workers": cfg.workers,
-                           "frames": len(st.frame_times), "stream_s": st.stream_s,
-                           "processing_s": st.processing_s, "realtime_factor": st.stream_s / st.processing_s,
-                           **timing_row(st)}
-
-    meta = {"mode": "scenario", "seed": SEED, "workers": args.workers, "cpu_count": os.cpu_count(),
-            "config": args.config}
-    return report(args, SCENARIO_COLUMNS, rows(), meta)
+def scenario_rows(names: list[str], configs: list[tuple[int, EstimatorConfig]],
+                  max_updates: int | None = None) -> Iterator[dict]:
+    """One row (:data:`SCENARIO_COLUMNS` and more) per scenario and ``(K, configuration)``, as each
+    is measured; progress on stderr. ``max_updates``: stop each stream after that many timed updates."""
+    for name in names:
+        print(f"bench: simulating {name} (seed {SEED})", file=sys.stderr, flush=True)
+        with scenario_stream(name) as (scene, frames):
+            for k, cfg in configs:
+                print(f"bench: {name}, K={k}: {len(frames)} frames", file=sys.stderr, flush=True)
+                st = time_stream(scene, cfg, frames, np.random.default_rng(SEED), max_updates=max_updates)
+                yield {"scenario": name, "particles": k, "workers": cfg.workers,
+                       "frames": len(st.frame_times), "stream_s": st.stream_s,
+                       "processing_s": st.processing_s, "realtime_factor": st.stream_s / st.processing_s,
+                       **timing_row(st)}

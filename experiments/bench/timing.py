@@ -1,0 +1,148 @@
+"""Timing the estimator against bare pybullet stepping of the same worlds, measured in the same run
+(:func:`time_stream`); ``scene-estimator bench`` (:mod:`experiments.cli.bench`) prints its figures.
+
+After each reasoning step that simulated, in the same worker processes, the same worlds are stepped
+bare (``stepSimulation``, nothing else) for the same number of steps; their states are saved before
+and restored after, untimed, so that load on the machine weighs on both alike. Reported: the median
+and 95th percentile update time, the bare time, their ratio, updates per second, the time to build
+the estimator (worlds and workers) and the peak summed resident memory of the process and its
+workers; and where the update's time goes (medians over the timed updates): the main process's own
+work, the slowest shard in its worker, the exchange (the rest of the pool call: waiting for the
+slowest shard, messages, shared arrays), and each worker's time over its bare stepping per particle.
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+from typing import Iterable
+
+import numpy as np
+
+from estimator.config import EstimatorConfig, NoiseConfig
+from estimator.filter import SceneEstimator
+from estimator.observations import Frame
+from physics.scene import Scene
+
+
+def _rss_mb(pids) -> float:
+    try:
+        import psutil
+    except ImportError:  # pragma: no cover
+        import resource
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    total = 0.0
+    for pid in pids:
+        try:
+            total += psutil.Process(pid).memory_info().rss
+        except psutil.Error:
+            pass
+    return total / 2**20
+
+
+@dataclasses.dataclass
+class StreamTiming:
+    """What :func:`time_stream` measured (seconds). The per-update lists hold the timed reasoning
+    steps: those after the warm-up that simulated (the first reasoning step only places the objects)."""
+
+    startup_s: float
+    peak_memory_mb: float = 0.0
+    processing_s: float = 0.0  # every update() call, frames between reasoning steps included
+    frame_times: list[float] = dataclasses.field(default_factory=list)
+    update_s: list[float] = dataclasses.field(default_factory=list)
+    bare_s: list[float] = dataclasses.field(default_factory=list)
+    steps: list[int] = dataclasses.field(default_factory=list)
+    main_s: list[float] = dataclasses.field(default_factory=list)
+    exchange_s: list[float] = dataclasses.field(default_factory=list)
+    shard_s: list[float] = dataclasses.field(default_factory=list)
+    over_s: list[float] = dataclasses.field(default_factory=list)
+
+    @property
+    def stream_s(self) -> float:
+        """Duration of the stream fed: from the first frame to the last, plus one frame period."""
+        t = np.asarray(self.frame_times)
+        return float(t[-1] - t[0] + np.median(np.diff(t))) if len(t) > 1 else 0.0
+
+
+def time_stream(scene: Scene, cfg: EstimatorConfig, frames: Iterable[Frame], rng: np.random.Generator,
+                warmup: int = 0, max_updates: int | None = None) -> StreamTiming:
+    """Build a :class:`SceneEstimator` (timed) and feed it ``frames`` (each ``update`` timed). After each
+    reasoning step that simulated, the same worlds are stepped bare as many steps as it simulated
+    (saved before and restored after, untimed). The first ``warmup`` reasoning steps are not recorded;
+    it stops after ``max_updates`` recorded ones. Memory is sampled after construction and after every
+    update."""
+    t0 = time.perf_counter()
+    est = SceneEstimator(scene, cfg, rng)
+    st = StreamTiming(startup_s=time.perf_counter() - t0)
+    with est:
+        pool = est.pool
+        pids = [os.getpid()] + pool.worker_pids()
+        sizes = pool.shard_sizes
+        st.peak_memory_mb = _rss_mb(pids)
+        t_tick, reasoning = None, 0
+        for frame in frames:
+            t0 = time.perf_counter()
+            belief = est.update(frame)
+            dt = time.perf_counter() - t0
+            st.processing_s += dt
+            st.frame_times.append(frame.t)
+            # the steps this update simulated: the filter steps from one reasoning frame to the next
+            n_steps = 0
+            if belief is not None:
+                n_steps = 0 if t_tick is None else int(round((frame.t - t_tick) / cfg.physics.time_step))
+                t_tick = frame.t
+                reasoning += 1
+            if n_steps > 0:
+                run_s, worker_s = pool.last_run_seconds, list(pool.last_worker_seconds)
+                # right after the update, so that load on the machine affects both alike: the same
+                # worlds, the same number of steps, nothing else; then the worlds are put back
+                pool.save()
+                t0 = time.perf_counter()
+                pool.bare_step(n_steps)
+                dt_bare = time.perf_counter() - t0
+                bare_worker_s = list(pool.last_worker_seconds)
+                pool.restore()
+                if reasoning > warmup:
+                    st.update_s.append(dt)
+                    st.bare_s.append(dt_bare)
+                    st.steps.append(n_steps)
+                    st.main_s.append(dt - run_s)
+                    st.exchange_s.append(run_s - max(worker_s))
+                    st.shard_s.append(max(worker_s))
+                    st.over_s.append(float(np.mean([(w - b) / n for w, b, n
+                                                    in zip(worker_s, bare_worker_s, sizes)])))
+            st.peak_memory_mb = max(st.peak_memory_mb, _rss_mb(pids))
+            if max_updates is not None and len(st.update_s) >= max_updates:
+                break
+    if not st.update_s:
+        raise ValueError("no reasoning step to time: the stream is shorter than two reasoning horizons")
+    return st
+
+
+def timing_row(st: StreamTiming) -> dict:
+    """The figures of one measurement (times in ms unless named ``_s``)."""
+    med, bare_med = float(np.median(st.update_s)), float(np.median(st.bare_s))
+    return {"updates": len(st.update_s), "steps_per_update": int(np.median(st.steps)),
+            "update_ms_median": 1e3 * med, "update_ms_p95": 1e3 * float(np.percentile(st.update_s, 95)),
+            "bare_step_ms_median": 1e3 * bare_med, "ratio": med / bare_med, "updates_per_s": 1.0 / med,
+            "startup_s": st.startup_s, "peak_memory_mb": st.peak_memory_mb,
+            "main_ms_median": 1e3 * float(np.median(st.main_s)),
+            "exchange_ms_median": 1e3 * float(np.median(st.exchange_s)),
+            "slowest_shard_ms_median": 1e3 * float(np.median(st.shard_s)),
+            "worker_overhead_us_per_particle": 1e6 * float(np.median(st.over_s))}
+
+
+def bench_config(k: int, workers: int, config: EstimatorConfig | None = None) -> EstimatorConfig:
+    """``config`` (default: the particle filter's defaults) with ``k`` particles and ``workers``."""
+    return dataclasses.replace(config or EstimatorConfig(noise=NoiseConfig()), particles=k, workers=workers)
+
+
+# (key, table heading, format) of the table's columns
+SYNTHETIC_COLUMNS = [("particles", "K", "{}"), ("objects", "objects", "{}")]
+TIMING_COLUMNS = [("update_ms_median", "median (ms)", "{:.1f}"), ("update_ms_p95", "p95 (ms)", "{:.1f}"),
+                  ("bare_step_ms_median", "bare stepping (ms)", "{:.1f}"), ("ratio", "ratio", "{:.2f}")]
+RESOURCE_COLUMNS = [("startup_s", "startup (s)", "{:.2f}"), ("peak_memory_mb", "peak memory (MB)", "{:.0f}")]
+BREAKDOWN_COLUMNS = [("main_ms_median", "main process (ms)", "{:.2f}"),
+                     ("slowest_shard_ms_median", "slowest shard (ms)", "{:.1f}"),
+                     ("exchange_ms_median", "exchange (ms)", "{:.2f}"),
+                     ("worker_overhead_us_per_particle", "worker over bare (us/particle)", "{:.0f}")]

@@ -1,0 +1,138 @@
+"""``scene-estimator bench``: update time of the estimator against bare pybullet stepping.
+
+Two kinds of input, timed by the same loop (:func:`experiments.bench.timing.time_stream`):
+
+* synthetic (``--objects``, :mod:`experiments.bench.synthetic`): for each particle count K and number
+  of dynamic objects N (5 cm boxes resting on a table, perceived floating 1 cm with 3 mm noise), one
+  frame per reasoning horizon (0.08 s, 19 steps), 3 untimed warm-up updates, then ``--updates``
+  timed ones;
+* scenarios (``--scenario``, :mod:`experiments.bench.scenarios`): the observation stream of a
+  built-in simulated scenario (seed 0), every frame of it, so that the real-time factor can be read
+  off.
+
+``--breakdown`` adds where the update's time goes; ``--bag`` compares JSONL and ROS-bag input;
+``--rerun-overhead`` the cost of recording.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from typing import Iterable
+
+from estimator.config import EstimatorConfig, config_from_dict, read_config_file
+
+from experiments.bench.synthetic import bench_one
+from experiments.bench.timing import (BREAKDOWN_COLUMNS, RESOURCE_COLUMNS, SYNTHETIC_COLUMNS, TIMING_COLUMNS,
+                                      bench_config)
+
+
+def report(args, columns: list[tuple[str, str, str]], rows: Iterable[dict], meta: dict) -> int:
+    """Print ``rows`` as they come as a Markdown table (``--breakdown``: with its columns), or, with
+    ``--json``, all of them at the end as one JSON object ``{**meta, "results": rows}``."""
+    if args.breakdown:
+        columns = columns + BREAKDOWN_COLUMNS
+    if not args.json:
+        print("| " + " | ".join(c[1] for c in columns) + " |")
+        print("|" + "---|" * len(columns), flush=True)
+    done = []
+    for r in rows:
+        done.append(r)
+        if not args.json:
+            print("| " + " | ".join(fmt.format(r[key]) for key, _, fmt in columns) + " |", flush=True)
+    if args.json:
+        print(json.dumps({**meta, "results": done}))
+    return 0
+
+
+def particle_configs(args) -> list[tuple[int, EstimatorConfig]]:
+    """``(K, configuration)`` for each ``--particles``: the ``--config`` file's or the particle filter's
+    defaults, with K particles and ``--workers`` workers."""
+    file_data = read_config_file(args.config) if args.config else None
+    out = []
+    for k in args.particles:
+        cfg = None
+        if file_data is not None:
+            cfg = config_from_dict(file_data[0], path=args.config, lines=file_data[1], particles=k,
+                                   base="particles")
+        out.append((k, bench_config(k, args.workers, cfg)))
+    return out
+
+
+def add_bench_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--particles", type=int, nargs="+", default=[16, 64, 256])
+    what = p.add_mutually_exclusive_group()
+    what.add_argument("--objects", type=int, nargs="+", default=None,
+                      help="synthetic scenes: resting boxes on a table (default 4 8 12)")
+    what.add_argument("--scenario", metavar="NAME", action="append", default=None,
+                      help="replay a built-in simulated scenario's observation stream (seed 0) instead; "
+                           "repeat for several, 'all' for every built-in one (see `simulate --list`)")
+    p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                   help="worker processes (default: one per core)")
+    p.add_argument("--updates", type=int, default=None,
+                   help="timed updates per configuration (default 20; with --scenario, default: the whole "
+                        "stream; given: the stream stops after this many)")
+    p.add_argument("--json", action="store_true", help="print the figures as one JSON object")
+    p.add_argument("--bag", action="store_true",
+                   help="with --scenario: time a run of the stream read from JSON Lines against one read from "
+                        "a ROS 2 bag of the same detections from two sources (/tf and PoseStamped)")
+    p.add_argument("--config", metavar="FILE", default=None,
+                   help="estimator configuration file (see `scene-estimator config`) to time instead of the "
+                        "particle filter's defaults, e.g. 'noise: {rolling_friction_range: [0.001, 0.01]}'")
+    p.add_argument("--breakdown", action="store_true",
+                   help="also print where an update's time goes: the main process's own work, the slowest "
+                        "shard in its worker, the exchange (waiting for it, messages, shared arrays), and "
+                        "each worker's time over bare stepping per particle")
+    p.add_argument("--rerun-overhead", action="store_true",
+                   help="measure the cost of --rerun recording instead (e.g. --particles 64)")
+
+
+def run_bench(args) -> int:
+    if args.updates is not None and args.updates < 1:
+        raise ValueError(f"--updates must be >= 1, got {args.updates}")
+    if args.bag and not args.scenario:
+        raise ValueError("--bag compares the streams of scenarios: give --scenario NAME")
+    if args.bag and args.breakdown:
+        raise ValueError("--breakdown splits an update's time; --bag times whole runs: give one of them")
+    if args.scenario:
+        if args.rerun_overhead:
+            raise ValueError("--rerun-overhead times the synthetic scenes (--objects), not --scenario")
+        return _scenario_bench(args)
+    objects = args.objects or [4, 8, 12]
+    updates = args.updates or 20
+    if args.rerun_overhead:
+        from experiments.bench.recording import logging_overhead
+        rows = [logging_overhead(k, n, args.workers, updates) for k in args.particles for n in objects]
+        if args.json:
+            print(json.dumps({"workers": args.workers, "results": rows}))
+        else:
+            for r in rows:
+                print(f"K={r['particles']:>4} N={r['objects']:>3} update {r['update_ms_median']:.1f} ms  "
+                      f"log {r['log_ms_median']:.2f} ms  overhead {100 * r['overhead']:.1f} %")
+        return 0
+    configs = particle_configs(args)
+
+    def rows():
+        for k, cfg in configs:
+            for n in objects:
+                print(f"bench: K={k}, {n} objects", file=sys.stderr, flush=True)
+                yield bench_one(k, n, args.workers, updates, config=cfg)
+
+    columns = (SYNTHETIC_COLUMNS + TIMING_COLUMNS + [("updates_per_s", "updates/s", "{:.1f}")]
+               + RESOURCE_COLUMNS)
+    meta = {"mode": "synthetic", "workers": args.workers, "cpu_count": os.cpu_count(), "config": args.config}
+    return report(args, columns, rows(), meta)
+
+
+def _scenario_bench(args) -> int:
+    from experiments.bench.scenarios import SCENARIO_COLUMNS, SEED, bag_table, resolve_scenarios, scenario_rows
+
+    names = resolve_scenarios(args.scenario)
+    configs = particle_configs(args)
+    meta = {"mode": "bag" if args.bag else "scenario", "seed": SEED, "workers": args.workers,
+            "cpu_count": os.cpu_count(), "config": args.config}
+    if args.bag:
+        from experiments.bench.bag import BAG_COLUMNS
+        return report(args, BAG_COLUMNS, bag_table(names, configs), meta)
+    return report(args, SCENARIO_COLUMNS, scenario_rows(names, configs, args.updates), meta)

@@ -1,0 +1,116 @@
+"""What the subcommands share: the estimator options, the configuration they build, the summary
+they print."""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import sys
+
+from estimator.config import EstimatorConfig, ReasonerConfig, config_from_dict, default_config, read_config_file
+
+
+DEFAULT_PARTICLES = 64
+"""Particle worlds K of ``run``, ``config``, ``track --feedback`` and ``demo`` when neither the
+command line (``--particles``, ``--paper``) nor a configuration file says: every built-in scenario
+runs in real time at K = 64 on two cores (README, *Speed*)."""
+
+
+def _particles(args, file_data) -> int | None:
+    """K asked for: ``--paper`` is 1, else ``--particles``; ``None`` when a configuration file
+    decides (it names ``particles`` or ``base: paper``); else :data:`DEFAULT_PARTICLES`."""
+    if getattr(args, "paper", False):
+        if args.particles not in (None, 1) or args.noise:
+            raise ValueError("--paper is one world without noise: drop --particles / --noise")
+        return 1
+    if args.particles is not None:
+        return args.particles
+    if isinstance(file_data, dict) and ("particles" in file_data or file_data.get("base") == "paper"):
+        return None
+    return DEFAULT_PARTICLES
+
+
+def build_config(args) -> EstimatorConfig:
+    """Estimator configuration from ``run`` arguments. Without ``--config``, the particle filter
+    with :data:`DEFAULT_PARTICLES` worlds and its default noise; ``--paper`` (or ``--particles 1``)
+    is the paper's reasoner unless ``--noise`` is given; more particles use the default noise unless
+    ``--no-noise``. A configuration file (``--config``) changes the fields it names; options given
+    on the command line win over the file."""
+    paper = getattr(args, "paper", False)
+    base = "particles" if args.noise else ("paper" if args.no_noise or paper else None)
+    file_data = None
+    if args.config:
+        file_data, lines = read_config_file(args.config)
+        cfg = config_from_dict(file_data, path=args.config, lines=lines, particles=_particles(args, file_data),
+                               base=base)
+    else:
+        cfg = default_config(_particles(args, None), base)
+    given = {name: getattr(args, name) for name in ("horizon", "t_perceived", "d_sim_perc", "d_perc_prev")
+             if getattr(args, name) is not None}
+    if given:
+        cfg = dataclasses.replace(cfg, reasoner=dataclasses.replace(cfg.reasoner, **given))
+    workers = args.workers
+    if workers is None and not (isinstance(file_data, dict) and "workers" in file_data):
+        workers = (os.cpu_count() or 1) if cfg.particles > 1 else 0
+    if workers is not None:
+        cfg = dataclasses.replace(cfg, workers=workers)
+    args.workers = cfg.workers
+    return cfg
+
+
+def add_estimator_arguments(p: argparse.ArgumentParser) -> None:
+    """The options that choose and configure the estimator (``run``, ``config``, ``track``, ``search``)."""
+    d = ReasonerConfig()
+    p.add_argument("--config", metavar="FILE",
+                   help="estimator configuration file (YAML or JSON): the fields to change, e.g. "
+                        "'noise: {position_std: 0.02}'; `scene-estimator config` prints them all")
+    p.add_argument("--particles", type=int, default=None,
+                   help=f"particle worlds K (default {DEFAULT_PARTICLES}, or the configuration file's; "
+                        "1: the paper's reasoner)")
+    p.add_argument("--paper", action="store_true",
+                   help="the paper's reasoner: one world, no noise (same as --particles 1)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="worker processes holding the particle worlds (0: in this process; "
+                        "default: one per core when there is more than one particle)")
+    p.add_argument("--seed", type=int, default=0, help="random seed")
+    p.add_argument("--noise", action="store_true", help="perturb even with one particle")
+    p.add_argument("--no-noise", action="store_true", help="no perturbation even with many particles")
+    p.add_argument("--horizon", type=float, default=None, help=f"reasoning period in s ({d.horizon})")
+    p.add_argument("--t-perceived", type=float, default=None, help=f"perceived timeout in s ({d.t_perceived})")
+    p.add_argument("--d-sim-perc", type=float, default=None, help=f"simulation tolerance in m ({d.d_sim_perc})")
+    p.add_argument("--d-perc-prev", type=float, default=None, help=f"perception jump in m ({d.d_perc_prev})")
+
+
+def print_summary(summary: dict, stream=None) -> None:
+    """A readable timeline and the final poses."""
+    stream = stream or sys.stdout
+    tl = summary["timeline"]
+    print(f"{summary['frames']} frames read, {summary['skipped']} skipped, {summary['estimates']} "
+          f"reasoning steps in {summary['seconds']:.2f} s", file=stream)
+    if summary.get("rejected"):
+        print(f"{summary['rejected']} detection(s) outside the scene's workspace rejected as outliers", file=stream)
+    if summary.get("reseeded") or summary.get("worker_restarts"):
+        print(f"{summary.get('reseeded', 0)} particle(s) re-seeded from the others after an exploded simulation "
+              f"or a dead worker; {summary.get('worker_restarts', 0)} worker restart(s)", file=stream)
+    print("\nEvents:", file=stream)
+    for e in tl["events"]:
+        print(f"  t={e['t']:7.3f}  {e['action']:<8} {e['subject']:<14} p={e['p']:.2f}", file=stream)
+    if not tl["events"]:
+        print("  (none)", file=stream)
+    print("\nFacts:", file=stream)
+    for f in tl["facts"]:
+        if f["predicate"] == "isPerceived":
+            continue
+        rel = f"{f['predicate']}({f['subject']}" + (f", {f['object']})" if f["object"] else ")")
+        end = "..." if f["end"] is None else f"{f['end']:.3f}"
+        print(f"  {rel:<36} {f['start']:7.3f} -> {end:<8} confidence {f['confidence']:.2f}", file=stream)
+    b = summary["last_belief"]
+    if b is not None:
+        print(f"\nFinal poses (t={b.t:.3f} s):", file=stream)
+        for oid, ob in b.objects.items():
+            pos = ", ".join(f"{v:+.3f}" for v in ob.position)
+            where = ", ".join(f"{h.relation} {h.support or ''}".strip() + f" {h.p:.2f}" for h in ob.hypotheses)
+            seen = "perceived" if ob.perceived else "hidden   "
+            if not ob.hypotheses and ob.p_held == 0 and not ob.perceived:
+                seen = "static   "
+            print(f"  {oid:<14} [{pos}]  {seen}  {where}", file=stream)

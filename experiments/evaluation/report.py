@@ -1,0 +1,243 @@
+"""The evaluation's report: per scenario and method, the mean and 95 % bootstrap interval of each
+metric over seeds; paired tests against the paper's reasoner; ``summary.md``, ``summary.csv``,
+``tests.csv`` and the figures."""
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable
+
+
+from experiments.evaluation.methods import METHODS, get_method
+from experiments.evaluation.stats import bootstrap_ci, group_rng, paired_wilcoxon
+
+
+# --------------------------------------------------------------------------------------------------
+# the summary
+
+
+@dataclass(frozen=True)
+class Column:
+    """A summarised metric: row field (``timing.x`` for timing), header, scale factor and format."""
+
+    field: str
+    header: str
+    scale: float = 1.0
+    fmt: str = "{:.2f}"
+
+
+SUMMARY_COLUMNS: tuple[Column, ...] = (
+    Column("err_hidden_median", "hidden err. median (cm)", 100.0, "{:.1f}"),
+    Column("err_hidden_p90", "hidden err. p90 (cm)", 100.0, "{:.1f}"),
+    Column("err_end_mean", "final err. (cm)", 100.0, "{:.1f}"),
+    Column("success_end", "success (%)", 100.0, "{:.0f}"),
+    Column("success_end_hidden", "success, hidden objects (%)", 100.0, "{:.0f}"),
+    Column("ontop_f1", "isOnTop F1", 1.0, "{:.2f}"),
+    Column("isin_f1", "isIn F1", 1.0, "{:.2f}"),
+    Column("event_f1", "event F1", 1.0, "{:.2f}"),
+    Column("event_latency", "event latency (s)", 1.0, "{:.2f}"),
+    Column("nll_hidden_median", "NLL hidden (median)", 1.0, "{:.1f}"),
+    Column("cover90_hidden", "90% coverage hidden", 1.0, "{:.2f}"),
+    Column("timing.update_ms_median", "update (ms)", 1.0, "{:.1f}"),
+)
+"""Columns of the main table of ``summary.md`` (mean and 95 % bootstrap interval over seeds)."""
+
+EXTRA_COLUMNS: tuple[Column, ...] = (
+    Column("err_median", "err. median (cm)", 100.0), Column("err_p90", "err. p90 (cm)", 100.0),
+    Column("err_end_max", "final err. max (cm)", 100.0),
+    Column("ontop_acc", "isOnTop acc."), Column("isin_acc", "isIn acc."),
+    Column("event_precision", "event precision"), Column("event_recall", "event recall"),
+    Column("event_f1_loose", "event F1 (1.5 s window)"),
+    Column("event_latency_loose", "event latency (1.5 s window, s)"),
+    Column("pick_f1", "Pick F1"), Column("place_f1", "Place F1"), Column("release_f1", "Release F1"),
+    Column("nll", "NLL"), Column("nll_median", "NLL median"), Column("nll_hidden", "NLL hidden"),
+    Column("cover50", "50% coverage"), Column("cover90", "90% coverage"),
+    Column("cover50_hidden", "50% coverage hidden"),
+    Column("brier_plausible", "Brier P(plausible)"), Column("ece_plausible", "ECE P(plausible)"),
+    Column("brier_isin", "Brier P(isIn)"), Column("ece_isin", "ECE P(isIn)"),
+    Column("brier_isontop", "Brier P(isOnTop)"), Column("ece_isontop", "ECE P(isOnTop)"),
+    Column("err_reappear_median", "err. at re-appearance (cm)", 100.0),
+    Column("gate_rate_reappear", "re-appearance in 99% gate"),
+    Column("nees_seen_median", "NEES seen (median; 2.37)"), Column("nees_hidden_median", "NEES hidden (median; 2.37)"),
+    Column("nees_hidden_mean", "NEES hidden (mean; 3)"),
+    Column("timing.update_ms_p95", "update p95 (ms)"), Column("timing.peak_rss_mb", "peak memory (MB)"),
+    Column("timing.trial_s", "trial (s)"),
+)
+
+TEST_METRICS: tuple[tuple[str, str, float], ...] = (
+    ("err_hidden_median", "hidden err. median (cm)", 100.0),
+    ("err_end_mean", "final err. (cm)", 100.0),
+    ("success_end", "success (%)", 100.0),
+    ("event_f1", "event F1", 1.0),
+)
+"""Metrics of the paired tests (particle methods against the paper's reasoner, paired by seed)."""
+
+ALL = "all scenarios"
+
+
+def _value(row: dict, name: str) -> float:
+    src = row
+    if name.startswith("timing."):
+        src, name = row.get("timing") or {}, name[len("timing."):]
+    v = src.get(name)
+    return math.nan if v is None else float(v)
+
+
+def _method_order(rows) -> list[tuple[str, int]]:
+    order = {m: i for i, m in enumerate(METHODS)}
+    pairs = sorted({(r["method"], r["particles"]) for r in rows}, key=lambda p: (order.get(p[0], 99), p[1]))
+    return pairs
+
+
+def summarize(rows: list[dict], columns: Iterable[Column] = SUMMARY_COLUMNS + EXTRA_COLUMNS) -> list[dict]:
+    """One summary record per (scenario, method, K), plus per (method, K) over all scenarios: the
+    number of trials ``n`` and, per column, ``<field>`` (mean), ``<field>.lo`` and ``<field>.hi``
+    (95 % percentile-bootstrap interval over the trials; seeds within a scenario), in raw units.
+
+    Deterministic: values are ordered by (scenario, seed) and every group has its own generator."""
+    columns = tuple(columns)
+    scenarios = sorted({r["scenario"] for r in rows})
+    out = []
+    groups = [(sc, m, k) for sc in scenarios for (m, k) in _method_order(rows)]
+    if len(scenarios) > 1:
+        groups += [(ALL, m, k) for (m, k) in _method_order(rows)]
+    for sc, m, k in groups:
+        sel = sorted((r for r in rows if r["method"] == m and r["particles"] == k
+                      and (sc == ALL or r["scenario"] == sc)), key=lambda r: (r["scenario"], r["seed"]))
+        if not sel:
+            continue
+        rec = {"scenario": sc, "method": m, "particles": k, "n": len(sel)}
+        if sel[0].get("config"):
+            rec["config"] = sel[0]["config"]
+        for c in columns:
+            ci = bootstrap_ci([_value(r, c.field) for r in sel], group_rng(sc, m, k, c.field))
+            rec[c.field], rec[c.field + ".lo"], rec[c.field + ".hi"] = ci.estimate, ci.low, ci.high
+        out.append(rec)
+    return out
+
+
+def paired_tests(rows: list[dict], baseline: str = "paper") -> list[dict]:
+    """Wilcoxon signed-rank tests of every particle method against ``baseline``, per scenario and
+    over all scenarios, paired by (scenario, seed), for each of :data:`TEST_METRICS`."""
+    base = {(r["scenario"], r["seed"]): r for r in rows if r["method"] == baseline}
+    if not base:
+        return []
+    out = []
+    scenarios = sorted({r["scenario"] for r in rows})
+    for m, k in _method_order(rows):
+        if not get_method(m).uses_particles:
+            continue
+        mine = {(r["scenario"], r["seed"]): r for r in rows if r["method"] == m and r["particles"] == k}
+        for sc in scenarios + ([ALL] if len(scenarios) > 1 else []):
+            keys = sorted(x for x in mine if x in base and (sc == ALL or x[0] == sc))
+            if not keys:
+                continue
+            rec = {"scenario": sc, "method": m, "particles": k, "baseline": baseline}
+            for fieldname, _h, _s in TEST_METRICS:
+                t = paired_wilcoxon([_value(mine[x], fieldname) for x in keys],
+                                    [_value(base[x], fieldname) for x in keys])
+                rec[fieldname + ".n"] = t.n
+                rec[fieldname + ".median_diff"] = t.median_diff
+                rec[fieldname + ".p"] = t.p_value
+            out.append(rec)
+    return out
+
+
+def _cell(rec: dict, c: Column) -> str:
+    v, lo, hi = rec.get(c.field), rec.get(c.field + ".lo"), rec.get(c.field + ".hi")
+    if v is None or not math.isfinite(v):
+        return "–"
+    s = c.fmt.format(v * c.scale)
+    if lo is not None and math.isfinite(lo):
+        s += " [" + c.fmt.format(lo * c.scale) + ", " + c.fmt.format(hi * c.scale) + "]"
+    return s
+
+
+def _method_label(m: str, k: int) -> str:
+    return f"{m} (K={k})" if get_method(m).uses_particles else m
+
+
+def markdown_summary(summary: list[dict], tests: list[dict], columns=SUMMARY_COLUMNS, title: bool = True) -> str:
+    """The Markdown report: the main table (mean [95 % CI] over seeds), the paired tests and the
+    calibration table."""
+    buf = io.StringIO()
+    if title:
+        n = sum(rec["n"] for rec in summary if rec["scenario"] != ALL)
+        buf.write(f"# Evaluation summary\n\n{n} trials. Cells: mean over seeds [95 % bootstrap interval].\n"
+                  "Errors in cm; 'hidden' = samples where the true object is not visible to the camera; "
+                  "success = final error < 5 cm and correct support/container.\n\n")
+        configs = sorted({rec["config"] for rec in summary if rec.get("config")})
+        for c in configs:
+            buf.write(f"Particle methods with the estimator configuration `{c}`.\n\n")
+    head = ["scenario", "method", "n"] + [c.header for c in columns]
+    buf.write("| " + " | ".join(head) + " |\n|" + "|".join(["---"] * len(head)) + "|\n")
+    for rec in summary:
+        cells = [rec["scenario"], _method_label(rec["method"], rec["particles"]), str(rec["n"])]
+        cells += [_cell(rec, c) for c in columns]
+        buf.write("| " + " | ".join(cells) + " |\n")
+    if tests:
+        buf.write("\n## Paired tests against the paper's reasoner (Wilcoxon signed-rank, by seed)\n\n"
+                  "Cells: median difference (method - paper) and two-sided p-value; n = pairs.\n\n")
+        head = ["scenario", "method"] + [h for _f, h, _s in TEST_METRICS]
+        buf.write("| " + " | ".join(head) + " |\n|" + "|".join(["---"] * len(head)) + "|\n")
+        for t in tests:
+            cells = [t["scenario"], _method_label(t["method"], t["particles"])]
+            for f, _h, s in TEST_METRICS:
+                d, p, n = t[f + ".median_diff"], t[f + ".p"], t[f + ".n"]
+                cells.append("–" if not (n and math.isfinite(d)) else
+                             f"{d * s:+.2f} (p={p:.3g}, n={n})" if math.isfinite(p) else f"{d * s:+.2f} (n={n})")
+            buf.write("| " + " | ".join(cells) + " |\n")
+    calib = [Column("brier_plausible", "Brier P(plausible)"), Column("ece_plausible", "ECE P(plausible)"),
+             Column("brier_isin", "Brier P(isIn)", 1.0, "{:.3f}"), Column("ece_isin", "ECE P(isIn)", 1.0, "{:.3f}"),
+             Column("brier_isontop", "Brier P(isOnTop)", 1.0, "{:.3f}"),
+             Column("ece_isontop", "ECE P(isOnTop)", 1.0, "{:.3f}"),
+             Column("cover50_hidden", "50% cov. hidden"), Column("cover90_hidden", "90% cov. hidden"),
+             Column("timing.peak_rss_mb", "peak memory (MB)", 1.0, "{:.0f}")]
+    pooled = [r for r in summary if r["scenario"] == ALL] or summary
+    buf.write("\n## Calibration (pooled over scenarios)\n\n")
+    head = ["method"] + [c.header for c in calib]
+    buf.write("| " + " | ".join(head) + " |\n|" + "|".join(["---"] * len(head)) + "|\n")
+    for rec in pooled:
+        cells = [_method_label(rec["method"], rec["particles"]) + ("" if rec["scenario"] == ALL else
+                                                                   f" ({rec['scenario']})")]
+        cells += [_cell(rec, c) if c.field in rec else "–" for c in calib]
+        buf.write("| " + " | ".join(cells) + " |\n")
+    return buf.getvalue()
+
+
+def write_summary_csv(summary: list[dict], path: str | os.PathLike) -> None:
+    """``summary.csv``: one line per (scenario, method, K), raw units, mean / lo / hi per metric."""
+    if not summary:
+        Path(path).write_text("")
+        return
+    fields = list(dict.fromkeys(k for rec in summary for k in rec))
+    with open(path, "w", encoding="utf-8", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=fields, lineterminator="\n", restval="")
+        w.writeheader()
+        for rec in summary:
+            w.writerow({k: ("" if isinstance(v, float) and not math.isfinite(v) else
+                            (repr(v) if isinstance(v, float) else v)) for k, v in rec.items()})
+
+
+def write_report(rows: list[dict], out_dir: str | os.PathLike, plots: bool = True) -> dict[str, Path]:
+    """Write ``summary.md``, ``summary.csv``, ``tests.csv`` and the figures for ``rows``; returns the
+    paths."""
+    out = Path(out_dir)
+    summary = summarize(rows)
+    tests = paired_tests(rows)
+    paths = {"summary.md": out / "summary.md", "summary.csv": out / "summary.csv"}
+    from experiments.evaluation.tracker_report import markdown_tracker_section
+    paths["summary.md"].write_text(markdown_summary(summary, tests) + markdown_tracker_section(rows), encoding="utf-8")
+    write_summary_csv(summary, paths["summary.csv"])
+    if tests:
+        paths["tests.csv"] = out / "tests.csv"
+        write_summary_csv(tests, paths["tests.csv"])
+    if plots:
+        from experiments.evaluation.plots import make_figures
+        for p in make_figures(rows, summary, out):
+            paths[p.name] = p
+    return paths
