@@ -146,6 +146,19 @@ def negative_evidence_log_likelihood(visible: np.ndarray, modes: np.ndarray, que
     return out
 
 
+def hidden_by_person(unseen_in_view: np.ndarray, hand_occlusion: float, miss_prob: float) -> np.ndarray:
+    """The probability (float64, same shape as ``unseen_in_view``) that the person keeps a held
+    object hidden, after ``n = unseen_in_view`` updates in view without a detection, under the
+    model of :func:`negative_evidence_log_likelihood`: ``h / (h + (1 - h) miss_prob**n)`` (``h`` at
+    ``n = 0``; 1 when ``hand_occlusion`` is 1). What a look at the hand can still hope to see is
+    one minus this."""
+    h = float(hand_occlusion)
+    if h >= 1.0:
+        return np.ones(np.shape(unseen_in_view))
+    miss_n = float(miss_prob) ** np.asarray(unseen_in_view, dtype=float)
+    return h / (h + (1.0 - h) * miss_n)
+
+
 def held_unseen_in_view(ev: "Evidence", visibility_threshold: float) -> np.ndarray:
     """The counts ``(K, M)`` int32 after this update: ``ev.unseen_in_view`` plus one where a held,
     unperceived object in a tracked hand was queried and in view; zero for objects detected in this

@@ -17,10 +17,13 @@ open-loop alternative updates only the particle weights by Bayes' rule
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from actions.modes import HELD
+
+from ..likelihood import hidden_by_person
 from ..observations import Detection, Frame
 from .looks import (SearchConfig, Viewpoint, ViewpointError, ViewpointFile, detection, read_viewpoints,
                     sample_viewpoints, static_boxes, travel_costs)
@@ -28,8 +31,12 @@ from .plan import bayes_after_miss, find_probabilities, plan_order
 from .regions import ELSEWHERE, ParticleSet, Region, assign, derive_regions, region_probabilities, table_of
 
 __all__ = ["ClosedLoopSearch", "ParticleSet", "PlannedLook", "Region", "SearchConfig", "SearchPlan", "Viewpoint",
-           "ViewpointError", "ViewpointFile", "plan_search", "read_viewpoints"]
+           "ViewpointError", "ViewpointFile", "look_at_point", "plan_search", "read_viewpoints"]
 
+
+MIN_DETECTION = 1e-6
+"""A region gets a look only if some viewpoint finds the object there with at least this probability
+(a look that cannot find it would only be placed where it shortens the camera's path)."""
 
 DEFAULT_REFERENCE = (10.0, 0.0, 0.0)
 """Where the robot is taken to look from when neither a camera nor a start is known (m)."""
@@ -92,6 +99,20 @@ class SearchPlan:
         w = bayes_after_miss(self.weights, self.d[i])
         p = region_probabilities(self.labels, w, len(self.region_names))
         return dict(zip(self.region_names + (ELSEWHERE,), p.tolist())), w
+
+
+def person_hides(est, obj: int) -> np.ndarray:
+    """``(K,)``: the probability, per particle, that the person keeps object ``obj`` hidden (it is
+    held by a tracked hand and has stayed unseen in view, see
+    :func:`~estimator.likelihood.hidden_by_person`); 0 for particles that do not hold it. A look
+    cannot find what the person hides, whatever the ray tests say: the filter's negative evidence
+    and the plan then agree."""
+    s = est.state
+    held = s.modes[:, obj] == HELD
+    if est.memory.hold_hand[obj] is None or not held.any():
+        return np.zeros(len(held))
+    nz = est.config.noise
+    return np.where(held, hidden_by_person(s.unseen_in_view[:, obj], nz.hand_occlusion, nz.miss_prob), 0.0)
 
 
 def search_regions(est, boxes: np.ndarray, hands, user: ViewpointFile | None, camera_xy) -> list[Region]:
@@ -161,12 +182,13 @@ def plan_search(est, object_id: str, viewpoints: ViewpointFile | list[Viewpoint]
     if start is None:
         start = views[0].position if views else np.zeros(3)
     D = detection(est.pool, ps, obj, est.known, views, miss, thr)  # (V, K)
+    D = D * (1.0 - person_hides(est, obj))[None, :]
     first_cost = travel_costs(start, views, fixed, per_m)[-1] if views else np.zeros(0)
     chosen: dict[int, list[str]] = {}
     for r in likely:
         m = labels == r
         d_r = D[:, m] @ ps.weights[m] / probs[r]  # (V,) P(found | in region r)
-        if len(d_r) and d_r.max() > 0:
+        if len(d_r) and d_r.max() > MIN_DETECTION:
             chosen.setdefault(int(np.argmax(d_r / first_cost)), []).append(regions[r].name)
     look_views = [views[v] for v in chosen]
     d = D[list(chosen)] if chosen else np.zeros((0, len(ps.weights)))
@@ -183,6 +205,35 @@ def plan_search(est, object_id: str, viewpoints: ViewpointFile | list[Viewpoint]
     ranked = [(n, p) for n, p in ranked if p > 0] + [(ELSEWHERE, float(probs[-1]))]
     return SearchPlan(object_id, est.last_belief.t if est.last_belief is not None else None, ranked, looks,
                       expected, float(first.sum()), method, ps.weights, labels, names, d[order], len(views))
+
+
+def look_at_point(est, object_id: str, point, config: SearchConfig | None = None,
+                  rng: np.random.Generator | None = None, start=None, label: str = "point") -> PlannedLook:
+    """The best look for ``object_id`` if it were at ``point (3,)`` (m), for a searcher that only has
+    a point guess (a last-seen place, a single-world estimate): ``config.views_per_region``
+    viewpoints sampled around the point, each one's probability of finding the object there by ray
+    tests in the estimator's worlds with the object moved to the point (everything else as each
+    particle has it), and the viewpoint with the largest probability per unit of cost from ``start``
+    (default: the scene camera). ``label`` names the look's region."""
+    config = config or SearchConfig()
+    rng = rng if rng is not None else np.random.default_rng(0)
+    obj = list(est.object_ids).index(object_id)
+    point = np.asarray(point, float).reshape(3)
+    if start is None:
+        start = est.scene.camera.position if est.scene.camera is not None else DEFAULT_REFERENCE
+    ps = ParticleSet.from_estimator(est)
+    poses = ps.poses.copy()
+    poses[:, obj, :3] = point
+    ps = replace(ps, poses=poses)
+    known = np.asarray(est.known, bool).copy()
+    known[obj] = True
+    miss = config.miss_prob if config.miss_prob is not None else est.config.noise.miss_prob
+    thr = config.visibility_threshold if config.visibility_threshold is not None else est.config.visibility_threshold
+    views = sample_viewpoints([(label, point)], config, rng)
+    p = detection(est.pool, ps, obj, known, views, miss, thr) @ ps.weights  # (V,)
+    cost = travel_costs(np.asarray(start, float), views, config.fixed_cost, config.travel_cost)[-1]
+    v = int(np.argmax(p / cost))
+    return PlannedLook(views[v], (label,), float(p[v]), float(p[v]), float(cost[v]))
 
 
 class ClosedLoopSearch:

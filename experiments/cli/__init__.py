@@ -4,7 +4,7 @@ Subcommands: ``run`` (estimate a recorded stream), ``config`` (the configuration
 ``demo`` (the built-in example), ``simulate``
 (scenario simulator), ``evaluate`` (statistics over scenarios, seeds and methods), ``bench`` (speed
 against bare pybullet stepping), ``track`` (a Kalman pose tracker, fed back by the estimator),
-``search`` (where to look first for a hidden object).
+``search`` (where to look first for a hidden object), ``search-eval`` (the search experiment).
 """
 from __future__ import annotations
 
@@ -35,6 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     from experiments.cli.evaluate import add_evaluate_arguments, run_evaluate
     from experiments.cli.fit import add_fit_arguments, run_fit
     from experiments.cli.search import add_search_arguments, run_search
+    from experiments.cli.search_eval import add_search_eval_arguments, run_search_eval
     from experiments.cli.simulate import add_simulate_arguments, run_simulate
     from experiments.cli.track import add_track_arguments, run_track
 
@@ -48,7 +49,9 @@ def main(argv: list[str] | None = None) -> int:
             ("fit-priors", "fit the held-object priors on simulated scenarios (seeds 100-119)", add_fit_arguments,
              run_fit),
             ("search", "where to look first for a hidden object: ranked places and a look plan",
-             add_search_arguments, run_search)]:
+             add_search_arguments, run_search),
+            ("search-eval", "the search experiment: a simulated robot camera looks for hidden objects, by method",
+             add_search_eval_arguments, run_search_eval)]:
         p_sub = sub.add_parser(name, help=text)
         add(p_sub)
         p_sub.set_defaults(func=run)

@@ -120,17 +120,18 @@ def read_rows(path: str | os.PathLike, repair: bool = False) -> list[dict]:
     return list(rows.values())
 
 
-def _local_results(specs: list[TrialSpec], workers: int) -> Iterable[dict]:
-    """Run trials in this process (``workers <= 1``) or on a pool of spawned processes; yields
-    results as they finish. Pending trials are cancelled when the consumer stops."""
+def local_results(specs: list, workers: int, fn: Callable = run_trial_safe) -> Iterable[dict]:
+    """Run ``fn(spec)`` for every spec (default: an evaluation trial) in this process
+    (``workers <= 1``) or on a pool of spawned processes; yields results as they finish. Pending
+    trials are cancelled when the consumer stops."""
     if workers <= 1:
         for spec in specs:
-            yield run_trial_safe(spec)
+            yield fn(spec)
         return
     ctx = multiprocessing.get_context("spawn")
     pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, max_tasks_per_child=None)
     try:
-        futures = [pool.submit(run_trial_safe, s) for s in specs]
+        futures = [pool.submit(fn, s) for s in specs]
         for fut in cf.as_completed(futures):
             yield fut.result()
     finally:
@@ -232,7 +233,7 @@ def run_sweep(config: SweepConfig, out_dir: str | os.PathLike, *, backend: str =
         if backend == "ray":
             results = _ray_results(todo, workers, address, ray_init)
         else:
-            results = _local_results(todo, workers)
+            results = local_results(todo, workers)
         with open(path, "a", encoding="utf-8") as fh:
             try:
                 for res in results:

@@ -22,6 +22,7 @@ of view and ``aspect`` the width / height ratio.
 """
 from __future__ import annotations
 
+import copy
 import math
 import zlib
 
@@ -119,6 +120,14 @@ class SyntheticCamera:
         self._owner = np.repeat(np.arange(len(pts)), self.n)
         self._pinhole = Camera(camera)  # the frustum test is the estimator's own
         self.origin = self._pinhole.position
+
+    def moved_to(self, camera: CameraSpec) -> "SyntheticCamera":
+        """The same camera (world, sample points, threshold) looking from ``camera`` instead."""
+        out = copy.copy(self)
+        out.camera = camera
+        out._pinhole = Camera(camera)
+        out.origin = out._pinhole.position
+        return out
 
     def world_points(self, poses: np.ndarray | None = None) -> np.ndarray:
         """Sample points in the world frame (M, n, 3) at ``poses`` (M, 7) (default: current poses)."""

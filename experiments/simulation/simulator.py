@@ -33,12 +33,13 @@ ball of a box being poured) get no event.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -47,7 +48,7 @@ import yaml
 
 from estimator.relations import relation_list, relation_masks
 from physics.errors import InputError
-from physics.scene import Scene, scene_to_dict
+from physics.scene import CameraSpec, Scene, scene_to_dict
 from physics.transforms import pose_compose, pose_inverse, quat_from_axis_angle, quat_multiply, quat_normalize
 from physics.bodies import DEFAULT_PRIMITIVE_MASS
 from physics.world import PhysicsSettings, World
@@ -408,6 +409,14 @@ class GroundTruth:
             self._start_segment(0.0)
             self._advance_script(0.0, 0)
 
+    def look(self, camera: CameraSpec) -> np.ndarray:
+        """Visible fractions ``(M,)`` of every object to ``camera`` in the world's present state
+        (hand and torso occlude; the scenario's sample points and nothing else changed)."""
+        cfg = self.scenario.perception
+        base = self.camera or SyntheticCamera(self.world, camera, points_per_object=cfg.points_per_object,
+                                              threshold=cfg.visibility_threshold)
+        return base.moved_to(camera).visible_fractions()
+
     def visible_fractions(self, poses: np.ndarray) -> np.ndarray:
         if self.camera is None:
             return np.ones(self.world.num_objects)
@@ -539,9 +548,12 @@ def estimator_scene(variant: Variant, initial_poses: np.ndarray) -> Scene:
     return replace(variant.scene.with_objects(objects), source=None)
 
 
-def simulate(scenario: Scenario | str, seed: int = 0, duration: float | None = None,
-             settings: PhysicsSettings | None = None) -> SimulationResult:
-    """Run ``scenario`` (object or name/path) for ``seed``; ``duration`` (s) overrides the file's."""
+@contextlib.contextmanager
+def open_simulation(scenario: Scenario | str, seed: int = 0, duration: float | None = None,
+                    settings: PhysicsSettings | None = None) -> Iterator[tuple[SimulationResult, GroundTruth]]:
+    """Run ``scenario`` as :func:`simulate` does and keep its ground-truth world open while in the
+    ``with`` block: yields ``(result, truth)``, ``truth`` being the :class:`GroundTruth` in its final
+    state (hand and torso included), e.g. to ask what another camera would see at the end."""
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
     if duration is not None and not (duration > 0 and math.isfinite(duration)):
@@ -551,6 +563,13 @@ def simulate(scenario: Scenario | str, seed: int = 0, duration: float | None = N
     perception_rng = np.random.default_rng([int(seed), 1])
     with GroundTruth(variant, settings) as gt:
         result = gt.run(length, perception_rng)
+        _fill_result(result, scenario, seed, variant, gt, length)
+        yield result, gt
+
+
+def _fill_result(result: SimulationResult, scenario: Scenario, seed: int, variant: Variant, gt: GroundTruth,
+                 length: float) -> None:
+    """Fill ``result.scene`` (the estimator's scene) and ``result.meta`` (meta.json)."""
     result.scene = estimator_scene(variant, result.initial_poses)
     result.meta = {
         "format_version": FORMAT_VERSION,
@@ -573,7 +592,13 @@ def simulate(scenario: Scenario | str, seed: int = 0, duration: float | None = N
         "warnings": result.warnings,
         "files": ["scene.yaml", "observations.jsonl", "truth.jsonl", "meta.json"],
     }
-    return result
+
+
+def simulate(scenario: Scenario | str, seed: int = 0, duration: float | None = None,
+             settings: PhysicsSettings | None = None) -> SimulationResult:
+    """Run ``scenario`` (object or name/path) for ``seed``; ``duration`` (s) overrides the file's."""
+    with open_simulation(scenario, seed, duration, settings) as (result, _truth):
+        return result
 
 
 def _round_tree(x):
