@@ -27,7 +27,8 @@ def hand_offset_walk(error: np.ndarray, dt: float, std: float, time_constant: fl
 
 def depenetrate(w: World, indices: list[int], rounds: int = 2) -> None:
     """Push objects ``indices`` out of whatever they interpenetrate, along the deepest contact's
-    normal (Bullet would otherwise shoot them out with a spurious velocity)."""
+    normal (Bullet would otherwise shoot them out with a spurious velocity). Their velocities are
+    kept (pybullet's ``resetBasePositionAndOrientation`` sets them to zero)."""
     c = w.client
     floor = [w.floor_uid] if w.floor_uid >= 0 else []
     for _ in range(rounds):
@@ -42,9 +43,11 @@ def depenetrate(w: World, indices: list[int], rounds: int = 2) -> None:
                         worst, normal = pt[8], pt[7]  # normal on B, pointing from B to A
             if normal is not None and worst < -1e-4:
                 pos, orn = pb.getBasePositionAndOrientation(uid, physicsClientId=c)
+                lin, ang = pb.getBaseVelocity(uid, physicsClientId=c)
                 shift = -worst + 1e-4
                 pb.resetBasePositionAndOrientation(uid, [pos[k] + normal[k] * shift for k in range(3)], orn,
                                                    physicsClientId=c)
+                pb.resetBaseVelocity(uid, lin, ang, physicsClientId=c)  # the reset zeroes it: a rolling can rolls on
                 moved = True
         if not moved:
             break

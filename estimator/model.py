@@ -279,7 +279,10 @@ class SceneModel:
         ``process_orientation_std`` per sqrt(s), plus model error of ``motion_noise`` times the
         distance ``last_motion (K, M)`` an object moved on or in its support (``supported (K, M)``)
         in the last update (rolling and sliding are chaotic; flight is not), capped at
-        ``max_jitter_std``. Returns the objects moved by more than 2 mm std ``(K, M)``."""
+        ``max_jitter_std``. An object on its support is moved along it only (horizontally, turned
+        about the vertical): noise into the support or tilting it would be undone by the contact
+        solver at the cost of the object's momentum, and a rolling ball or can would stop short.
+        Returns the objects moved by more than 2 mm std ``(K, M)``."""
         nz, K, M = self.config.noise, self.K, self.M
         free_unseen = (modes == FREE) & (~perceived & self.dynamic & self.known)[None, :] & ~resting
         jolted = np.zeros((K, M), dtype=bool)
@@ -287,11 +290,15 @@ class SceneModel:
             rolling = np.where(supported, last_motion, 0.0)
             s = np.sqrt(nz.process_position_std ** 2 * dt + (nz.motion_noise * rolling) ** 2)
             s = np.minimum(s, nz.max_jitter_std)  # never through a wall
-            poses[..., :3] += np.where(free_unseen[..., None], rng.normal(0.0, 1.0, (K, M, 3)) * s[..., None], 0.0)
+            step = rng.normal(0.0, 1.0, (K, M, 3)) * s[..., None]
+            step[..., 2] = np.where(supported, 0.0, step[..., 2])  # its support holds it: along it only
+            poses[..., :3] += np.where(free_unseen[..., None], step, 0.0)
             jolted = free_unseen & (s > 0.002)
         if nz.process_orientation_std > 0 and np.any(free_unseen):
             s = nz.process_orientation_std * math.sqrt(dt)
-            dq = quat_from_rotvec(rng.normal(0.0, s, (K, M, 3)))
+            rotvec = rng.normal(0.0, s, (K, M, 3))
+            rotvec[..., :2] = np.where(supported[..., None], 0.0, rotvec[..., :2])  # on a support: about z only
+            dq = quat_from_rotvec(rotvec)
             rotated = quat_multiply(dq, poses[..., 3:])
             poses[..., 3:] = np.where(free_unseen[..., None], rotated, poses[..., 3:])
         return jolted

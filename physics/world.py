@@ -201,9 +201,12 @@ class World:
         self._park(idx, poses[:, 2])
         poses[:, :3] += self.origin
         c = self.client
-        reset = pb.resetBasePositionAndOrientation
+        reset, get_vel, set_vel = pb.resetBasePositionAndOrientation, pb.getBaseVelocity, pb.resetBaseVelocity
         for i, row in zip(idx, poses.tolist()):
-            reset(self.uids[i], row[:3], row[3:], physicsClientId=c)
+            uid = self.uids[i]
+            lin, ang = get_vel(uid, physicsClientId=c)
+            reset(uid, row[:3], row[3:], physicsClientId=c)  # (which zeroes the velocity)
+            set_vel(uid, lin, ang, physicsClientId=c)
 
     def get_velocities(self, indices=None) -> np.ndarray:
         """Velocities ``(n, 6)``: linear velocity of the link-frame origin and angular velocity."""

@@ -40,6 +40,20 @@ def test_object_behind_a_box_is_not_visible_but_beside_it_is():
         assert SyntheticCamera(w, w.scene.camera).visible()[w.index("cup")]
 
 
+def test_a_camera_moved_behind_the_box_sees_the_cup_with_the_same_sample_points():
+    from physics.scene import CameraSpec
+
+    box = {"id": "box", "box": {"size": [0.1, 0.25, 0.2]}, "pose": {"position": [0.1, 0.0, 0.726]}}
+    with _world([box, _cup(-0.05)]) as w:
+        cam = SyntheticCamera(w, w.scene.camera)
+        behind = cam.moved_to(CameraSpec(position=(-1.0, 0.0, 0.9), target=(0.0, 0.0, 0.7)))
+        assert cam.visible_fractions()[w.index("cup")] == 0.0  # the original is unchanged
+        assert behind.visible_fractions()[w.index("cup")] > 0.9
+        assert behind.points is cam.points and behind.threshold == cam.threshold
+        same = cam.moved_to(w.scene.camera)
+        assert np.array_equal(same.visible_fractions(), cam.visible_fractions())
+
+
 def test_partly_hidden_object_has_intermediate_fraction():
     box = {"id": "box", "box": {"size": [0.1, 0.25, 0.2]}, "pose": {"position": [0.1, 0.0, 0.726]}}
     with _world([box, _cup(-0.05, 0.13)]) as w:

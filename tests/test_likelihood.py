@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from actions.modes import FREE, HELD, ModePriors
-from estimator.likelihood import (DetectionTerm, held_unseen_in_view, Evidence, ModeSwitchTerm, NegativeEvidenceTerm, add_terms,
+from estimator.likelihood import (DetectionTerm, held_unseen_in_view, hidden_by_person, Evidence, ModeSwitchTerm, NegativeEvidenceTerm, add_terms,
                                   detection_log_likelihood, exploded_log_likelihood, mode_switch_log_prior,
                                   negative_evidence_log_likelihood, orientation_log_likelihood,
                                   position_log_likelihood)
@@ -125,6 +125,19 @@ def test_hand_occlusion_is_sticky_and_its_total_cost_is_bounded_by_h():
     assert exempt[0] == pytest.approx(math.log(miss)) and exempt[1] == 0.0
     # a detection resets the count
     assert np.all(held_unseen_in_view(replace(ev, detected=np.array([True, True])), 0.5) == 0)
+
+
+def test_hidden_by_person_is_bayes_rule_on_the_sticky_occlusion():
+    """P(hidden | n misses in view) = h / (h + (1 - h) miss^n): the prior h at n = 0, rising to 1;
+    its complement is what a look at the hand can still find; h = 1 hides always."""
+    miss, h = 0.1, 0.25
+    n = np.array([[0, 1], [2, 5]])
+    p = hidden_by_person(n, h, miss)
+    assert p.shape == n.shape and p[0, 0] == pytest.approx(h)
+    for k in range(4):
+        joint_hidden, joint_seen = h, (1 - h) * miss ** n.flat[k]  # P(hidden, n misses), P(visible, n misses)
+        assert p.flat[k] == pytest.approx(joint_hidden / (joint_hidden + joint_seen))
+    assert np.all(np.diff(p.ravel()) > 0) and np.all(hidden_by_person(n, 1.0, miss) == 1.0)
 
 
 def test_mode_switch_prior_values():

@@ -319,3 +319,36 @@ def test_the_person_sees_and_reaches_a_cup_the_robot_cannot_see():
     assert json.loads(json.dumps(belief.to_json()))["objects"]["cup"]["person"]["p_visible"] == 1.0
     far, _ = last_belief([-2.5, 2.0, 0.9])  # the hand 2.8 m away: out of reach
     assert far.objects["cup"].person["p_reachable"] == 0.0 and far.objects["cup"].person["p_visible"] == 1.0
+
+
+# -- point guesses and what the person hides ----------------------------------------------------------------
+
+def test_a_look_at_a_point_aims_at_it_and_finds_what_is_there():
+    from estimator.search import look_at_point
+
+    with _split_estimator() as est:
+        cup = est.object_ids.index("cup")
+        point = np.array([0.1, 0.1, TABLE_TOP + 0.05])  # on the table, in plain view from above
+        look = look_at_point(est, "cup", point, SearchConfig(), np.random.default_rng(0), label="on table")
+        assert np.allclose(look.viewpoint.camera.target, point) and look.regions == ("on table",)
+        # every particle has the cup moved to the point, so the look finds it unless the camera misses
+        assert look.p_find == pytest.approx(1 - est.config.noise.miss_prob, abs=1e-9)
+        assert look.cost >= SearchConfig().fixed_cost
+        assert np.all(est.state.poses[:, cup, 2] > 0)  # the estimator's particles are left as they were
+
+
+def test_a_plan_never_looks_where_it_cannot_find_the_object():
+    from estimator.search import person_hides
+
+    with _split_estimator() as est:
+        cup = est.object_ids.index("cup")
+        # every particle: the cup held by a tracked hand that has been in view 20 updates without it
+        est.state.modes[:, cup] = HELD
+        est.state.unseen_in_view[:, cup] = 20
+        est.memory.hold_hand[cup] = "human/right"
+        hides = person_hides(est, cup)
+        assert np.all(hides > 0.999)
+        plan = plan_search(est, "cup", [FLOOR_VIEW, TABLE_VIEW], rng=np.random.default_rng(0))
+        assert plan.looks == [] and plan.p_found == 0.0
+        est.state.unseen_in_view[:, cup] = 0  # just lost: hidden with the prior h only
+        assert np.allclose(person_hides(est, cup), est.config.noise.hand_occlusion)

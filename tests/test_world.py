@@ -39,6 +39,8 @@ def test_poses_velocities_roundtrip_and_offsets():
         v = np.array([[0.1, -0.2, 0.3, 0.0, 0.0, 2.0]])
         w.set_velocities(v, [1])
         assert np.allclose(w.get_velocities([1]), v, atol=1e-9)
+        w.set_poses(new + [[0.05, 0, 0, 0, 0, 0, 0]], [1])  # a teleport keeps the velocity (pybullet's zeroes it)
+        assert np.allclose(w.get_velocities([1]), v, atol=1e-9)
         w.set_dynamics(1, lateral_friction=0.25, restitution=0.1, mass=0.4)
         d = w.get_dynamics(1)
         assert d["lateral_friction"] == pytest.approx(0.25) and d["mass"] == pytest.approx(0.4)
