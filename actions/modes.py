@@ -71,6 +71,9 @@ class ModePriors:
       negative evidence weighs, see ``NoiseConfig.hand_occlusion``). The defaults are fitted on the
       simulator's scenarios (``scene-estimator fit-priors``, on seeds the evaluation does not use):
       the fraction of such losses where the object had in truth been let go.
+    * ``release_hidden``: probability that an object its tracked hand carried out of view, and did
+      not let go when it was lost, was let go while the hand hid it: weighed when the hand shows in
+      view again without it (:func:`estimator.holding.release_behind_cover`). Fitted the same way.
     """
 
     pick: float = 0.02
@@ -79,13 +82,14 @@ class ModePriors:
     release_on_loss: float = 0.5
     release_on_loss_carried: float = 0.024  # fitted: scene-estimator fit-priors (seeds 100-119), 0 of 40
     release_on_loss_still: float = 0.5  # fitted: no such loss in the scenarios (Laplace: 0.5)
+    release_hidden: float = 0.226  # fitted: fit-priors on every built-in scenario with tracked hands, 11 of 51
     carry_distance: float = 0.05
 
     def __post_init__(self):
         if not (isinstance(self.carry_distance, (int, float)) and 0 <= self.carry_distance < float("inf")):
             raise ValueError(f"ModePriors.carry_distance must be >= 0 metres, got {self.carry_distance!r}")
         for name in ("pick", "place", "release", "release_on_loss", "release_on_loss_carried",
-                     "release_on_loss_still"):
+                     "release_on_loss_still", "release_hidden"):
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
                 raise ValueError(f"ModePriors.{name} must be in [0, 1], got {v}")

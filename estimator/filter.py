@@ -28,10 +28,12 @@ import logging
 import numpy as np
 
 from actions.events import recent_events, record_event_times
+from actions.modes import HELD, RELEASE
 from physics.scene import Scene
 
 from .belief import Belief, compute_belief
 from .config import EstimatorConfig
+from .holding import hidden_places
 from .likelihood import held_unseen_in_view
 from .model import Move, SceneModel, Settled, initial_poses
 from .observations import Frame
@@ -218,12 +220,15 @@ class SceneEstimator:
             logw, weights = self._recover(t, settled, detected)
         ess = effective_sample_size(weights)
         # commit
-        self._commit(move, settled, logw, bad, held_unseen_in_view(evidence, cfg.visibility_threshold))
+        hidden = self._hidden_places(evidence, settled, t)
+        self._commit(move, settled, logw, bad, held_unseen_in_view(evidence, cfg.visibility_threshold), hidden)
         self.memory.end_tick(perceived, detected, settled.tick_vel)
         self.t_tick = t
         self.n_updates += 1
         # summarise
         record_event_times(self.state.event_t, settled.codes, t)
+        if move.behind_cover is not None and np.any(move.behind_cover):  # let go back then, out of view
+            self.state.event_t[..., RELEASE - 1][move.behind_cover] = self.state.hidden_t[move.behind_cover]
         step_events = recent_events(self.state.event_t, weights, t, cfg.event_window, self.object_ids,
                                     threshold=cfg.hypothesis_min_p)
         belief = compute_belief(t, self.object_ids, self.known, perceived, settled.poses, weights, settled.modes,
@@ -279,9 +284,20 @@ class SceneEstimator:
         self.model.reseed(settled.poses, settled.velocities, detected, self.rng)
         return np.zeros(self.K), np.full(self.K, 1.0 / self.K)
 
+    def _hidden_places(self, ev, settled: Settled, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The particles' samples of where their held objects were out of view
+        (:func:`~estimator.holding.hidden_places`), after this update."""
+        s, thr = self.state, self.config.visibility_threshold
+        held = (settled.modes == HELD) & (np.asarray(ev.in_tracked_hand, bool) & ~ev.perceived)[None, :]
+        in_view = (ev.visible >= thr) & np.asarray(ev.queried, bool)[None, :]
+        reset = (settled.modes != HELD) | ev.detected[None, :]
+        return hidden_places(s.hidden_at, s.hidden_t, s.hidden_n, settled.poses, settled.modes, held & ~in_view,
+                             reset, t, self.rng)
+
     def _commit(self, move: Move, settled: Settled, logw: np.ndarray, bad: np.ndarray,
-                unseen_in_view: np.ndarray) -> None:
-        """The particles after this update (the largest finite log-weight made 0)."""
+                unseen_in_view: np.ndarray, hidden: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+        """The particles after this update (the largest finite log-weight made 0); ``hidden``: see
+        :meth:`_hidden_places`."""
         s = self.state
         last_motion = np.linalg.norm(settled.poses[..., :3] - move.poses[..., :3], axis=-1)
         self._world_poses, self._world_vel = settled.poses.copy(), settled.velocities.copy()
@@ -293,7 +309,8 @@ class SceneEstimator:
             log_weights=logw - np.max(logw[np.isfinite(logw)]), on_top=settled.on_top, is_in=settled.is_in,
             event_t=s.event_t, supported=settled.supported, last_motion=last_motion,
             jolted=np.zeros((self.K, self.M), dtype=bool), unseen_in_view=unseen_in_view,
-            hold_error=move.hold_error, let_go_unseen=move.let_go_unseen)
+            hold_error=move.hold_error, let_go_unseen=move.let_go_unseen, hidden_at=hidden[0],
+            hidden_t=hidden[1], hidden_n=hidden[2])
 
     def _resample(self, weights: np.ndarray, hidden: np.ndarray) -> None:
         """Systematic resampling, then the model's regularisation of hidden objects ``hidden (M,)`` and

@@ -86,3 +86,52 @@ def held_targets(frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: n
         elif not perceived[m] and noise.held_drift_std > 0:
             target[rows, m, :3] += rng.normal(0.0, noise.held_drift_std * math.sqrt(dt), (int(rows.sum()), 3))
     return target, target_vel, new_error
+
+
+def hidden_places(hidden_at: np.ndarray, hidden_t: np.ndarray, hidden_n: np.ndarray, poses: np.ndarray,
+                  modes: np.ndarray, hidden: np.ndarray, reset: np.ndarray, t: float,
+                  rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where each particle's held object was while its hand hid it: a uniform sample over those
+    updates (reservoir sampling), to let it go there later (:func:`release_behind_cover`).
+
+    ``hidden_at (K, M, 3)`` m, ``hidden_t (K, M)`` s and ``hidden_n (K, M)`` int32 (updates counted)
+    before; ``poses (K, M, 7)`` now; ``hidden (K, M)``: held objects out of the camera's view in this
+    update; ``reset (K, M)``: entries that start again (not held, or detected). Returns the three
+    arrays after this update (copies). One uniform draw per entry, whatever is hidden."""
+    u = rng.random(hidden_n.shape)
+    n = hidden_n.astype(np.int32, copy=True)
+    n[hidden] += 1
+    take = hidden & (u * np.maximum(n, 1) < 1.0)  # the n-th hidden update replaces the sample w.p. 1/n
+    at, tt = hidden_at.copy(), hidden_t.copy()
+    at[take] = poses[take][:, :3]
+    tt[take] = t
+    n[reset] = 0
+    return at, tt, n
+
+
+def release_behind_cover(modes: np.ndarray, unseen_in_view: np.ndarray, hidden_n: np.ndarray,
+                         in_tracked_hand: np.ndarray, priors: ModePriors, noise: NoiseConfig,
+                         rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Objects let go while their hand hid them, decided when the hand shows in view without them.
+
+    A held object in a tracked hand (``in_tracked_hand (M,)``, not perceived) that was out of view
+    for some updates (``hidden_n > 0``) and, at the last update, in view for the first time without
+    being detected (``unseen_in_view == 1``) is either still held, the person hiding it (it has
+    paid ``L = h + (1 - h) miss_prob`` for that update, see
+    :func:`~estimator.likelihood.negative_evidence_log_likelihood`), or was let go earlier, out of
+    view (prior ``r = release_hidden``; nothing unseen to explain). Each such entry is drawn from
+    that posterior: let go with probability ``r / (r + (1 - r) L)``, and every such particle's
+    weight is multiplied by ``(r + (1 - r) L) / L`` (the marginal likelihood over what it already
+    paid): a correct importance move. Returns the entries let go ``(K, M)`` bool and the log-weight
+    factors ``(K,)``. One uniform draw per entry. Nothing happens when ``hand_occlusion`` is 1 (held
+    objects exempt from negative evidence, as in the paper's reasoner)."""
+    K, M = modes.shape
+    u = rng.random((K, M))
+    if noise.hand_occlusion >= 1.0:
+        return np.zeros((K, M), dtype=bool), np.zeros(K)
+    h, r = noise.hand_occlusion, priors.release_hidden
+    cand = (modes == HELD) & (unseen_in_view == 1) & (hidden_n > 0) & np.asarray(in_tracked_hand, bool)[None, :]
+    L = h + (1.0 - h) * noise.miss_prob
+    p = r / (r + (1.0 - r) * L)
+    factor = math.log((r + (1.0 - r) * L) / L)
+    return cand & (u < p), factor * cand.sum(axis=1)

@@ -211,6 +211,8 @@ class Evidence:
     * ``fell_unseen (K, M)`` bool: free objects the particle let go less than ``t_perceived`` ago
       when they stopped being perceived: in truth they fell in the ``t_perceived`` before, unseen,
       and the particle's late fall in view is no evidence against it (None: none).
+    * ``proposal_log_weight (K,)``: the weight factor of this update's importance moves (objects
+      let go behind cover, :func:`~estimator.holding.release_behind_cover`; None: none).
     """
 
     poses: np.ndarray
@@ -229,6 +231,7 @@ class Evidence:
     finite: np.ndarray
     unseen_in_view: np.ndarray
     fell_unseen: np.ndarray | None = None
+    proposal_log_weight: np.ndarray | None = None
 
 
 LogWeightTerm = Callable[[Evidence], np.ndarray]
@@ -277,6 +280,16 @@ class ModeSwitchTerm:
 
     def __call__(self, ev: Evidence) -> np.ndarray:
         return mode_switch_log_prior(self.priors, ev.previous_modes, ev.modes, ev.perceived)
+
+
+@dataclass(frozen=True)
+class ProposalTerm:
+    """The weight factor of the scene model's importance moves (``Evidence.proposal_log_weight``)."""
+
+    def __call__(self, ev: Evidence) -> np.ndarray:
+        if ev.proposal_log_weight is None:
+            return np.zeros(len(ev.poses))
+        return np.asarray(ev.proposal_log_weight, dtype=float)
 
 
 def add_terms(log_weights: np.ndarray, terms: tuple[LogWeightTerm, ...], ev: Evidence) -> np.ndarray:

@@ -23,14 +23,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from actions.modes import FREE, HELD, merge_events, switch_events
+from actions.modes import FREE, HELD, RELEASE, merge_events, switch_events
 from physics.scene import Scene
 from physics.transforms import carry_pose, quat_from_rotvec, quat_multiply
 
 from .belief import pose_stats
 from .config import EstimatorConfig
-from .holding import held_targets, release_on_loss
-from .likelihood import (DetectionTerm, Evidence, LogWeightTerm, ModeSwitchTerm, NegativeEvidenceTerm, add_terms,
+from .holding import held_targets, release_behind_cover, release_on_loss
+from .likelihood import (DetectionTerm, Evidence, LogWeightTerm, ModeSwitchTerm, NegativeEvidenceTerm, ProposalTerm,
+                         add_terms,
                          exploded_log_likelihood)
 from .observations import Frame
 from .params import param_bounds, shrink_params
@@ -75,7 +76,10 @@ class Move:
     are checked against; ``check (K, M)``: free objects to test for divergence; ``depenetrate (K, M)``:
     objects displaced without physics; ``vis_query (M,)``: objects whose visibility is wanted;
     ``hold_error (K, M, 3)``, ``let_go_unseen (K, M)``: see :class:`~estimator.state.ParticleState`;
-    ``cameras``: the cameras that took the frames of the update (None: the scene's camera).
+    ``cameras``: the cameras that took the frames of the update (None: the scene's camera);
+    ``behind_cover (K, M)`` bool: objects let go now where their hand hid them earlier, at
+    ``state.hidden_t`` (:func:`~estimator.holding.release_behind_cover`), and ``proposal_log_weight
+    (K,)`` the weight factor of that move.
     """
 
     poses: np.ndarray
@@ -93,6 +97,8 @@ class Move:
     hold_error: np.ndarray
     let_go_unseen: np.ndarray
     cameras: tuple | None = None
+    behind_cover: np.ndarray | None = None
+    proposal_log_weight: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -143,7 +149,7 @@ class SceneModel:
         nz, cfg = self.config.noise, self.config
         return (DetectionTerm(nz.position_std, nz.orientation_std, nz.outlier_prob),
                 NegativeEvidenceTerm(nz.miss_prob, cfg.visibility_threshold, nz.hand_occlusion),
-                ModeSwitchTerm(cfg.priors))
+                ModeSwitchTerm(cfg.priors), ProposalTerm())
 
     # -- the prior ------------------------------------------------------------------------------------
     def initial_state(self, rng: np.random.Generator) -> ParticleState:
@@ -172,7 +178,8 @@ class SceneModel:
                              event_t=np.full((K, M, 3), -np.inf), supported=np.zeros((K, M), dtype=bool),
                              last_motion=np.zeros((K, M)), jolted=np.zeros((K, M), dtype=bool),
                              unseen_in_view=np.zeros((K, M), dtype=np.int32), hold_error=np.zeros((K, M, 3)),
-                             let_go_unseen=np.full((K, M), -np.inf))
+                             let_go_unseen=np.full((K, M), -np.inf), hidden_at=np.zeros((K, M, 3)),
+                             hidden_t=np.full((K, M), -np.inf), hidden_n=np.zeros((K, M), dtype=np.int32))
 
     # -- the move -------------------------------------------------------------------------------------
     def move(self, state: ParticleState, frame: Frame, detected: np.ndarray, perceived: np.ndarray,
@@ -201,6 +208,13 @@ class SceneModel:
         self.known |= perceived
         modes, release_codes = self.release(prev_modes, perceived, state.supported, rng,
                                             mem.following_hand(frame))
+        cover, proposal = release_behind_cover(modes, state.unseen_in_view, state.hidden_n,
+                                               mem.following_hand(frame) & ~perceived, cfg.priors, cfg.noise, rng)
+        if np.any(cover):  # let go where the hand hid it: dropped there, at rest
+            modes[cover] = FREE
+            release_codes[cover] = RELEASE
+            poses[cover, :3] = state.hidden_at[cover]
+            vel[cover] = 0.0
         let_go = state.let_go_unseen.copy()
         let_go[(release_codes != 0) & (mem.perceived_prev & ~perceived)[None, :]] = frame.t
         target, target_vel, hold_error = self.held_targets(frame, poses, modes, detected, perceived, dt, rng,
@@ -218,9 +232,9 @@ class SceneModel:
         placed = tele | self._just_initialised
         self._just_initialised = np.zeros(self.M, dtype=bool)
         depen = (np.broadcast_to(placed & (cfg.noise.position_std > 0), (self.K, self.M)) | jolted
-                 | state.jolted) & (modes == FREE)
+                 | state.jolted | cover) & (modes == FREE)
         return Move(poses, vel, predicted, prev_modes, modes, release_codes, tele, target, target_vel, check,
-                    depen, vis_query, hold_error, let_go, cameras)
+                    depen, vis_query, hold_error, let_go, cameras, cover, proposal)
 
     def teleport(self, poses: np.ndarray, vel: np.ndarray, idx: np.ndarray, newly_known: np.ndarray,
                  is_in: np.ndarray, rng: np.random.Generator, moving: np.ndarray | None = None) -> None:
@@ -350,7 +364,8 @@ class SceneModel:
                         in_tracked_hand=mem.following_hand(frame), finite=out.finite,
                         unseen_in_view=unseen_in_view,
                         fell_unseen=(settled.modes == FREE)
-                        & (frame.t - move.let_go_unseen < self.config.reasoner.t_perceived - 1e-9))
+                        & (frame.t - move.let_go_unseen < self.config.reasoner.t_perceived - 1e-9),
+                        proposal_log_weight=move.proposal_log_weight)
 
     def log_weight(self, previous: np.ndarray, ev: Evidence) -> np.ndarray:
         """New log-weights ``(K,)``: ``previous (K,)`` plus every term of :attr:`terms` (one particle

@@ -28,6 +28,9 @@ class ParticleState:
       being perceived (-inf: never); its fall happened unseen, in the ``t_perceived`` before;
     * ``hold_error (K, M, 3)``: m, how far a held, undetected object following a tracked hand is from
       the hand plus its offset at the last detection (:func:`estimator.held.hand_offset_walk`).
+    * ``hidden_at (K, M, 3)`` m, ``hidden_t (K, M)`` s, ``hidden_n (K, M)`` int32: a uniform sample of
+      where (and when) a held object was while its tracked hand kept it out of the camera's view, over
+      the ``hidden_n`` updates it was (:func:`estimator.holding.hidden_places`).
     """
 
     poses: np.ndarray
@@ -44,6 +47,9 @@ class ParticleState:
     unseen_in_view: np.ndarray
     hold_error: np.ndarray
     let_go_unseen: np.ndarray
+    hidden_at: np.ndarray
+    hidden_t: np.ndarray
+    hidden_n: np.ndarray
 
     def take(self, ancestors: np.ndarray) -> "ParticleState":
         """The particles ``ancestors (K,)`` (indices, repeats allowed), copied, equally weighted."""

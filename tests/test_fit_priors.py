@@ -39,6 +39,17 @@ def test_losses_are_counted_as_carried_or_still_with_their_outcome():
     assert Counts().p == 0.5
 
 
+def test_carried_losses_let_go_before_being_seen_again_count_for_release_hidden():
+    r, pr = ReasonerConfig(), ModePriors(carry_distance=0.05)
+    carried, still, spread, hidden = Counts(), Counts(), Spread(), Counts()
+    carry = lambda t: [0.3 * t, 0.0, 1.0]  # noqa: E731
+    obs, truth = _stream(carry, seen_until=0.5, held_until=1.6)  # carried out of view, let go at 1.6 s
+    count_losses(obs, truth, r, pr, carried, still, spread, hidden)
+    obs, truth = _stream(carry, seen_until=0.5, held_until=9.0)  # carried on to the end
+    count_losses(obs, truth, r, pr, carried, still, spread, hidden)
+    assert (hidden.hits, hidden.n) == (1, 2) and (carried.hits, carried.n) == (0, 2)
+
+
 def test_seed_range_is_checked():
     assert list(_seed_range("100-102")) == [100, 101, 102] and list(_seed_range("7")) == [7]
     with pytest.raises(ValueError, match="--seeds"):

@@ -36,3 +36,56 @@ def test_the_share_released_at_loss_follows_the_hand_state():
     new, _ = release_on_loss(modes, np.array([True]), np.zeros((K, 1), bool), np.random.default_rng(3),
                              _memory([0.4, 0.0, 0.78]), priors, np.array([True]))
     assert np.all(new == HELD)
+
+
+def test_hidden_places_are_a_uniform_sample_over_the_hidden_updates():
+    """Reservoir sampling: after n hidden updates each of them is the sample with probability 1/n
+    (a binomial band over many particles); a reset entry starts again; visible updates never count."""
+    from estimator.holding import hidden_places
+
+    K, M, n = 4000, 1, 5
+    rng = np.random.default_rng(7)
+    at, tt, cnt = np.zeros((K, M, 3)), np.full((K, M), -np.inf), np.zeros((K, M), np.int32)
+    modes = np.full((K, M), HELD, np.int8)
+    none = np.zeros((K, M), bool)
+    for j in range(n):
+        poses = np.zeros((K, M, 7))
+        poses[..., 0] = j  # the hand's place at update j
+        at, tt, cnt = hidden_places(at, tt, cnt, poses, modes, ~none, none, float(j), rng)
+        # a visible update in between changes nothing
+        at, tt, cnt = hidden_places(at, tt, cnt, poses + 100.0, modes, none, none, j + 0.5, rng)
+    assert np.all(cnt == n) and set(np.unique(at[..., 0])) <= set(range(n)) and np.all(at[..., 0] == tt)
+    counts = np.bincount(at[:, 0, 0].astype(int), minlength=n)
+    band = 3 * np.sqrt(K * (1 / n) * (1 - 1 / n))
+    assert np.all(np.abs(counts - K / n) <= band)
+    at2, tt2, cnt2 = hidden_places(at, tt, cnt, poses, modes, none, ~none, 9.0, rng)
+    assert np.all(cnt2 == 0) and np.array_equal(at2, at)  # the sample is kept, the count restarts
+
+
+def test_release_behind_cover_draws_from_the_posterior_and_weighs_the_move():
+    """Among held objects whose hand shows in view without them for the first time, the share let go
+    is r / (r + (1 - r) L) within a binomial band, and every candidate gets the factor
+    (r + (1 - r) L) / L; others are untouched; hand_occlusion = 1 (the paper) does nothing."""
+    from dataclasses import replace
+
+    from estimator.config import NoiseConfig
+    from estimator.holding import release_behind_cover
+
+    K, M = 5000, 2
+    noise, priors = NoiseConfig(), ModePriors()
+    modes = np.full((K, M), HELD, np.int8)
+    unseen = np.array([[1, 2]] * K, np.int32)  # object 1 was already in view before: no second chance
+    hidden_n = np.full((K, M), 3, np.int32)
+    hidden_n[: K // 2, 0] = 0  # half never hidden: nowhere to have let it go
+    cover, logw = release_behind_cover(modes, unseen, hidden_n, np.array([True, True]), priors, noise,
+                                       np.random.default_rng(3))
+    h, r = noise.hand_occlusion, priors.release_hidden
+    L = h + (1 - h) * noise.miss_prob
+    p = r / (r + (1 - r) * L)
+    cand = K - K // 2
+    assert not cover[: K // 2].any() and not cover[:, 1].any()
+    assert abs(cover[:, 0].sum() - p * cand) <= 3 * np.sqrt(cand * p * (1 - p))
+    assert np.allclose(logw[K // 2:], np.log((r + (1 - r) * L) / L)) and np.all(logw[: K // 2] == 0)
+    none, zero = release_behind_cover(modes, unseen, hidden_n, np.array([True, True]), priors,
+                                      replace(noise, hand_occlusion=1.0), np.random.default_rng(3))
+    assert not none.any() and np.all(zero == 0)

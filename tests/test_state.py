@@ -13,7 +13,9 @@ def state(K=3, M=2):
                          supported=rng.uniform(size=(K, M)) > 0.5, last_motion=rng.uniform(size=(K, M)),
                          jolted=rng.uniform(size=(K, M)) > 0.5,
                          unseen_in_view=rng.integers(0, 5, (K, M)).astype(np.int32),
-                         hold_error=rng.normal(size=(K, M, 3)), let_go_unseen=rng.normal(size=(K, M)))
+                         hold_error=rng.normal(size=(K, M, 3)), let_go_unseen=rng.normal(size=(K, M)),
+                         hidden_at=rng.normal(size=(K, M, 3)), hidden_t=rng.normal(size=(K, M)),
+                         hidden_n=rng.integers(0, 5, (K, M)).astype(np.int32))
 
 
 def test_take_follows_the_ancestors_and_equalises_the_weights():
@@ -21,7 +23,8 @@ def test_take_follows_the_ancestors_and_equalises_the_weights():
     anc = np.array([2, 2, 0])
     t = s.take(anc)
     for name in ("poses", "velocities", "params", "modes", "on_top", "is_in", "event_t", "supported",
-                 "last_motion", "jolted", "unseen_in_view", "hold_error", "let_go_unseen"):
+                 "last_motion", "jolted", "unseen_in_view", "hold_error", "let_go_unseen", "hidden_at", "hidden_t",
+                 "hidden_n"):
         a, b = getattr(t, name), getattr(s, name)
         assert a.dtype == b.dtype and np.array_equal(a, b[anc]), name
     assert np.all(t.log_weights == 0) and len(t.log_weights) == 3

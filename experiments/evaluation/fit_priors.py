@@ -9,6 +9,8 @@ What is fitted (see :class:`actions.modes.ModePriors` and :class:`estimator.conf
   in between, else it is *still*. The prior is the fraction of such losses where the object was in
   truth no longer held at the loss, with Laplace's rule ``(released + 1) / (losses + 2)`` (no data
   gives 0.5).
+* ``release_hidden``: of the carried losses where the object was still held at the loss, the
+  fraction let go before it was detected again (or the run ended), with Laplace's rule.
 * ``held_offset_std``: over the frames where an object is held in truth and not detected, after a
   detection with a tracked hand within that radius, the root-mean-square per axis of the true
   position minus (the tracked hand + the object's offset to it at that detection).
@@ -73,9 +75,10 @@ def _smoothed(hands: list[np.ndarray | None], f: int) -> np.ndarray | None:
 
 
 def count_losses(obs: list[dict], truth: list[dict], reasoner: ReasonerConfig, priors: ModePriors,
-                 carried: Counts, still: Counts, spread: Spread) -> None:
+                 carried: Counts, still: Counts, spread: Spread, hidden: Counts | None = None) -> None:
     """Add the losses of held objects in one run (``obs``, ``truth``: the simulator's lines) and the
-    offset deviations of held, undetected objects to ``spread``."""
+    offset deviations of held, undetected objects to ``spread``; ``hidden``: of the carried losses
+    still held at the loss, those let go before the object was detected again (or the run ended)."""
     t_obs = np.array([o["t"] for o in obs])
     t_true = np.array([r["t"] for r in truth])
     hands = [None if not o.get("hands") else np.asarray(next(iter(o["hands"].values())), float) for o in obs]
@@ -103,6 +106,9 @@ def count_losses(obs: list[dict], truth: list[dict], reasoner: ReasonerConfig, p
             released = not truth[i1]["objects"][oid].get("held")
             moved = float(np.linalg.norm(hand1 - hand0)) > priors.carry_distance
             (carried if moved else still).add(released)
+            if moved and not released and hidden is not None:
+                i2 = len(truth) if b is None else int(np.searchsorted(t_true, t_obs[b]))
+                hidden.add(any(not r["objects"][oid].get("held") for r in truth[i1:i2]))
 
 
 def _add_spread(obs, truth, t_true, hands, oid: str, a: int, b: int, spread: Spread) -> None:
@@ -145,20 +151,22 @@ def count_hand_occlusion(result, threshold: float, occluded: Counts) -> None:
 def fit_priors(scenarios: list[str] | None = None, seeds=FIT_SEEDS, config: EstimatorConfig | None = None) -> dict:
     """Fit on ``scenarios`` (default: every built-in one with tracked hands) x ``seeds``.
 
-    Returns ``{"release_on_loss_carried": p, "release_on_loss_still": p, "hand_occlusion": p,
-    "held_offset_std": m,
+    Returns ``{"release_on_loss_carried": p, "release_on_loss_still": p, "release_hidden": p,
+    "hand_occlusion": p, "held_offset_std": m,
     "counts": {name: [hits, n]}, "scenarios": [...], "seeds": [...]}``."""
     cfg = config or EstimatorConfig()
     names = [n for n in (scenarios or list_scenarios()) if load_scenario(n).perception.hands_tracked]
-    carried, still, occluded, spread = Counts(), Counts(), Counts(), Spread()
+    carried, still, hidden, occluded, spread = Counts(), Counts(), Counts(), Counts(), Spread()
     for name in names:
         for seed in seeds:
             result = simulate(name, int(seed))
-            count_losses(result.observations, result.truth, cfg.reasoner, cfg.priors, carried, still, spread)
+            count_losses(result.observations, result.truth, cfg.reasoner, cfg.priors, carried, still, spread, hidden)
             count_hand_occlusion(result, cfg.visibility_threshold, occluded)
     return {"release_on_loss_carried": round(carried.p, 3), "release_on_loss_still": round(still.p, 3),
+            "release_hidden": round(hidden.p, 3),
             "hand_occlusion": round(occluded.p, 3), "held_offset_std": round(spread.std, 4),
-            "counts": {"held_offset_std": [round(spread.ss, 6), spread.n],"release_on_loss_carried": [carried.hits, carried.n],
-                       "release_on_loss_still": [still.hits, still.n],
+            "counts": {"held_offset_std": [round(spread.ss, 6), spread.n],
+                       "release_on_loss_carried": [carried.hits, carried.n],
+                       "release_on_loss_still": [still.hits, still.n], "release_hidden": [hidden.hits, hidden.n],
                        "hand_occlusion": [occluded.hits, occluded.n]},
             "scenarios": names, "seeds": [int(s) for s in seeds]}
