@@ -120,6 +120,36 @@ def read_rows(path: str | os.PathLike, repair: bool = False) -> list[dict]:
     return list(rows.values())
 
 
+def append_results(results: Iterable[dict], path: str | os.PathLike, total: int, done_before: int, progress: bool,
+                   on_result: Callable[[dict], None] | None = None, allow_nan: bool = False) -> list[dict]:
+    """Consume ``results`` (``{"row": row}``, or ``{"row": None, "key", "error"}`` for a trial that
+    raised) as they come: append each row to ``path`` as one JSON line, flushed at once (an
+    interrupted sweep keeps them), report failures on stderr, call ``on_result`` with every result,
+    and show a progress bar (tqdm, stderr) over ``total`` trials of which ``done_before`` were done.
+    Pending trials are cancelled when this stops (the generator is closed). Returns the failures."""
+    bar = tqdm(total=total, initial=done_before, unit="trial", disable=not progress, file=sys.stderr,
+               mininterval=1.0, dynamic_ncols=True)
+    failures = []
+    try:
+        with open(path, "a", encoding="utf-8") as fh:
+            for res in results:
+                bar.update()
+                if res["row"] is None:
+                    failures.append(res)
+                    bar.write(f"trial {res['key']} failed:\n{res['error']}", file=sys.stderr)
+                else:
+                    fh.write(json.dumps(res["row"], allow_nan=allow_nan) + "\n")
+                    fh.flush()
+                if on_result is not None:
+                    on_result(res)
+    finally:
+        close = getattr(results, "close", None)
+        if close is not None:
+            close()
+        bar.close()
+    return failures
+
+
 def local_results(specs: list, workers: int, fn: Callable = run_trial_safe) -> Iterable[dict]:
     """Run ``fn(spec)`` for every spec (default: an evaluation trial) in this process
     (``workers <= 1``) or on a pool of spawned processes; yields results as they finish. Pending
@@ -226,40 +256,26 @@ def run_sweep(config: SweepConfig, out_dir: str | os.PathLike, *, backend: str =
     # longest first (particle trials), for a shorter tail
     todo.sort(key=lambda s: (-s.particles, s.scenario, s.seed, s.method))
     workers = workers if workers is not None else (os.cpu_count() or 1)
-    bar = tqdm(total=len(specs), initial=len(specs) - len(todo), unit="trial", disable=not progress,
-               file=sys.stderr, mininterval=1.0, dynamic_ncols=True)
     failures: list[dict] = []
     if todo:
-        if backend == "ray":
-            results = _ray_results(todo, workers, address, ray_init)
-        else:
-            results = local_results(todo, workers)
-        with open(path, "a", encoding="utf-8") as fh:
-            try:
-                for res in results:
-                    row = res["row"]
-                    if row is None:
-                        failures.append(res)
-                        with open(out / "errors.jsonl", "a", encoding="utf-8") as ef:
-                            ef.write(json.dumps({"key": res["key"], "error": res["error"]}) + "\n")
-                        bar.write(f"trial {res['key']} failed:\n{res['error']}", file=sys.stderr)
-                        bar.update()
-                        continue
-                    fh.write(json.dumps(row, allow_nan=False) + "\n")
-                    fh.flush()
-                    done[row["key"]] = row
-                    if res.get("trace") is not None:
-                        (out / "traces").mkdir(exist_ok=True)
-                        with open(out / "traces" / f"{row['key']}.json", "w", encoding="utf-8") as tf:
-                            json.dump(res["trace"], tf)
-                    bar.update()
-                    if on_row is not None:
-                        on_row(row)
-            finally:
-                close = getattr(results, "close", None)
-                if close is not None:
-                    close()
-                bar.close()
+        results = (_ray_results(todo, workers, address, ray_init) if backend == "ray"
+                   else local_results(todo, workers))
+
+        def keep(res: dict) -> None:
+            row = res["row"]
+            if row is None:
+                with open(out / "errors.jsonl", "a", encoding="utf-8") as ef:
+                    ef.write(json.dumps({"key": res["key"], "error": res["error"]}) + "\n")
+                return
+            done[row["key"]] = row
+            if res.get("trace") is not None:
+                (out / "traces").mkdir(exist_ok=True)
+                with open(out / "traces" / f"{row['key']}.json", "w", encoding="utf-8") as tf:
+                    json.dump(res["trace"], tf)
+            if on_row is not None:
+                on_row(row)
+
+        failures = append_results(results, path, len(specs), len(specs) - len(todo), progress, keep)
     rows = [done[s.key] for s in specs if s.key in done]
     if report and rows:
         write_report(rows, out)

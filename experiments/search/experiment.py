@@ -18,15 +18,13 @@ from __future__ import annotations
 import csv
 import math
 import os
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from experiments.evaluation.stats import bootstrap_ci, group_rng, paired_wilcoxon
-from experiments.evaluation.sweep import local_results, read_rows
+from experiments.evaluation.sweep import append_results, local_results, read_rows
 from experiments.evaluation.tracker_report import clopper_pearson
 from experiments.search.trial import MAX_LOOKS, SEARCH_METHODS, SearchTrialSpec, run_search_trial
 
@@ -77,38 +75,20 @@ def run_search_sweep(config: SearchSweepConfig, out_dir: str | os.PathLike, work
     specs = config.trials()
     done = {r["key"]: r for r in read_rows(path, repair=True)}
     todo = [s for s in specs if s.key not in done]
-    bar = tqdm(total=len(specs), initial=len(specs) - len(todo), unit="trial", disable=not progress,
-               file=sys.stderr, mininterval=1.0, dynamic_ncols=True)
-    failed = 0
+    failed = []
     if todo:
-        results = local_results(todo, workers, _safe_trial)
-        with open(path, "a", encoding="utf-8") as fh:
-            try:
-                for res in results:
-                    bar.update()
-                    if res["row"] is None:
-                        failed += 1
-                        bar.write(f"trial {res['key']} failed:\n{res['error']}", file=sys.stderr)
-                        continue
-                    fh.write(_json(res["row"]) + "\n")
-                    fh.flush()
-                    done[res["row"]["key"]] = res["row"]
-            finally:
-                close = getattr(results, "close", None)
-                if close is not None:
-                    close()
-                bar.close()
+        def keep(res: dict) -> None:
+            if res["row"] is not None:
+                done[res["row"]["key"]] = res["row"]
+
+        failed = append_results(local_results(todo, workers, _safe_trial), path, len(specs), len(specs) - len(todo),
+                                progress, keep, allow_nan=True)
     rows = [done[s.key] for s in specs if s.key in done]
     if report and rows:
         write_search_report(rows, out)
     if failed:
-        raise RuntimeError(f"{failed} of {len(specs)} search trial(s) failed; run again to retry them")
+        raise RuntimeError(f"{len(failed)} of {len(specs)} search trial(s) failed; run again to retry them")
     return rows
-
-
-def _json(row: dict) -> str:
-    import json
-    return json.dumps(row, allow_nan=True)
 
 
 # --------------------------------------------------------------------------------------------------
