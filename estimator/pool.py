@@ -27,7 +27,8 @@ from physics.transforms import quat_rotate
 from physics.visibility import Camera, local_box, local_sample_points, rays_clear_of, visible_fractions
 from physics.world import PhysicsSettings, World
 
-from .propagate import PER_PARTICLE, BatchInput, BatchOutput, ParticleWorld, propagate_batch
+from .propagate import BatchInput, BatchOutput, ParticleWorld, propagate_batch
+from .shared_batch import SharedBatch
 
 __all__ = ["BatchInput", "BatchOutput", "WorldPool", "shard_bounds"]
 
@@ -192,70 +193,12 @@ class _Shard:
             g.close()
 
 
-class _SharedBatch:
-    """Inputs and outputs of K particles in one block of shared memory, seen as numpy arrays by the
-    caller and by every worker: a run sends only a few numbers through the pipes.
-
-    ``buffer`` is a ``multiprocessing`` RawArray of bytes of :meth:`nbytes` size.
-    """
-
-    def __init__(self, buffer, n_particles: int, n_objects: int):
-        raw = np.frombuffer(buffer, dtype=np.uint8)
-        self.arrays: dict[str, np.ndarray] = {
-            name: raw[offset:offset + np.prod(shape, dtype=int) * np.dtype(dtype).itemsize].view(dtype).reshape(shape)
-            for name, dtype, shape, offset in self._layout(n_particles, n_objects)[0]}
-
-    @staticmethod
-    def _fields(K: int, M: int) -> list[tuple[str, type, tuple[int, ...]]]:
-        f8, i1, b = np.float64, np.int8, np.bool_
-        return [("poses", f8, (K, M, 7)), ("velocities", f8, (K, M, 6)), ("params", f8, (K, M, 5)),
-                ("modes", i1, (K, M)), ("check", b, (K, M)), ("target", f8, (K, M, 7)),
-                ("target_vel", f8, (K, M, 6)), ("contents", b, (K, M, M)), ("depenetrate", b, (K, M)),
-                ("reset", b, (K, M)), ("settled", b, (K, M)), ("vis_query", b, (M,)),
-                ("out.poses", f8, (K, M, 7)), ("out.velocities", f8, (K, M, 6)), ("out.modes", i1, (K, M)),
-                ("out.max_divergence", f8, (K, M)), ("out.aabbs", f8, (K, M, 2, 3)), ("out.finite", b, (K,)),
-                ("out.visible", f8, (K, M))]
-
-    @classmethod
-    def _layout(cls, n_particles: int, n_objects: int) -> tuple[list[tuple], int]:
-        """``[(name, dtype, shape, byte offset)]`` (offsets 8-byte aligned) and the total size."""
-        out, offset = [], 0
-        for name, dtype, shape in cls._fields(n_particles, n_objects):
-            out.append((name, dtype, shape, offset))
-            offset += -(-int(np.prod(shape)) * np.dtype(dtype).itemsize // 8) * 8
-        return out, offset
-
-    @classmethod
-    def nbytes(cls, n_particles: int, n_objects: int) -> int:
-        return cls._layout(n_particles, n_objects)[1]
-
-    def write_inputs(self, batch: BatchInput) -> None:
-        for name in PER_PARTICLE + ("vis_query",):
-            value = getattr(batch, name)
-            self.arrays[name][...] = (name == "reset") if value is None else value  # None: all / none
-
-    def inputs(self, lo: int, hi: int) -> BatchInput:
-        a = self.arrays
-        return BatchInput(*(a[name][lo:hi] for name in PER_PARTICLE), a["vis_query"])
-
-    def write_outputs(self, lo: int, hi: int, out: BatchOutput) -> None:
-        for name in _OUTPUTS:
-            self.arrays["out." + name][lo:hi] = getattr(out, name)
-
-    def outputs(self) -> BatchOutput:
-        """A copy of the outputs of all K particles."""
-        return BatchOutput(*(self.arrays["out." + name].copy() for name in _OUTPUTS))
-
-
-_OUTPUTS = ("poses", "velocities", "modes", "max_divergence", "aabbs", "finite", "visible")
-
-
 def _worker_main(conn, scene, settings, groups, buffer, n_particles):
     shard = None
     lo, hi = groups[0][0], groups[-1][1]
     try:
         shard = _Shard(scene, settings, groups)
-        shared = _SharedBatch(buffer, n_particles, len(scene.objects))
+        shared = SharedBatch(buffer, n_particles, len(scene.objects))
         conn.send(("ok", shard.initial_params()))
         while True:
             msg = conn.recv()
@@ -359,8 +302,8 @@ class WorldPool:
         self._ctx = mp.get_context("spawn")
         self._runs = [self.groups[a:b] for a, b in shard_bounds(len(self.groups), workers)]
         self._bounds = [(run[0][0], run[-1][1]) for run in self._runs]
-        self._buffer = self._ctx.RawArray("b", _SharedBatch.nbytes(n_particles, len(scene.objects)))
-        self._shared = _SharedBatch(self._buffer, n_particles, len(scene.objects))
+        self._buffer = self._ctx.RawArray("b", SharedBatch.nbytes(n_particles, len(scene.objects)))
+        self._shared = SharedBatch(self._buffer, n_particles, len(scene.objects))
         self._scene, self._settings = scene, settings
         try:
             for j in range(len(self._runs)):
