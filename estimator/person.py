@@ -26,8 +26,7 @@ def person_probabilities(pool, person: PersonSpec, poses: np.ndarray, weights: n
     n = len(objects)
     p_vis = np.full(n, np.nan)
     if person.head is not None and n:
-        frac = pool.look(poses, np.flatnonzero(place), objects, (person.head,))[0]  # (K, n)
-        p_vis = weights @ (frac >= threshold)
+        p_vis = weights @ pool.look(poses, np.flatnonzero(place), objects, (person.head,), threshold)[0]  # (K, n)
     own = [np.asarray(p, float) for h, p in hands.items() if h.split("/")[0] == person.id]
     if not own:
         own = [np.asarray(p, float) for p in hands.values()]

@@ -24,10 +24,13 @@ import numpy as np
 from physics.group import WorldGroup
 from physics.scene import CameraSpec, Scene
 from physics.transforms import quat_rotate
-from physics.visibility import Camera, local_box, local_sample_points, rays_clear_of, visible_fractions
+from physics.sightlines import Solids
+from physics.visibility import (Camera, first_copies, local_box, local_sample_points, rays_clear_of, seen_points,
+                                solid_box, visible_enough, visible_fractions)
 from physics.world import PhysicsSettings, World
 
-from .propagate import PER_PARTICLE, BatchInput, BatchOutput, ParticleWorld, propagate_batch
+from .propagate import BatchInput, BatchOutput, ParticleWorld, propagate_batch
+from .shared_batch import SharedBatch
 
 __all__ = ["BatchInput", "BatchOutput", "WorldPool", "shard_bounds"]
 
@@ -47,6 +50,8 @@ class _Shard:
             self.close()
             raise
         self.worlds = [ParticleWorld(w) for g in self.groups for w in g.worlds]
+        self._group_of = [j for j, g in enumerate(self.groups) for _ in g.worlds]  # slot -> its client
+        self.scene_boxes = self.worlds[0].world.aabbs()  # (M, 2, 3): as built, at the scene's poses
         self._saved: list[int] = []
         # per camera: world -> (poses, fractions) of its last ray tests (the most recent cameras)
         self._vis_caches: OrderedDict[tuple, dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]] = OrderedDict()
@@ -64,6 +69,7 @@ class _Shard:
         boxes = [local_box(w, i) for i in range(w.num_objects)]
         self.box_centres = np.array([c for c, _ in boxes])  # (M, 3), object frame
         self.radii = np.array([np.linalg.norm(h) for _, h in boxes])  # (M,) m
+        self.solids = {i: b for i in range(w.num_objects) if (b := solid_box(w, i, boxes[i])) is not None}
 
     def camera_for(self, spec: CameraSpec) -> Camera:
         """The :class:`Camera` of ``spec`` (built once). The first camera of a scene without one reads
@@ -101,30 +107,43 @@ class _Shard:
             out.visible[:, q] = np.max([self._visibility(c, out.poses, out.finite, q) for c in cams], axis=0)
         return out
 
-    def look(self, poses: np.ndarray, place: np.ndarray, targets: np.ndarray,
-             cameras: tuple[CameraSpec, ...]) -> np.ndarray:
+    def look(self, poses: np.ndarray, place: np.ndarray, targets: np.ndarray, cameras: tuple[CameraSpec, ...],
+             threshold: float | None = None, only: np.ndarray | None = None) -> np.ndarray:
         """Visible fractions ``(V, K, n)`` of objects ``targets (n,)`` to each of the V ``cameras`` in
         each of this shard's K worlds with the objects ``place`` set at ``poses (K, M, 7)`` (the
-        others stay as the world holds them: parked when unknown). The worlds are returned to their
-        state before the call (saved and restored), so that the filter's next update is unchanged."""
+        others stay as the world holds them: parked when unknown); with ``threshold``, bool: whether
+        the fraction reaches it (:func:`~physics.visibility.visible_enough`, fewer rays). ``only
+        (K,)`` bool: the worlds to look in (the others answer 0). A world that holds other poses is
+        set to them, its client saved and restored, so that the filter's next update is unchanged."""
         cams = [self.camera_for(c) for c in cameras]
         place = [int(i) for i in place]
         targets = [int(i) for i in targets]
-        ids = [g.save_state() for g in self.groups]
+        slots = np.flatnonzero(np.ones(len(self.worlds), bool) if only is None else only).tolist()
+        out = np.zeros((len(cams), len(self.worlds), len(targets)), bool if threshold is not None else float)
+        if not slots:
+            return out
+        worlds = [self.worlds[k].world for k in slots]
+        now = [w.get_poses() for w in worlds]
+        moved = [j for j, k in enumerate(slots) if place and not np.array_equal(now[j][place], poses[k, place])]
+        ids = {g: self.groups[g].save_state() for g in sorted({self._group_of[slots[j]] for j in moved})}
         try:
-            worlds = [pw.world for pw in self.worlds]
-            for k, w in enumerate(worlds):
-                if place:
-                    w.set_poses(poses[k, place], place)
-            tp = poses[:, targets]
+            for j in moved:
+                worlds[j].set_poses(poses[slots[j], place], place)
+                now[j] = worlds[j].get_poses()
             boxes = np.stack([w.aabbs() for w in worlds])  # (K, M, 2, 3): what may hide the targets
             convex = np.array([self.scene.objects[i].shape in CONVEX_SHAPES for i in targets])
-            return np.array([visible_fractions(worlds, c, targets, self.points, tp, boxes=boxes, convex=convex)
-                             for c in cams]).reshape(len(cams), len(worlds), len(targets))
+            bodies = dict(boxes=boxes, convex=convex, solids=Solids.posed(self.solids, np.stack(now)))
+            tp = poses[slots][:, targets]
+            if threshold is not None:
+                out[:, slots] = visible_enough(worlds, cams, targets, self.points, tp, threshold, **bodies)
+            else:
+                seen, counts = seen_points(worlds, cams, targets, self.points, tp, **bodies)
+                out[:, slots] = seen / np.maximum(counts, 1)
+            return out
         finally:
-            for g, sid in zip(self.groups, ids):
-                g.restore_state(sid)
-                g.remove_state(sid)
+            for j, sid in ids.items():
+                self.groups[j].restore_state(sid)
+                self.groups[j].remove_state(sid)
 
     def _visibility(self, camera: Camera, poses: np.ndarray, finite: np.ndarray, q: np.ndarray) -> np.ndarray:
         """Visible fractions ``(K, len(q))`` of objects ``q`` in the worlds at ``poses (K, M, 7)``
@@ -192,71 +211,13 @@ class _Shard:
             g.close()
 
 
-class _SharedBatch:
-    """Inputs and outputs of K particles in one block of shared memory, seen as numpy arrays by the
-    caller and by every worker: a run sends only a few numbers through the pipes.
-
-    ``buffer`` is a ``multiprocessing`` RawArray of bytes of :meth:`nbytes` size.
-    """
-
-    def __init__(self, buffer, n_particles: int, n_objects: int):
-        raw = np.frombuffer(buffer, dtype=np.uint8)
-        self.arrays: dict[str, np.ndarray] = {
-            name: raw[offset:offset + np.prod(shape, dtype=int) * np.dtype(dtype).itemsize].view(dtype).reshape(shape)
-            for name, dtype, shape, offset in self._layout(n_particles, n_objects)[0]}
-
-    @staticmethod
-    def _fields(K: int, M: int) -> list[tuple[str, type, tuple[int, ...]]]:
-        f8, i1, b = np.float64, np.int8, np.bool_
-        return [("poses", f8, (K, M, 7)), ("velocities", f8, (K, M, 6)), ("params", f8, (K, M, 5)),
-                ("modes", i1, (K, M)), ("check", b, (K, M)), ("target", f8, (K, M, 7)),
-                ("target_vel", f8, (K, M, 6)), ("contents", b, (K, M, M)), ("depenetrate", b, (K, M)),
-                ("reset", b, (K, M)), ("settled", b, (K, M)), ("vis_query", b, (M,)),
-                ("out.poses", f8, (K, M, 7)), ("out.velocities", f8, (K, M, 6)), ("out.modes", i1, (K, M)),
-                ("out.max_divergence", f8, (K, M)), ("out.aabbs", f8, (K, M, 2, 3)), ("out.finite", b, (K,)),
-                ("out.visible", f8, (K, M))]
-
-    @classmethod
-    def _layout(cls, n_particles: int, n_objects: int) -> tuple[list[tuple], int]:
-        """``[(name, dtype, shape, byte offset)]`` (offsets 8-byte aligned) and the total size."""
-        out, offset = [], 0
-        for name, dtype, shape in cls._fields(n_particles, n_objects):
-            out.append((name, dtype, shape, offset))
-            offset += -(-int(np.prod(shape)) * np.dtype(dtype).itemsize // 8) * 8
-        return out, offset
-
-    @classmethod
-    def nbytes(cls, n_particles: int, n_objects: int) -> int:
-        return cls._layout(n_particles, n_objects)[1]
-
-    def write_inputs(self, batch: BatchInput) -> None:
-        for name in PER_PARTICLE + ("vis_query",):
-            value = getattr(batch, name)
-            self.arrays[name][...] = (name == "reset") if value is None else value  # None: all / none
-
-    def inputs(self, lo: int, hi: int) -> BatchInput:
-        a = self.arrays
-        return BatchInput(*(a[name][lo:hi] for name in PER_PARTICLE), a["vis_query"])
-
-    def write_outputs(self, lo: int, hi: int, out: BatchOutput) -> None:
-        for name in _OUTPUTS:
-            self.arrays["out." + name][lo:hi] = getattr(out, name)
-
-    def outputs(self) -> BatchOutput:
-        """A copy of the outputs of all K particles."""
-        return BatchOutput(*(self.arrays["out." + name].copy() for name in _OUTPUTS))
-
-
-_OUTPUTS = ("poses", "velocities", "modes", "max_divergence", "aabbs", "finite", "visible")
-
-
 def _worker_main(conn, scene, settings, groups, buffer, n_particles):
     shard = None
     lo, hi = groups[0][0], groups[-1][1]
     try:
         shard = _Shard(scene, settings, groups)
-        shared = _SharedBatch(buffer, n_particles, len(scene.objects))
-        conn.send(("ok", shard.initial_params()))
+        shared = SharedBatch(buffer, n_particles, len(scene.objects))
+        conn.send(("ok", (shard.initial_params(), shard.scene_boxes)))
         while True:
             msg = conn.recv()
             if msg[0] == "close":
@@ -335,7 +296,8 @@ class WorldPool:
     this process and ``last_worker_seconds`` the time each shard took in its worker (the benchmark's
     breakdown). A worker process that dies (killed, out of memory) is restarted by the next
     :meth:`run`, which reports its particles as not finite (the caller re-seeds them) and counts it
-    in ``restarts``; an exception inside a live worker is a ``RuntimeError``."""
+    in ``restarts``; an exception inside a live worker is a ``RuntimeError``. ``scene_boxes (M, 2,
+    3)``: the objects' world AABBs (m) at the scene's poses, read when the worlds were built."""
 
     def __init__(self, scene: Scene, n_particles: int, workers: int = 0,
                  settings: PhysicsSettings | None = None, worlds: int | None = None):
@@ -354,13 +316,13 @@ class WorldPool:
         self.restarts = 0
         if workers <= 0:
             self._local = _Shard(scene, settings, self.groups)
-            self.initial_params = self._local.initial_params()
+            self.initial_params, self.scene_boxes = self._local.initial_params(), self._local.scene_boxes
             return
         self._ctx = mp.get_context("spawn")
         self._runs = [self.groups[a:b] for a, b in shard_bounds(len(self.groups), workers)]
         self._bounds = [(run[0][0], run[-1][1]) for run in self._runs]
-        self._buffer = self._ctx.RawArray("b", _SharedBatch.nbytes(n_particles, len(scene.objects)))
-        self._shared = _SharedBatch(self._buffer, n_particles, len(scene.objects))
+        self._buffer = self._ctx.RawArray("b", SharedBatch.nbytes(n_particles, len(scene.objects)))
+        self._shared = SharedBatch(self._buffer, n_particles, len(scene.objects))
         self._scene, self._settings = scene, settings
         try:
             for j in range(len(self._runs)):
@@ -369,7 +331,7 @@ class WorldPool:
         except BaseException:
             self.close()
             raise
-        self.initial_params = params[0]
+        self.initial_params, self.scene_boxes = params[0]
 
     def _start_worker(self, j: int) -> None:
         """Start (or restart) the worker process of shard ``j``; it answers with the initial
@@ -439,17 +401,21 @@ class WorldPool:
         self.last_worker_seconds = [payload if status == "ok" else 0.0 for status, payload in replies]
         return out
 
-    def look(self, poses: np.ndarray, place: np.ndarray, targets: np.ndarray,
-             cameras: tuple[CameraSpec, ...]) -> np.ndarray:
+    def look(self, poses: np.ndarray, place: np.ndarray, targets: np.ndarray, cameras: tuple[CameraSpec, ...],
+             threshold: float | None = None) -> np.ndarray:
         """Visible fractions ``(V, K, n)`` of objects ``targets (n,)`` to each of the V ``cameras``
         in every particle world, the objects ``place`` set at the particles' ``poses (K, M, 7)``
-        (occlusion by everything each particle believes); the worlds are left as they were."""
+        (occlusion by everything each particle believes); with ``threshold``, bool: whether each
+        reaches it. Particles equal in every pose share the answer of the first of them (each
+        distinct one is looked at in its own world); the worlds are left as they were."""
         poses = np.asarray(poses, dtype=float)
+        first = first_copies(poses)
+        only = first == np.arange(len(poses))
         if self._local is not None:
-            return self._local.look(poses, place, targets, tuple(cameras))
+            return self._local.look(poses, place, targets, tuple(cameras), threshold, only)[:, first]
         for conn, (lo, hi) in zip(self._conns, self._bounds):
-            conn.send(("look", poses[lo:hi], place, targets, tuple(cameras)))
-        return np.concatenate([self._receive(conn) for conn in self._conns], axis=1)
+            conn.send(("look", poses[lo:hi], place, targets, tuple(cameras), threshold, only[lo:hi]))
+        return np.concatenate([self._receive(conn) for conn in self._conns], axis=1)[:, first]
 
     def bare_step(self, n_steps: int) -> None:
         """Step every world ``n_steps`` times, with the same sharding and nothing else."""

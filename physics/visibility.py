@@ -4,14 +4,20 @@ An object is visible in proportion to the fraction of its sample points that are
 field of view and whose ray from the camera reaches the object before anything else. Sample points
 are fixed per object, in its frame, on an ellipsoid inscribed in its local bounding box (so that they
 lie on or inside spheres, cylinders and boxes alike).
+
+A point's ray test is skipped where boxes decide it as the ray test would: the segment misses every
+other body's bounding box (seen), or it goes through a box that lies inside another body before it
+can reach its own object (hidden); other rays are first cast only as far as their object's box.
 """
 from __future__ import annotations
 
 import numpy as np
+import pybullet as pb
 
 from .scene import CameraSpec
-from .transforms import quat_rotate
-from .world import World, ray_cast
+from .sightlines import SOLID_DEPTH, Sightlines, Solids
+from .transforms import cross, quat_rotate
+from .world import World
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -26,11 +32,11 @@ class Camera:
         self.position = np.asarray(spec.position, dtype=float)
         self.forward = _unit(np.asarray(spec.target, float) - self.position)
         up = np.asarray(spec.up, dtype=float)
-        right = np.cross(self.forward, up)
+        right = cross(self.forward, up)  # np.cross's bits, without its overhead (a search builds many)
         if np.linalg.norm(right) < 1e-9:  # looking straight along up: pick any perpendicular
-            right = np.cross(self.forward, [1.0, 0.0, 0.0] if abs(self.forward[0]) < 0.9 else [0.0, 1.0, 0.0])
+            right = cross(self.forward, np.array([1.0, 0.0, 0.0] if abs(self.forward[0]) < 0.9 else [0.0, 1.0, 0.0]))
         self.right = _unit(right)
-        self.up = np.cross(self.right, self.forward)
+        self.up = cross(self.right, self.forward)
         self.tan_v = np.tan(np.radians(spec.fov_deg) / 2.0)
         self.tan_h = self.tan_v * spec.aspect
 
@@ -71,6 +77,36 @@ def local_sample_points(world: World, index: int, n_per_axis: int = 3) -> np.nda
     return centre + pts * half
 
 
+def solid_box(world: World, index: int, box: tuple[np.ndarray, np.ndarray] | None = None
+              ) -> tuple[np.ndarray, np.ndarray] | None:
+    """A box inside object ``index`` when its collision shape is one box, axis-aligned in its frame
+    (pybullet's primitive boxes, URDFs such as pybullet_data's table): centre ``(3,)`` and half
+    extents ``(3,)`` (m) in the object's frame, :data:`SOLID_DEPTH` inside its faces; None for any
+    other shape (or a box thinner than twice that). ``box``: the object's :func:`local_box`, if
+    already read."""
+    uid, c = world.uids[index], world.client
+    if pb.getNumJoints(uid, physicsClientId=c):
+        return None
+    data = pb.getCollisionShapeData(uid, -1, physicsClientId=c)
+    if len(data) != 1 or data[0][2] != pb.GEOM_BOX:
+        return None
+    centre, half = local_box(world, index) if box is None else box
+    dims = 0.5 * np.asarray(data[0][3], dtype=float)
+    if not np.all(np.abs(half - dims) < 1.5e-3):  # the box, not turned in the object's frame
+        return None
+    inner = dims - SOLID_DEPTH
+    return (centre, inner) if np.all(inner > 0) else None
+
+
+def first_copies(poses: np.ndarray) -> np.ndarray:
+    """For each of K particles ``poses (K, ...)``, the index ``(K,)`` of the first particle whose
+    poses are all equal to its own, bit for bit (itself when none before it is): worlds holding
+    such copies see the same, so only the first needs its ray tests."""
+    first: dict[bytes, int] = {}
+    rows = np.ascontiguousarray(poses).reshape(len(poses), -1)
+    return np.array([first.setdefault(r.tobytes(), k) for k, r in enumerate(rows)], dtype=int)
+
+
 def visible_fraction(world: World, camera: Camera, indices, local_points: dict[int, np.ndarray],
                      poses: np.ndarray | None = None) -> np.ndarray:
     """Fraction ``(n,)`` of each object's sample points that the camera sees in one world (its
@@ -98,23 +134,6 @@ def rays_clear_of(camera: Camera, centres: np.ndarray, radii: np.ndarray, others
     return np.all(d > radii[:, None] + other_radii[None, :], axis=1)
 
 
-def segments_miss_boxes(starts: np.ndarray, ends: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Whether each segment ``starts -> ends (N, 3)`` misses every box ``lo, hi (N, B, 3)`` (its own
-    B boxes; the slab test, boxes closed): bool ``(N,)``."""
-    d = (ends - starts)[:, None, :]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / d
-        t0 = (lo - starts[:, None, :]) * inv
-        t1 = (hi - starts[:, None, :]) * inv
-    parallel = d == 0.0  # parallel to a slab: inside it or never
-    inside = (starts[:, None, :] >= lo) & (starts[:, None, :] <= hi)
-    tmin = np.where(parallel, np.where(inside, -np.inf, np.inf), np.minimum(t0, t1))
-    tmax = np.where(parallel, np.where(inside, np.inf, -np.inf), np.maximum(t0, t1))
-    enter = np.maximum(tmin.max(axis=2), 0.0)
-    leave = np.minimum(tmax.min(axis=2), 1.0)
-    return ~np.any(enter <= leave, axis=1)
-
-
 def visible_fractions(worlds: list[World], camera: Camera, indices, local_points: dict[int, np.ndarray],
                       poses: np.ndarray, need: np.ndarray | None = None, boxes: np.ndarray | None = None,
                       convex: np.ndarray | None = None) -> np.ndarray:
@@ -138,11 +157,61 @@ def visible_fractions(worlds: list[World], camera: Camera, indices, local_points
             from a camera above the floor, that misses every other box is seen without a ray test
             (exactly what the ray test would say: nothing else is on the segment).
     """
+    seen, counts = seen_points(worlds, [camera], indices, local_points, poses, need, boxes, convex)
+    return seen[0] / np.maximum(counts, 1)
+
+
+def visible_enough(worlds: list[World], cameras: list[Camera], indices, local_points: dict[int, np.ndarray],
+                   poses: np.ndarray, threshold: float, boxes: np.ndarray | None = None,
+                   convex: np.ndarray | None = None, solids: Solids | None = None) -> np.ndarray:
+    """Bool ``(V, G, n)``: whether each of the V ``cameras`` sees at least ``threshold`` of each
+    object's sample points in each of the G worlds; exactly ``visible_fractions(worlds, camera, ...)
+    >= threshold`` camera by camera (arguments as there, and ``solids`` as :func:`seen_points`),
+    for fewer tests: each particle's points are tested in rounds until its answer is decided
+    (reached, or out of reach with the points left)."""
+    counts = _point_counts(indices, local_points)
+    c = np.maximum(counts, 1)
+    steps = np.arange(int(counts.max(initial=0)) + 2)
+    reach = steps[None, :] / c[:, None] >= threshold  # (n, P + 2): j seen points make the threshold
+    reach[np.arange(len(counts)), counts + 1] = True  # at most counts[o] can be seen: c + 1 never
+    required = np.argmax(reach, axis=1)  # the fewest seen points that make the threshold
+    seen, _ = seen_points(worlds, cameras, indices, local_points, poses, None, boxes, convex, required, solids)
+    return seen >= required
+
+
+def _point_counts(indices, local_points: dict[int, np.ndarray]) -> np.ndarray:
+    return np.array([len(local_points[int(i)]) for i in np.atleast_1d(indices)], dtype=int)
+
+
+LAST_ROUND_RAYS = 100
+"""When at most this many rays could still be needed, :func:`seen_points` casts them all at once."""
+
+
+def seen_points(worlds: list[World], cameras: list[Camera], indices, local_points: dict[int, np.ndarray],
+                poses: np.ndarray, need: np.ndarray | None = None, boxes: np.ndarray | None = None,
+                convex: np.ndarray | None = None, required: np.ndarray | None = None,
+                solids: Solids | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Number of each object's sample points that each camera sees in each world ``(V, G, n)``
+    (int), and each object's number of sample points ``(n,)``; arguments as
+    :func:`visible_fractions`, for V ``cameras`` (all their rays of a client go to pybullet in one
+    batched ray test).
+
+    Boxes decide what they can, for all points at once (:class:`~physics.sightlines.Sightlines`):
+    with ``boxes`` and ``convex``, a segment that misses every other box is seen; with ``boxes``
+    and ``solids`` (boxes inside objects, :func:`solid_box`), one that goes through another
+    object's solid before it enters its own object's box (1 mm wider: the object can only be hit
+    inside it, the solid's object surely is before) is hidden. The other points get ray tests, with
+    ``boxes`` first a short one, as far as the ray enters its object's box: a body hit there hides
+    the point (such a ray costs a fraction of the whole one, cast only when nothing is hit).
+    With ``required (n,)`` (int), a count is exact only as far as it says whether it reaches
+    ``required``: rays are cast in rounds, each of as many as a count needs to be decided either
+    way (none is wasted: a count is never decided before its round's last ray), until every count
+    has reached ``required`` or can no longer reach it."""
     indices = [int(i) for i in np.atleast_1d(indices)]
-    G, n = len(worlds), len(indices)
-    if n == 0 or G == 0:
-        return np.zeros((G, n))
-    counts = np.array([len(local_points[i]) for i in indices])
+    G, n, V = len(worlds), len(indices), len(cameras)
+    counts = _point_counts(indices, local_points)
+    if n == 0 or G == 0 or V == 0:
+        return np.zeros((V, G, n), dtype=int), counts
     P = int(counts.max())
     local = np.zeros((n, P, 3))
     valid = np.zeros((n, P), dtype=bool)
@@ -152,34 +221,27 @@ def visible_fractions(worlds: list[World], camera: Camera, indices, local_points
     poses = np.asarray(poses, dtype=float).reshape(G, n, 7)
     q = np.broadcast_to(poses[:, :, None, 3:], (G, n, P, 4))
     pts = poses[:, :, None, :3] + quat_rotate(q, np.broadcast_to(local, (G, n, P, 3)))  # (G, n, P, 3)
-    sel = camera.in_view(pts) & valid
+    sel = np.array([c.in_view(pts) for c in cameras]) & valid  # (V, G, n, P)
     if need is not None:
-        sel &= np.asarray(need, dtype=bool)[:, :, None]
-    seen = np.zeros((G, n, P), dtype=bool)
-    if sel.any() and boxes is not None and convex is not None and camera.position[2] > 0:
-        g_idx, o_idx, _ = np.nonzero(sel)
-        p_sel = pts[sel]
-        lo = boxes[g_idx, :, 0].copy()
-        hi = boxes[g_idx, :, 1].copy()
-        own = np.asarray(indices)[o_idx]
-        lo[np.arange(len(own)), own] = 1e9  # a point far away: the object does not hide itself
-        hi[np.arange(len(own)), own] = 1e9
-        clear = segments_miss_boxes(np.broadcast_to(camera.position, p_sel.shape), p_sel, lo - 1e-3, hi + 1e-3)
-        clear &= np.asarray(convex, dtype=bool)[o_idx] & (p_sel[:, 2] > 0)
-        rows = np.flatnonzero(sel.ravel())[clear]
-        seen.reshape(-1)[rows] = True
-        sel = sel.copy()
-        sel.reshape(-1)[rows] = False
-    if sel.any():
-        g_idx, o_idx, _ = np.nonzero(sel)
-        origins = np.array([w.origin for w in worlds])[g_idx]
-        start = camera.position + origins
-        ends = start + (pts[sel] - camera.position) * 1.05  # a little beyond the point: the object is hit
-        uids = np.array([[w.uids[i] for i in indices] for w in worlds])
-        hit = np.empty(len(ends), dtype=np.int64)
-        clients = np.array([w.client for w in worlds])[g_idx]
-        for c in np.unique(clients).tolist():
-            rows = np.flatnonzero(clients == c)
-            hit[rows] = ray_cast(c, start[rows], ends[rows])[0]
-        seen[sel] = hit == uids[g_idx, o_idx]
-    return seen.sum(axis=2) / np.maximum(counts, 1)
+        sel &= np.asarray(need, dtype=bool)[None, :, :, None]
+    seen = np.zeros((V, G, n), dtype=int)
+    rays = Sightlines(worlds, indices, np.array([c.position for c in cameras]), pts, boxes, convex, solids)
+    if sel.any():  # the boxes first, all points at once (cheap), then rays for the others
+        clear = rays.clear(sel)
+        seen += clear.sum(axis=-1)
+        sel &= ~(clear | rays.hidden_by_solids(sel & ~clear))
+    if required is None:
+        return seen + rays.cast(sel).sum(axis=-1), counts
+    required = np.asarray(required, dtype=int)
+    while True:
+        left = sel.sum(axis=-1)
+        open_ = (seen < required) & (seen + left >= required)  # (V, G, n): not decided yet
+        if not open_.any():
+            return seen, counts
+        # as many rays as are needed to decide either way, whatever they say: none is wasted (a
+        # few left: all of them, as a round costs as much as a hundred rays)
+        k = np.where(open_, np.minimum(required - seen, left - (required - seen) + 1), 0)
+        k = np.where(open_, left, 0) if left[open_].sum() <= LAST_ROUND_RAYS else k
+        pick = sel & (np.cumsum(sel, axis=-1) <= k[..., None])
+        seen += rays.cast(pick).sum(axis=-1)
+        sel &= ~pick

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from estimator.pool import BatchInput, WorldPool, shard_bounds
-from physics.visibility import visible_fractions
+from physics.visibility import first_copies, visible_fractions
 
 from helpers import TABLE_TOP, table_scene
 
@@ -176,3 +176,54 @@ def test_visibility_kept_from_the_last_ray_tests_equals_fresh_ray_tests():
                                 again.poses[:, [1]])
     assert np.array_equal(again.visible[:, 1], ref[:, 0])
     assert again.visible[0, 1] < out.visible[0, 1]  # the block hides part of the ball now
+
+
+def test_looks_with_copies_and_shortcuts_equal_plain_ray_tests_for_any_worker_count(monkeypatch):
+    """Particle 3 copies particle 2 (same client), 5 copies 1 (another client, another worker): a
+    look computes each distinct particle once. Its answers, with the box tests, solids (the wall,
+    the table top) and short rays, equal plain ray tests in each particle's world."""
+    from estimator.search.looks import static_boxes
+    from physics import sightlines
+    from physics.scene import CameraSpec
+
+    scene = table_scene(
+        {"id": "wall", "box": {"size": [0.05, 0.4, 0.3]}, "pose": {"position": [0.3, 0.0, TABLE_TOP + 0.15]}},
+        {"id": "can", "cylinder": {"radius": 0.04, "height": 0.2}, "pose": {"position": [0.3, 0.5, TABLE_TOP + 0.1]}},
+        {"id": "ball", "sphere": {"radius": 0.03}, "pose": {"position": [0.0, 0.0, TABLE_TOP + 0.03]}},
+        camera={"position": [1.5, 0.0, 1.0], "target": [0.0, 0.0, 0.7]})
+    cams = (scene.camera, CameraSpec(position=(0.2, 1.2, 1.0), target=(0.0, 0.0, TABLE_TOP)),
+            CameraSpec(position=(1.4, 0.6, 0.75), target=(0.0, 0.5, TABLE_TOP)),
+            CameraSpec(position=(-0.5, 0.0, 1.5), target=(-0.9, 0.0, 0.0)))
+    k, ball = 8, 3
+    places = [[0, 0, TABLE_TOP + 0.03], [0, 0.17, TABLE_TOP + 0.03], [0, 0.35, TABLE_TOP + 0.03],
+              [0, 0.35, TABLE_TOP + 0.03], [0.05, 0.5, TABLE_TOP + 0.03], [0, 0.17, TABLE_TOP + 0.03],
+              [-0.9, 0.0, 0.03], [-0.2, 0.0, 0.03]]  # behind the wall, at its edge, beside it, behind the can, floor
+    with WorldPool(scene, k, 0, worlds=2) as local, WorldPool(scene, k, 2, worlds=2) as remote:
+        assert np.array_equal(local.scene_boxes, static_boxes(scene))
+        assert np.array_equal(remote.scene_boxes, static_boxes(scene))
+        poses = np.repeat(local._local.worlds[0].world.get_poses()[None], k, axis=0)
+        poses[:, ball, :3] = places
+        place = np.arange(4)
+        assert first_copies(poses).tolist() == [0, 1, 2, 2, 4, 1, 6, 7]
+        used = {"clear": 0, "hidden_by_solids": 0, "hidden_before_box": 0}
+        for name in used:
+            real = getattr(sightlines.Sightlines, name)
+            monkeypatch.setattr(sightlines.Sightlines, name, lambda self, sel, *a, real=real, name=name:
+                                used.__setitem__(name, used[name] + int((out := real(self, sel, *a)).sum())) or out)
+        frac = local.look(poses, place, np.array([ball]), cams)
+        seen = {thr: local.look(poses, place, np.array([ball]), cams, thr) for thr in (0.3, 0.5, 1.0)}
+        assert all(used.values())  # every shortcut decided some points
+        shard = local._local
+        worlds = [pw.world for pw in shard.worlds]
+        for w, p in zip(worlds, poses):
+            w.set_poses(p[place], place)
+        plain = np.array([visible_fractions(worlds, shard.camera_for(c), [ball], shard.points, poses[:, [ball]])
+                          for c in cams])
+        assert np.array_equal(frac, plain)
+        assert 0 < np.mean(plain > 0) < 1 and np.any((plain > 0) & (plain < 1))
+        for thr, s in seen.items():
+            assert np.array_equal(s, plain >= thr)
+            assert np.array_equal(remote.look(poses, place, np.array([ball]), cams, thr), s)
+        assert np.array_equal(remote.look(poses, place, np.array([ball]), cams), frac)
+        copies = np.concatenate([poses[:4], poses[:4]])  # the second worker has nothing of its own to do
+        assert np.array_equal(remote.look(copies, place, np.array([ball]), cams), np.concatenate([frac[:, :4]] * 2, 1))

@@ -2,8 +2,9 @@ import numpy as np
 
 from physics.scene import CameraSpec
 from physics.group import WorldGroup
-from physics.visibility import (Camera, local_box, local_sample_points, rays_clear_of, visible_fraction,
-                                 visible_fractions)
+from physics import sightlines, visibility
+from physics.visibility import (Camera, first_copies, local_box, local_sample_points, rays_clear_of, solid_box,
+                                visible_enough, visible_fraction, visible_fractions)
 from physics.world import World
 
 from helpers import TABLE_TOP, table_scene
@@ -64,3 +65,55 @@ def test_visible_fractions_of_copies_in_one_client_match_each_world_alone():
             assert frac[k, 0] == visible_fraction(alone, cam, [2], pts)[0]
         assert frac[0, 0] < 0.05 and frac[1, 0] > 0.8 and frac[2, 0] < 0.05
         assert partial[1, 0] == 0.0 and partial[0, 0] == frac[0, 0]
+
+
+def test_first_copies_point_each_particle_to_the_first_equal_one():
+    poses = np.zeros((6, 2, 7))
+    poses[:, :, 0] = [[0, 1], [2, 3], [0, 1], [2, 3], [0, 1.5], [0, 1]]
+    assert first_copies(poses).tolist() == [0, 1, 0, 1, 4, 0]
+    poses[5, 1, 6] = -0.0  # bit for bit (a copy is what resampling makes): -0.0 is not 0.0
+    assert first_copies(poses).tolist() == [0, 1, 0, 1, 4, 5]
+
+
+def test_solid_box_is_the_collision_box_of_boxes_only():
+    turned = [0, 0, 0.38268343, 0.92387953]  # 45 degrees about z
+    scene = table_scene({"id": "block", "box": {"size": [0.2, 0.1, 0.04]},
+                         "pose": {"position": [0.0, 0.0, TABLE_TOP + 0.02], "orientation": turned}},
+                        {"id": "ball", "sphere": {"radius": 0.03}, "pose": {"position": [0.3, 0.0, TABLE_TOP + 0.03]}},
+                        {"id": "bin", "container": {"size": [0.3, 0.2, 0.12], "wall": 0.01},
+                         "pose": {"position": [-0.3, 0.0, TABLE_TOP + 0.06]}},
+                        {"id": "plate", "box": {"size": [0.2, 0.2, 0.008]},
+                         "pose": {"position": [0.0, 0.3, TABLE_TOP + 0.004]}})
+    with World(scene) as w:
+        table = solid_box(w, 0)  # pybullet_data's table: one box, 1.5 x 1 x 0.05 m, 0.6 m above its origin
+        assert np.allclose(table[0], [0, 0, 0.6], atol=1e-9) and np.allclose(table[1], [0.745, 0.495, 0.02])
+        block = solid_box(w, 1)  # turned in the scene, a box in its own frame
+        assert np.allclose(block[0], 0, atol=1e-9) and np.allclose(block[1], [0.095, 0.045, 0.015])
+        assert solid_box(w, 2) is None and solid_box(w, 3) is None  # a sphere, a container of five boxes
+        assert solid_box(w, 4) is None  # thinner than twice SOLID_DEPTH
+
+
+def test_visible_enough_is_the_fraction_against_the_threshold_with_fewer_rays(monkeypatch):
+    scene = table_scene(
+        {"id": "wall", "box": {"size": [0.05, 0.4, 0.3]}, "pose": {"position": [0.3, 0.0, TABLE_TOP + 0.15]}},
+        {"id": "ball", "sphere": {"radius": 0.03}, "pose": {"position": [0.0, 0.0, TABLE_TOP + 0.03]}},
+        camera=CAM)
+    cams = [Camera(scene.camera), Camera(CameraSpec(position=(0.2, 1.2, 1.0), target=(0.0, 0.0, TABLE_TOP))),
+            Camera(CameraSpec(position=(0.9, 0.25, 0.75), target=(0.0, 0.12, TABLE_TOP)))]
+    with WorldGroup(scene, copies=6) as g:
+        pts = {i: local_sample_points(g.worlds[0], i, 2) for i in range(3)}
+        for k, y in enumerate([0.0, 0.1, 0.17, 0.2, 0.23, 0.35]):  # behind the wall, at its edge, beside it
+            g.worlds[k].set_poses([[0.0, y, TABLE_TOP + 0.03, 0, 0, 0, 1]], [2])
+        poses = np.stack([w.get_poses([2]) for w in g.worlds])
+        frac = np.array([visible_fractions(g.worlds, c, [2], pts, poses) for c in cams])
+        assert 0 < np.mean(frac > 0) < 1 and np.any((frac > 0) & (frac < 1))  # seen, hidden and partly hidden
+        cast = []
+        monkeypatch.setattr(visibility, "LAST_ROUND_RAYS", 0)  # rounds to the end, however few rays are left
+        real = sightlines.ray_cast
+        monkeypatch.setattr(sightlines, "ray_cast", lambda c, s, e: cast.append(len(s)) or real(c, s, e))
+        for thr in (0.0, 2 / 9, 0.3, 0.5, 1.0, 1.5):
+            cast.clear()
+            assert np.array_equal(visible_enough(g.worlds, cams, [2], pts, poses, thr), frac >= thr)
+            assert sum(cast) <= 9 * frac.size
+            if thr == 0.3:
+                assert sum(cast) < 0.8 * 9 * frac.size  # decided before every point is tested

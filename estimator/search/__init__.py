@@ -26,7 +26,7 @@ from actions.modes import HELD
 from ..likelihood import hidden_by_person
 from ..observations import Detection, Frame
 from .looks import (SearchConfig, Viewpoint, ViewpointError, ViewpointFile, detection, read_viewpoints,
-                    sample_viewpoints, static_boxes, travel_costs)
+                    sample_viewpoints, travel_costs)
 from .plan import bayes_after_miss, find_probabilities, plan_order
 from .regions import ELSEWHERE, ParticleSet, Region, assign, derive_regions, region_probabilities, table_of
 
@@ -138,7 +138,8 @@ def plan_search(est, object_id: str, viewpoints: ViewpointFile | list[Viewpoint]
         hands: the tracked hands of the last frame (name -> position), for "held by" regions.
         start: where the camera is (default: the file's ``start``, else the scene camera, else the
             first viewpoint).
-        boxes: the scene's AABBs ``(M, 2, 3)`` at its given poses (computed when None).
+        boxes: the scene's AABBs ``(M, 2, 3)`` at its given poses (None: the estimator's pool's,
+            read when it built its worlds; :func:`~.looks.static_boxes` reads them alone).
         reference: where the robot looks from ``(3,)``, naming the floor cells ("behind the table"
             is away from it; default: the scene camera, else ``start``): fixed while the camera
             moves, so that a region keeps its name over a search.
@@ -157,7 +158,7 @@ def plan_search(est, object_id: str, viewpoints: ViewpointFile | list[Viewpoint]
     per_m = user.travel_cost if user is not None and user.travel_cost is not None else config.travel_cost
     miss = config.miss_prob if config.miss_prob is not None else est.config.noise.miss_prob
     thr = config.visibility_threshold if config.visibility_threshold is not None else est.config.visibility_threshold
-    boxes = static_boxes(est.scene) if boxes is None else boxes
+    boxes = est.pool.scene_boxes if boxes is None else boxes
     if start is None and user is not None:
         start = user.start
     if start is None and est.scene.camera is not None:
@@ -257,7 +258,7 @@ class ClosedLoopSearch:
             self.start = np.asarray(est.scene.camera.position, float)
         # region names stay those seen from where the search began (no camera, no start: from +x)
         self.reference = self.start if self.start is not None else np.array(DEFAULT_REFERENCE)
-        self.boxes = static_boxes(est.scene)
+        self.boxes = est.pool.scene_boxes
         self.looks_done: list[PlannedLook] = []
 
     def plan(self) -> SearchPlan:

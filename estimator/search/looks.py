@@ -176,8 +176,8 @@ def detection(pool, ps, obj: int, known: np.ndarray, views: list[Viewpoint], mis
     points, else 0."""
     if not views:
         return np.zeros((0, len(ps.weights)))
-    frac = pool.look(ps.poses, np.flatnonzero(known), np.array([obj]), tuple(v.camera for v in views))[..., 0]
-    return np.where(frac >= threshold, 1.0 - miss_prob, 0.0)
+    seen = pool.look(ps.poses, np.flatnonzero(known), np.array([obj]), tuple(v.camera for v in views), threshold)
+    return np.where(seen[..., 0], 1.0 - miss_prob, 0.0)
 
 
 def travel_costs(start: np.ndarray, views: list[Viewpoint], fixed: float, per_metre: float) -> np.ndarray:
