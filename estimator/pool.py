@@ -81,10 +81,13 @@ class _Shard:
             finally:
                 scratch.close()
         key = camera_key(spec)
-        if key not in self._cameras:
-            self._cameras[key] = self.camera if self.camera is not None and key == camera_key(
-                self.camera.spec) else Camera(spec)
-        return self._cameras[key]
+        cam = self._cameras.pop(key, None)
+        if cam is None:
+            cam = self.camera if self.camera is not None and key == camera_key(self.camera.spec) else Camera(spec)
+        self._cameras[key] = cam  # the most recent last; the oldest go (a search samples new viewpoints)
+        while len(self._cameras) > CACHED_CAMERAS:
+            del self._cameras[next(iter(self._cameras))]
+        return cam
 
     def initial_params(self) -> np.ndarray:
         w = self.worlds[0].world
@@ -274,6 +277,10 @@ box is on reaches it (:func:`~physics.visibility.visible_fractions` skips its ra
 VISIBILITY_CACHED_CAMERAS = 4
 """Cameras whose last ray tests each shard keeps (the scene's and a few moving ones): a cached
 answer is exact, so a camera pushed out only costs its next ray tests again."""
+
+CACHED_CAMERAS = 256
+"""Cameras a shard keeps built (the most recently used): a search plans from new sampled viewpoints
+every time, which must not grow the worker's memory without bound."""
 
 
 def camera_key(spec: CameraSpec) -> tuple:

@@ -227,3 +227,25 @@ def test_looks_with_copies_and_shortcuts_equal_plain_ray_tests_for_any_worker_co
         assert np.array_equal(remote.look(poses, place, np.array([ball]), cams), frac)
         copies = np.concatenate([poses[:4], poses[:4]])  # the second worker has nothing of its own to do
         assert np.array_equal(remote.look(copies, place, np.array([ball]), cams), np.concatenate([frac[:, :4]] * 2, 1))
+
+
+def test_a_shard_keeps_a_bounded_number_of_cameras_the_scenes_always_first_built():
+    from estimator.pool import CACHED_CAMERAS, _Shard
+    from physics.scene import CameraSpec
+    from physics.world import PhysicsSettings
+
+    scene = table_scene({"id": "cube", "box": {"size": [0.05] * 3}, "pose": {"position": [0, 0, TABLE_TOP + 0.025]}},
+                        camera={"position": [1.0, 0.0, 1.2], "target": [0.0, 0.0, 0.7]})
+    shard = _Shard(scene, PhysicsSettings(), [(0, 1)])
+    try:
+        own = shard.camera_for(scene.camera)
+        assert own is shard.camera  # the scene's camera is the one built with the shard
+        specs = [CameraSpec(position=(1.0, 0.01 * (i + 1), 1.2), target=(0.0, 0.0, 0.7)) for i in range(CACHED_CAMERAS + 50)]
+        first = shard.camera_for(specs[0])
+        for spec in specs[1:]:
+            shard.camera_for(spec)
+        assert len(shard._cameras) == CACHED_CAMERAS
+        assert shard.camera_for(specs[-1]) is shard._cameras[list(shard._cameras)[-1]]  # recent ones kept
+        assert shard.camera_for(specs[0]) is not first  # the oldest was dropped, and is built again
+    finally:
+        shard.close()
