@@ -171,13 +171,15 @@ def test_interrupted_run_keeps_what_it_wrote(tmp_path):
     scene = tmp_path / "scene.yaml"
     scene.write_text(SCENE)
     obs = tmp_path / "obs.jsonl"
-    # long enough (25000 reasoning steps) that the run cannot end before the interrupt, however fast
-    rows = [{"t": round(k / 30, 4), "objects": {"box": {"position": [0.1, 0, TABLE_TOP + 0.04]}}} for k in range(60000)]
+    rows = [{"t": round(k / 30, 4), "objects": {"box": {"position": [0.1, 0, TABLE_TOP + 0.04]}}} for k in range(3000)]
     write_jsonl(obs, rows)
     out, tl = tmp_path / "e.jsonl", tmp_path / "t.json"
     proc = subprocess.Popen([sys.executable, "-m", "experiments.cli", "run", "--scene", str(scene), "--observations",
                              str(obs), "--out", str(out), "--timeline", str(tl), "--particles", "4", "--workers", "0",
-                             "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                             "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            # Ctrl-C as a user's terminal delivers it: an earlier test of the session may
+                            # have left SIGINT ignored in this process, which a child would inherit
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and (not out.exists() or len(out.read_text().splitlines()) < 5):
         time.sleep(0.05)
@@ -185,7 +187,7 @@ def test_interrupted_run_keeps_what_it_wrote(tmp_path):
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err
     lines = out.read_text().splitlines()
-    assert 5 <= len(lines) < 5000 and all(json.loads(x)["objects"]["box"] for x in lines)  # every line whole
+    assert 5 <= len(lines) < 1000 and all(json.loads(x)["objects"]["box"] for x in lines)  # every line whole
     timeline = json.loads(tl.read_text())
     last_t = json.loads(lines[-1])["t"]
     assert last_t <= timeline["t_end"] <= last_t + 0.2  # the interrupt may fall between update and write
