@@ -291,7 +291,7 @@ class SceneEstimator:
         held = (settled.modes == HELD) & (np.asarray(ev.in_tracked_hand, bool) & ~ev.perceived)[None, :]
         in_view = (ev.visible >= thr) & np.asarray(ev.queried, bool)[None, :]
         reset = (settled.modes != HELD) | ev.detected[None, :]
-        return hidden_places(s.hidden_at, s.hidden_t, s.hidden_n, settled.poses, settled.modes, held & ~in_view,
+        return hidden_places(s.hidden_at, s.hidden_t, s.hidden_n, settled.poses, held & ~in_view,
                              reset, t, self.rng)
 
     def _commit(self, move: Move, settled: Settled, logw: np.ndarray, bad: np.ndarray,

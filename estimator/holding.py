@@ -89,7 +89,7 @@ def held_targets(frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: n
 
 
 def hidden_places(hidden_at: np.ndarray, hidden_t: np.ndarray, hidden_n: np.ndarray, poses: np.ndarray,
-                  modes: np.ndarray, hidden: np.ndarray, reset: np.ndarray, t: float,
+                  hidden: np.ndarray, reset: np.ndarray, t: float,
                   rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Where each particle's held object was while its hand hid it: a uniform sample over those
     updates (reservoir sampling), to let it go there later (:func:`release_behind_cover`).

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from experiments.bench import scenarios as bench_scenario
+from experiments.scenarios import resolve_scenarios
 from experiments.bench.synthetic import bench_one, bench_scene
 from experiments.bench.timing import StreamTiming
 from experiments.cli import main
@@ -101,8 +102,8 @@ def test_bench_unknown_scenario_is_a_clear_error(capsys):
 def test_bench_scenario_all_expands_to_every_built_in_scenario(monkeypatch, capsys):
     names = list_scenarios()
     assert len(names) > 1 and "static_floating" in names
-    assert bench_scenario.resolve_scenarios(["all"]) == names
-    assert bench_scenario.resolve_scenarios(["stacked_tower", "all", "stacked_tower"]) == (
+    assert resolve_scenarios(["all"]) == names
+    assert resolve_scenarios(["stacked_tower", "all", "stacked_tower"]) == (
         ["stacked_tower"] + [n for n in names if n != "stacked_tower"])
     # the command runs one row per (scenario, K) of the expansion (nothing simulated or timed here)
     fake = StreamTiming(startup_s=0.5, peak_memory_mb=100.0, processing_s=0.2, frame_times=[0.1, 0.2, 0.3],

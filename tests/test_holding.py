@@ -46,19 +46,18 @@ def test_hidden_places_are_a_uniform_sample_over_the_hidden_updates():
     K, M, n = 4000, 1, 5
     rng = np.random.default_rng(7)
     at, tt, cnt = np.zeros((K, M, 3)), np.full((K, M), -np.inf), np.zeros((K, M), np.int32)
-    modes = np.full((K, M), HELD, np.int8)
     none = np.zeros((K, M), bool)
     for j in range(n):
         poses = np.zeros((K, M, 7))
         poses[..., 0] = j  # the hand's place at update j
-        at, tt, cnt = hidden_places(at, tt, cnt, poses, modes, ~none, none, float(j), rng)
+        at, tt, cnt = hidden_places(at, tt, cnt, poses, ~none, none, float(j), rng)
         # a visible update in between changes nothing
-        at, tt, cnt = hidden_places(at, tt, cnt, poses + 100.0, modes, none, none, j + 0.5, rng)
+        at, tt, cnt = hidden_places(at, tt, cnt, poses + 100.0, none, none, j + 0.5, rng)
     assert np.all(cnt == n) and set(np.unique(at[..., 0])) <= set(range(n)) and np.all(at[..., 0] == tt)
     counts = np.bincount(at[:, 0, 0].astype(int), minlength=n)
     band = 3 * np.sqrt(K * (1 / n) * (1 - 1 / n))
     assert np.all(np.abs(counts - K / n) <= band)
-    at2, tt2, cnt2 = hidden_places(at, tt, cnt, poses, modes, none, ~none, 9.0, rng)
+    at2, tt2, cnt2 = hidden_places(at, tt, cnt, poses, none, ~none, 9.0, rng)
     assert np.all(cnt2 == 0) and np.array_equal(at2, at)  # the sample is kept, the count restarts
 
 

@@ -25,7 +25,6 @@ from physics.scene import Scene, load_scene
 from estimator.config import EstimatorConfig
 
 from experiments.bench.timing import RESOURCE_COLUMNS, TIMING_COLUMNS, time_stream, timing_row
-from experiments.scenarios import list_scenarios, load_scenario
 
 SEED = 0
 
@@ -33,20 +32,6 @@ SCENARIO_COLUMNS = ([("scenario", "scenario", "{}"), ("particles", "K", "{}"), (
                      ("stream_s", "stream (s)", "{:.2f}"), ("processing_s", "processing (s)", "{:.2f}"),
                      ("realtime_factor", "real-time factor", "{:.2f}")]
                     + TIMING_COLUMNS + RESOURCE_COLUMNS)
-
-
-def resolve_scenarios(names: list[str]) -> list[str]:
-    """The scenarios ``names`` ask for, in order, without repeats; ``all`` stands for every built-in
-    one. Raises :class:`~physics.errors.InputError` for a name that is neither a built-in scenario nor a scenario file,
-    naming it and listing the built-in ones."""
-    out: list[str] = []
-    for name in names:
-        for n in (list_scenarios() if name == "all" else [name]):
-            if n not in out:
-                out.append(n)
-    for n in out:
-        load_scenario(n)  # all checked before anything runs
-    return out
 
 
 @contextlib.contextmanager

@@ -126,7 +126,8 @@ def run_bench(args) -> int:
 
 
 def _scenario_bench(args) -> int:
-    from experiments.bench.scenarios import SCENARIO_COLUMNS, SEED, bag_table, resolve_scenarios, scenario_rows
+    from experiments.bench.scenarios import SCENARIO_COLUMNS, SEED, bag_table, scenario_rows
+    from experiments.scenarios import resolve_scenarios
 
     names = resolve_scenarios(args.scenario)
     configs = particle_configs(args)

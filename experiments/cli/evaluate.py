@@ -90,19 +90,14 @@ def run_evaluate(args: argparse.Namespace) -> int:
     130 interrupted)."""
     from experiments.evaluation.sweep import SweepConfig, TrialFailures, run_sweep
     from experiments.evaluation.methods import METHODS
-    from experiments.scenarios import list_scenarios, load_scenario
+    from experiments.scenarios import resolve_scenarios
 
     def fail(msg: str) -> int:
         print(f"scene-estimator evaluate: {msg}", file=sys.stderr)
         return 2
 
-    if args.scenarios.strip() == "all":
-        scenarios = tuple(list_scenarios())
-    else:
-        scenarios = tuple(s.strip() for s in args.scenarios.split(",") if s.strip())
     try:
-        for s in scenarios:
-            load_scenario(s)
+        scenarios = tuple(resolve_scenarios([s.strip() for s in args.scenarios.split(",") if s.strip()]))
     except InputError as exc:
         return fail(str(exc))
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())

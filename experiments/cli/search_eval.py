@@ -23,7 +23,7 @@ def add_search_eval_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run_search_eval(args) -> int:
-    from experiments.bench.scenarios import resolve_scenarios
+    from experiments.scenarios import resolve_scenarios
 
     names = list(SEARCH_SCENARIOS) if args.scenarios == "all" else resolve_scenarios(
         [s.strip() for s in args.scenarios.split(",") if s.strip()])

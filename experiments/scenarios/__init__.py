@@ -417,3 +417,17 @@ def describe(name_or_path: str) -> str:
 __all__ = ["HandSpec", "HandTarget", "ObjectRandomization", "Randomization", "Scenario", "TorsoSpec",
            "Waypoint", "describe", "list_scenarios", "load_scenario", "scenario_from_dict",
            "scenario_path", "SCENARIO_DIR"]
+
+
+def resolve_scenarios(names: list[str]) -> list[str]:
+    """The scenarios ``names`` ask for, in order, without repeats; ``all`` stands for every built-in
+    one. Raises :class:`~physics.errors.InputError` for a name that is neither a built-in scenario nor a scenario file,
+    naming it and listing the built-in ones."""
+    out: list[str] = []
+    for name in names:
+        for n in (list_scenarios() if name == "all" else [name]):
+            if n not in out:
+                out.append(n)
+    for n in out:
+        load_scenario(n)  # all checked before anything runs
+    return out

@@ -32,7 +32,6 @@ without particles would use (:func:`region_points`).
 """
 from __future__ import annotations
 
-import dataclasses
 import time
 import zlib
 from dataclasses import dataclass
@@ -44,7 +43,6 @@ from estimator.config import EstimatorConfig
 from estimator.filter import SceneEstimator
 from estimator.observations import Detection, parse_frame
 from estimator.search import ClosedLoopSearch, PlannedLook, SearchConfig, look_at_point, plan_search
-from estimator.search.looks import static_boxes
 from estimator.search.regions import derive_regions, table_of
 
 from experiments.evaluation.methods import method_config
@@ -103,7 +101,7 @@ def region_points(est: SceneEstimator, hands: dict, target: str | None = None) -
     edge on the floor (under it: its centre), a tracked hand's last position. Regions on or in the
     ``target`` itself are left out."""
     scene = est.scene
-    boxes = static_boxes(scene)
+    boxes = est.pool.scene_boxes.copy()  # at the scene's poses, as the worlds were built
     belief = est.last_belief
     for i, spec in enumerate(scene.objects):  # dynamic objects: their box where the estimate puts them
         if not spec.static and belief is not None and spec.id in belief.objects:
@@ -201,8 +199,8 @@ class _Fallback:
 
     def __init__(self, est, target, hands, config, rng):
         self.est, self.target, self.config, self.rng = est, target, config, rng
-        pts = region_points(est, hands, target)
-        self.todo = [pts[i] for i in rng.permutation(len(pts))]
+        self.points = region_points(est, hands, target)
+        self.todo = [self.points[i] for i in rng.permutation(len(self.points))]
         self.done: set[str] = set()
         self.start = None
 
@@ -218,10 +216,9 @@ class _Fallback:
         return None
 
 
-def _region_of(est, target, point, hands) -> str | None:
-    """The region a baseline's point lies in: the nearest region point (the baseline's look is
-    counted as a look at that region)."""
-    pts = region_points(est, hands, target)
+def _region_of(pts: list[tuple[str, np.ndarray]], point) -> str | None:
+    """The region a baseline's point lies in: the nearest of the region points ``pts`` (the
+    baseline's look is counted as a look at that region)."""
     if not pts:
         return None
     d = [np.linalg.norm(p - point) for _n, p in pts]
@@ -230,8 +227,8 @@ def _region_of(est, target, point, hands) -> str | None:
 
 def _baseline(est, target, point, hands, config, rng, truth, start, label) -> dict:
     fb = _Fallback(est, target, hands, config, rng)
-    first = [look_at_point(est, target, point, config, rng, start, label=_region_of(est, target, point, hands)
-                           or label)] if point is not None else []
+    first = [look_at_point(est, target, point, config, rng, start, label=_region_of(fb.points, point) or label)
+             ] if point is not None else []
 
     def next_look():
         look = first.pop(0) if first else fb.next()
@@ -278,7 +275,7 @@ def run_search_trial(spec: SearchTrialSpec, methods=SEARCH_METHODS, config: Sear
             if "random" in todo:
                 row["methods"]["random"] = _baseline(paper, target, None, hands, config, _rng(spec.seed, "random"),
                                                      eye, start, "random")
-        cfg = dataclasses.replace(method_config("particles", spec.particles), workers=0)
+        cfg = method_config("particles", spec.particles)  # its worlds in this process
         for name in ("open-loop", "closed-loop"):
             if name not in todo:
                 continue
