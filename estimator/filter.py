@@ -70,7 +70,8 @@ class SceneEstimator:
     also readable as attributes: ``poses (K, M, 7)``, ``velocities (K, M, 6)``, ``params (K, M, 5)``
     (lateral / rolling / spinning friction, restitution, mass in kg), ``modes (K, M)`` int8
     (FREE / HELD), ``log_weights (K,)``, ``on_top (K, M, M+1)`` and ``is_in (K, M, M)`` (relations at
-    the last update), ``event_t (K, M, 3)``. ``known (M,)``: objects with a pose or perceived since.
+    the last update), ``event_t (K, M, 4)`` (latest Pick / Place / Release / Push times).
+    ``known (M,)``: objects with a pose or perceived since.
     """
 
     poses = _StateField()
@@ -223,9 +224,9 @@ class SceneEstimator:
         self.t_tick = t
         self.n_updates += 1
         # summarise
-        record_event_times(self.state.event_t, settled.codes, t)
+        record_event_times(self.state.event_t, settled.codes, t, settled.push_t, self.state.push_decided)
         step_events = recent_events(self.state.event_t, weights, t, cfg.event_window, self.object_ids,
-                                    threshold=cfg.hypothesis_min_p)
+                                    threshold=cfg.hypothesis_min_p, push_decided=self.state.push_decided)
         belief = compute_belief(t, self.object_ids, self.known, perceived, settled.poses, weights, settled.modes,
                                 settled.on_top, settled.is_in, step_events, ess, self.static, cfg.hypothesis_min_p,
                                 cov_floor=cfg.noise.covariance_floor_std ** 2)
@@ -293,7 +294,8 @@ class SceneEstimator:
             log_weights=logw - np.max(logw[np.isfinite(logw)]), on_top=settled.on_top, is_in=settled.is_in,
             event_t=s.event_t, supported=settled.supported, last_motion=last_motion,
             jolted=np.zeros((self.K, self.M), dtype=bool), unseen_in_view=unseen_in_view,
-            hold_error=move.hold_error, let_go_unseen=move.let_go_unseen)
+            hold_error=move.hold_error, let_go_unseen=move.let_go_unseen, push_decided=s.push_decided,
+            holds=settled.holds)
 
     def _resample(self, weights: np.ndarray, hidden: np.ndarray) -> None:
         """Systematic resampling, then the model's regularisation of hidden objects ``hidden (M,)`` and

@@ -10,7 +10,8 @@ and the worlds and calls, at each update:
    process noise on unperceived free objects, and what the physics must check and report;
 2. :meth:`SceneModel.batch`: the pool's input for the move (physics itself is the pool's, Alg. 1);
 3. :meth:`SceneModel.settle`: relations after physics, Place (a held object perceived at rest on
-   a support) and Release in view (perceived falling), the update's event codes;
+   a support; a Push if it was never lifted) and Release in view (perceived falling), the update's
+   event codes;
 4. :meth:`SceneModel.evidence` and :meth:`SceneModel.log_weight`: the terms of
    :mod:`estimator.likelihood` (:attr:`SceneModel.terms`);
 5. after resampling, :meth:`SceneModel.regularise`: kernel jitter of hidden free objects and
@@ -23,7 +24,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from actions.modes import FREE, HELD, merge_events, switch_events
+from actions.events import N_ACTIONS
+from actions.modes import FREE, HELD, PICK, merge_events, switch_events
+from actions.push import empty_holds, end_codes, end_holds, track_holds, unrested_picks
 from physics.scene import Scene
 from physics.transforms import carry_pose, quat_from_rotvec, quat_multiply
 
@@ -99,8 +102,9 @@ class Move:
 class Settled:
     """The particles after physics and the Place / Release rules: ``poses (K, M, 7)``, ``velocities
     (K, M, 6)``, ``modes (K, M)``, ``on_top (K, M, M+1)``, ``is_in (K, M, M)``, ``supported (K, M)``,
-    ``codes (K, M)`` (event codes of the whole update) and ``tick_vel (M, 3)`` (perceived velocity
-    over the reasoning period, m/s)."""
+    ``codes (K, M)`` (event codes of the whole update), ``tick_vel (M, 3)`` (perceived velocity
+    over the reasoning period, m/s), ``holds (K, M, 5)`` (the hold records after the update,
+    :mod:`actions.push`) and ``push_t (K, M)`` (s, the time of each Push in ``codes``; NaN: none)."""
 
     poses: np.ndarray
     velocities: np.ndarray
@@ -110,6 +114,8 @@ class Settled:
     supported: np.ndarray
     codes: np.ndarray
     tick_vel: np.ndarray
+    holds: np.ndarray
+    push_t: np.ndarray
 
 
 class SceneModel:
@@ -169,10 +175,11 @@ class SceneModel:
         return ParticleState(poses=poses, velocities=np.zeros((K, M, 6)), params=params,
                              modes=np.zeros((K, M), dtype=np.int8), log_weights=np.zeros(K),
                              on_top=np.zeros((K, M, M + 1), dtype=bool), is_in=np.zeros((K, M, M), dtype=bool),
-                             event_t=np.full((K, M, 3), -np.inf), supported=np.zeros((K, M), dtype=bool),
+                             event_t=np.full((K, M, N_ACTIONS), -np.inf), supported=np.zeros((K, M), dtype=bool),
                              last_motion=np.zeros((K, M)), jolted=np.zeros((K, M), dtype=bool),
                              unseen_in_view=np.zeros((K, M), dtype=np.int32), hold_error=np.zeros((K, M, 3)),
-                             let_go_unseen=np.full((K, M), -np.inf))
+                             let_go_unseen=np.full((K, M), -np.inf), push_decided=np.full((K, M), -np.inf),
+                             holds=empty_holds((K, M)))
 
     # -- the move -------------------------------------------------------------------------------------
     def move(self, state: ParticleState, frame: Frame, detected: np.ndarray, perceived: np.ndarray,
@@ -307,8 +314,9 @@ class SceneModel:
     def settle(self, state: ParticleState, move: Move, out: BatchOutput, t: float, dt: float,
                detected: np.ndarray, perceived: np.ndarray) -> Settled:
         """Relations of the particles ``out`` gives (their exploded ones already reset); Place: a held
-        object perceived at rest on a support is put down; Release in view: a held object perceived
-        falling (fast, or accelerating down with nothing under it) was let go."""
+        object perceived at rest on a support is put down (a Push if it was never lifted); Release in
+        view: a held object perceived falling (fast, or accelerating down with nothing under it) was
+        let go."""
         hr, cfg, mem = self.config.reasoner, self.config, self.memory
         new_modes = out.modes
         valid = np.broadcast_to(self.known, (self.K, self.M))
@@ -324,10 +332,16 @@ class SceneModel:
         held_seen = (new_modes == HELD) & perceived[None, :]
         after_physics = new_modes.copy()
         new_modes[held_seen & ((rested[None, :] & supported) | falling)] = FREE
-        codes = merge_events(move.release_codes,
-                             switch_events(move.modes, after_physics, supported),
-                             switch_events(after_physics, new_modes, supported))
-        return Settled(out.poses, out.velocities, new_modes, on_top, is_in, supported, codes, vel)
+        # no Pick of what never rested (already held); a Place of what was never lifted is a Push
+        picks = unrested_picks(switch_events(move.modes, after_physics, supported), state.holds)
+        codes = merge_events(move.release_codes, picks, switch_events(after_physics, new_modes, supported))
+        resting = supported & (np.linalg.norm(out.velocities[..., :3], axis=-1) < cfg.noise.rest_speed)
+        holds = track_holds(state.holds, after_physics == HELD, resting, supported, move.poses[..., 2],
+                            out.poses[..., 2], picks == PICK, np.isfinite(state.event_t).any(axis=-1), t,
+                            hr.push_smoothing)
+        codes, push_t = end_codes(codes, holds, hr.push_lift)
+        return Settled(out.poses, out.velocities, new_modes, on_top, is_in, supported, codes, vel,
+                       end_holds(holds, new_modes == HELD), push_t)
 
     # -- the weights ----------------------------------------------------------------------------------
     def evidence(self, move: Move, settled: Settled, out: BatchOutput, frame: Frame, detected: np.ndarray,
