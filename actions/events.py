@@ -27,28 +27,29 @@ class EventRecord:
                 "p": round(float(self.p), 4)}
 
 
-def record_event_times(event_t: np.ndarray, codes: np.ndarray, t: float, push_t: np.ndarray | None = None,
+def record_event_times(event_t: np.ndarray, codes: np.ndarray, t: float, times: np.ndarray | None = None,
                        push_decided: np.ndarray | None = None) -> None:
-    """Remember, in place, the times of the switches ``codes`` ``(..., M)`` made at time ``t`` (s).
+    """Remember, in place, the switches ``codes`` ``(..., M)`` decided at time ``t`` (s).
 
     ``event_t`` ``(..., M, 4)`` holds, per particle and object, the time of the latest Pick, Place,
     Release and Push (columns in :data:`~actions.modes.EVENT_NAMES` order; -inf when none). Being
     part of the particle state, it is resampled with the particles, so that evidence arriving after a
     switch raises the probability of the event itself.
 
-    A Push is decided when the object is let go but happened when it started moving: its time is
-    ``push_t (..., M)`` (s; the episode's Pick time, :func:`actions.push.end_codes`), that Pick is
-    withdrawn (its time set to -inf), and ``push_decided (..., M)`` (s), when given, gets ``t`` (the
-    time from which :func:`recent_events` counts the Push as recent). Without ``push_t`` a Push is
-    recorded at ``t``.
+    ``times (..., M)`` (s; NaN, or None for all: ``t``) is when each switch happened, if earlier than
+    when it was decided: a Pick's is when the object started moving, a Push's that of the Pick of
+    its episode (:func:`actions.push.end_codes`). A Push withdraws that Pick (its time set to -inf)
+    and ``push_decided (..., M)`` (s), when given, gets ``t``, from which :func:`recent_events`
+    counts the Push as recent.
     """
+    when = np.full(codes.shape, float(t)) if times is None else np.where(np.isnan(times), t, times)
     for code in EVENT_NAMES:
         if code != PUSH:
-            event_t[..., code - 1][codes == code] = t
+            sel = codes == code
+            event_t[..., code - 1][sel] = when[sel]
     pushed = codes == PUSH
     if not np.any(pushed):
         return
-    when = np.where(np.isnan(push_t), t, push_t) if push_t is not None else np.full(codes.shape, float(t))
     event_t[..., PICK - 1] = np.where(pushed, withdraw_picks(event_t[..., PICK - 1], when), event_t[..., PICK - 1])
     event_t[..., PUSH - 1][pushed] = when[pushed]
     if push_decided is not None:

@@ -71,7 +71,7 @@ def track_holds(holds: np.ndarray, held: np.ndarray, resting: np.ndarray, suppor
         z: ``(..., M)`` m, heights after the update's physics.
         picked: ``(..., M)`` bool, objects whose switch to HELD in this update is a Pick.
         acted_on: ``(..., M)`` bool, objects that had an event before this update.
-        t: the update's time (s), the Pick's time.
+        t: the Pick's time (s; a number or an array that broadcasts against ``picked``).
         smoothing: weight in (0, 1] of the new height in the smoothed height (1: no smoothing).
 
     Held objects without an open episode start one (``pick_t`` = ``t`` if ``picked``, else -inf

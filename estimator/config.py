@@ -80,7 +80,7 @@ class ReasonerConfig:
     d_sim_perc: float = 0.045
     d_perc_prev: float = 0.032
     horizon: float = 0.08
-    place_speed: float = 0.15
+    place_speed: float = 0.08
     place_spin: float = 1.0
     place_dwell: float = 0.3
     place_gap: float = 0.03

@@ -224,7 +224,7 @@ class SceneEstimator:
         self.t_tick = t
         self.n_updates += 1
         # summarise
-        record_event_times(self.state.event_t, settled.codes, t, settled.push_t, self.state.push_decided)
+        record_event_times(self.state.event_t, settled.codes, t, settled.times, self.state.push_decided)
         step_events = recent_events(self.state.event_t, weights, t, cfg.event_window, self.object_ids,
                                     threshold=cfg.hypothesis_min_p, push_decided=self.state.push_decided)
         belief = compute_belief(t, self.object_ids, self.known, perceived, settled.poses, weights, settled.modes,

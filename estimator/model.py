@@ -104,7 +104,8 @@ class Settled:
     (K, M, 6)``, ``modes (K, M)``, ``on_top (K, M, M+1)``, ``is_in (K, M, M)``, ``supported (K, M)``,
     ``codes (K, M)`` (event codes of the whole update), ``tick_vel (M, 3)`` (perceived velocity
     over the reasoning period, m/s), ``holds (K, M, 5)`` (the hold records after the update,
-    :mod:`actions.push`) and ``push_t (K, M)`` (s, the time of each Push in ``codes``; NaN: none)."""
+    :mod:`actions.push`) and ``times (K, M)`` (s, when each event of ``codes`` happened, if before
+    ``t``: a Pick's when the object started moving, a Push's its Pick's; NaN: at ``t``)."""
 
     poses: np.ndarray
     velocities: np.ndarray
@@ -115,7 +116,7 @@ class Settled:
     codes: np.ndarray
     tick_vel: np.ndarray
     holds: np.ndarray
-    push_t: np.ndarray
+    times: np.ndarray
 
 
 class SceneModel:
@@ -333,15 +334,19 @@ class SceneModel:
         after_physics = new_modes.copy()
         new_modes[held_seen & ((rested[None, :] & supported) | falling)] = FREE
         # no Pick of what never rested (already held); a Place of what was never lifted is a Push
+        # (picked and let go in one update: the let-go alone, which the hold record then judges)
         picks = unrested_picks(switch_events(move.modes, after_physics, supported), state.holds)
-        codes = merge_events(move.release_codes, picks, switch_events(after_physics, new_modes, supported))
+        codes = merge_events(move.release_codes, switch_events(after_physics, new_modes, supported), picks)
         resting = supported & (np.linalg.norm(out.velocities[..., :3], axis=-1) < cfg.noise.rest_speed)
+        onset = mem.moving_since  # a Pick happened when the object started moving, if lately
+        pick_t = np.where((onset >= t - cfg.event_window) & (onset <= t), onset, t)
         holds = track_holds(state.holds, after_physics == HELD, resting, supported, move.poses[..., 2],
-                            out.poses[..., 2], picks == PICK, np.isfinite(state.event_t).any(axis=-1), t,
+                            out.poses[..., 2], picks == PICK, np.isfinite(state.event_t).any(axis=-1), pick_t,
                             hr.push_smoothing)
         codes, push_t = end_codes(codes, holds, hr.push_lift)
+        times = np.where(codes == PICK, pick_t, push_t)
         return Settled(out.poses, out.velocities, new_modes, on_top, is_in, supported, codes, vel,
-                       end_holds(holds, new_modes == HELD), push_t)
+                       end_holds(holds, new_modes == HELD), times)
 
     # -- the weights ----------------------------------------------------------------------------------
     def evidence(self, move: Move, settled: Settled, out: BatchOutput, frame: Frame, detected: np.ndarray,
