@@ -6,8 +6,8 @@ go on a support, HELD -> FREE; read as Pick and Place, that says the box was pic
 keeps, per particle and object, a *hold record* of each held episode and turns a Place of an object
 that was never lifted into a ``Push`` at the time of its Pick, whose Pick is then withdrawn.
 
-The hold record ``(..., M, 5)`` (columns :data:`PICK_T`, :data:`REF_Z`, :data:`SMOOTH_Z`,
-:data:`TOP_Z`, :data:`AIRBORNE`; NaN where unknown):
+The hold record ``(..., M, 6)`` (columns :data:`PICK_T`, :data:`REF_Z`, :data:`SMOOTH_Z`,
+:data:`TOP_Z`, :data:`AIRBORNE`, :data:`LET_GO_T`; NaN where unknown):
 
 * ``ref_z`` (m): the object's height the last time it rested free on a support (kept while it is
   held; NaN: it never rested since it became known);
@@ -20,7 +20,9 @@ The hold record ``(..., M, 5)`` (columns :data:`PICK_T`, :data:`REF_Z`, :data:`S
   object must not look like a lift; NaN: not held);
 * ``top_z`` (m): the highest smoothed height of the episode;
 * ``airborne``: 1 if the object was held with nothing under it (not supported) at the end of an
-  update of the episode, else 0.
+  update of the episode, else 0;
+* ``let_go_t`` (s): when the object was let go on a support, while that Place waits for physics to
+  confirm it (:mod:`actions.episodes`; NaN: none pending). The episode stays open meanwhile.
 
 The object was lifted when ``top_z - ref_z`` exceeds the lift threshold (2 cm by default:
 :attr:`~estimator.config.ReasonerConfig.push_lift`) or it was airborne. The lift is measured from
@@ -37,19 +39,19 @@ import numpy as np
 
 from .modes import NO_EVENT, PICK, PLACE, PUSH, RELEASE
 
-PICK_T, REF_Z, SMOOTH_Z, TOP_Z, AIRBORNE = range(5)
+PICK_T, REF_Z, SMOOTH_Z, TOP_Z, AIRBORNE, LET_GO_T = range(6)
 """Columns of the hold record."""
-HOLD_FIELDS = 5
+HOLD_FIELDS = 6
 
 
 def empty_holds(shape: tuple[int, ...]) -> np.ndarray:
-    """A hold record ``shape + (5,)`` with nothing known (all NaN)."""
+    """A hold record ``shape + (6,)`` with nothing known (all NaN)."""
     return np.full(tuple(shape) + (HOLD_FIELDS,), np.nan)
 
 
 def unrested_picks(codes: np.ndarray, holds: np.ndarray) -> np.ndarray:
     """``codes (..., M)`` without the Picks of objects that never rested since they became known
-    (``holds (..., M, 5)`` before the update has no ``ref_z``): an object first seen in a hand, in
+    (``holds (..., M, 6)`` before the update has no ``ref_z``): an object first seen in a hand, in
     the air, was already held; nobody was seen picking it up. A new array."""
     return np.where((np.asarray(codes) == PICK) & np.isnan(holds[..., REF_Z]), NO_EVENT, codes).astype(
         np.asarray(codes).dtype)
@@ -61,10 +63,10 @@ def track_holds(holds: np.ndarray, held: np.ndarray, resting: np.ndarray, suppor
     """The hold record after one update (a new array).
 
     Args:
-        holds: ``(..., M, 5)`` the record before the update.
+        holds: ``(..., M, 6)`` the record before the update.
         held: ``(..., M)`` bool, objects held through this update's physics.
         resting: ``(..., M)`` bool, free objects resting on a support after it (their ``ref_z``
-            becomes ``z``).
+            becomes ``z``, unless their episode is still open).
         supported: ``(..., M)`` bool, objects with something under them after it.
         start_z: ``(..., M)`` m, heights at the start of the update (the reference of an episode
             whose object never rested).
@@ -83,7 +85,7 @@ def track_holds(holds: np.ndarray, held: np.ndarray, resting: np.ndarray, suppor
     out = np.array(holds, dtype=float, copy=True)
     held = np.asarray(held, dtype=bool)
     z = np.asarray(z, dtype=float)
-    out[..., REF_Z] = np.where(resting & ~held, z, out[..., REF_Z])
+    out[..., REF_Z] = np.where(resting & ~held & np.isnan(out[..., SMOOTH_Z]), z, out[..., REF_Z])
     new = held & np.isnan(out[..., SMOOTH_Z])
     ref = np.where(np.isnan(out[..., REF_Z]), start_z, out[..., REF_Z])
     first = np.where(picked, t, np.where(acted_on, -np.inf, np.nan))
@@ -111,7 +113,7 @@ def end_codes(codes: np.ndarray, holds: np.ndarray, lift: float) -> tuple[np.nda
 
     Args:
         codes: ``(..., M)`` event codes of an update (:mod:`actions.modes`).
-        holds: ``(..., M, 5)`` the hold record of the episodes these codes end.
+        holds: ``(..., M, 6)`` the hold record of the episodes these codes end.
         lift: m, the lift threshold.
 
     Returns:
@@ -126,10 +128,10 @@ def end_codes(codes: np.ndarray, holds: np.ndarray, lift: float) -> tuple[np.nda
     return codes, np.where(push, pick_t, np.nan)
 
 
-def end_holds(holds: np.ndarray, modes_held: np.ndarray) -> np.ndarray:
-    """The record with the episodes of objects no longer held closed (every column but ``ref_z``
-    NaN): ``modes_held (..., M)`` bool, the objects held at the end of the update. A new array."""
-    keep = np.asarray(modes_held, dtype=bool)[..., None] | (np.arange(HOLD_FIELDS) == REF_Z)
+def end_holds(holds: np.ndarray, open_: np.ndarray) -> np.ndarray:
+    """The record with the episodes of the objects not ``open_ (..., M)`` (held, or let go pending
+    confirmation, at the end of the update) closed: every column but ``ref_z`` NaN. A new array."""
+    keep = np.asarray(open_, dtype=bool)[..., None] | (np.arange(HOLD_FIELDS) == REF_Z)
     return np.where(keep, holds, np.nan)
 
 

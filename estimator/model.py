@@ -10,8 +10,7 @@ and the worlds and calls, at each update:
    process noise on unperceived free objects, and what the physics must check and report;
 2. :meth:`SceneModel.batch`: the pool's input for the move (physics itself is the pool's, Alg. 1);
 3. :meth:`SceneModel.settle`: relations after physics, Place (a held object perceived at rest on
-   a support; a Push if it was never lifted) and Release in view (perceived falling), the update's
-   event codes;
+   a support) and Release in view (perceived falling), the update's events (:mod:`actions.episodes`);
 4. :meth:`SceneModel.evidence` and :meth:`SceneModel.log_weight`: the terms of
    :mod:`estimator.likelihood` (:attr:`SceneModel.terms`);
 5. after resampling, :meth:`SceneModel.regularise`: kernel jitter of hidden free objects and
@@ -24,9 +23,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from actions.episodes import EpisodeRule, update_events
 from actions.events import N_ACTIONS
-from actions.modes import FREE, HELD, PICK, merge_events, switch_events
-from actions.push import empty_holds, end_codes, end_holds, track_holds, unrested_picks
+from actions.modes import FREE, HELD
+from actions.push import empty_holds
 from physics.scene import Scene
 from physics.transforms import carry_pose, quat_from_rotvec, quat_multiply
 
@@ -103,7 +103,7 @@ class Settled:
     """The particles after physics and the Place / Release rules: ``poses (K, M, 7)``, ``velocities
     (K, M, 6)``, ``modes (K, M)``, ``on_top (K, M, M+1)``, ``is_in (K, M, M)``, ``supported (K, M)``,
     ``codes (K, M)`` (event codes of the whole update), ``tick_vel (M, 3)`` (perceived velocity
-    over the reasoning period, m/s), ``holds (K, M, 5)`` (the hold records after the update,
+    over the reasoning period, m/s), ``holds (K, M, 6)`` (the hold records after the update,
     :mod:`actions.push`) and ``times (K, M)`` (s, when each event of ``codes`` happened, if before
     ``t``: a Pick's when the object started moving, a Push's its Pick's; NaN: at ``t``)."""
 
@@ -333,20 +333,18 @@ class SceneModel:
         held_seen = (new_modes == HELD) & perceived[None, :]
         after_physics = new_modes.copy()
         new_modes[held_seen & ((rested[None, :] & supported) | falling)] = FREE
-        # no Pick of what never rested (already held); a Place of what was never lifted is a Push
-        # (picked and let go in one update: the let-go alone, which the hold record then judges)
-        picks = unrested_picks(switch_events(move.modes, after_physics, supported), state.holds)
-        codes = merge_events(move.release_codes, switch_events(after_physics, new_modes, supported), picks)
-        resting = supported & (np.linalg.norm(out.velocities[..., :3], axis=-1) < cfg.noise.rest_speed)
-        onset = mem.moving_since  # a Pick happened when the object started moving, if lately
-        pick_t = np.where((onset >= t - cfg.event_window) & (onset <= t), onset, t)
-        holds = track_holds(state.holds, after_physics == HELD, resting, supported, move.poses[..., 2],
-                            out.poses[..., 2], picks == PICK, np.isfinite(state.event_t).any(axis=-1), pick_t,
-                            hr.push_smoothing)
-        codes, push_t = end_codes(codes, holds, hr.push_lift)
-        times = np.where(codes == PICK, pick_t, push_t)
-        return Settled(out.poses, out.velocities, new_modes, on_top, is_in, supported, codes, vel,
-                       end_holds(holds, new_modes == HELD), times)
+        # the switches read as actions (actions.episodes): a Pick when the object started moving, if
+        # lately; a Place once physics confirms it; a Push for what was never lifted
+        rule = EpisodeRule(hr.push_lift, hr.push_smoothing, hr.place_wait)
+        resting = supported & (np.linalg.norm(out.velocities[..., :3], axis=-1) < rule.rest_speed)
+        onset = mem.moving_since
+        seen_z = np.where(perceived, mem.mean_positions(t, hr.place_dwell)[:, 2], np.nan)
+        ev = update_events(state.holds, np.isfinite(state.event_t).any(axis=-1), move.modes, after_physics, new_modes,
+                           move.release_codes, supported, resting, move.poses[..., 2], out.poses[..., 2], seen_z,
+                           np.where((onset >= t - cfg.event_window) & (onset <= t), onset, t), t, rule,
+                           let_go_t=t - hr.place_dwell)  # put down when it came to rest, a dwell ago
+        return Settled(out.poses, out.velocities, ev.modes, on_top, is_in, supported, ev.codes, vel, ev.holds,
+                       ev.times)
 
     # -- the weights ----------------------------------------------------------------------------------
     def evidence(self, move: Move, settled: Settled, out: BatchOutput, frame: Frame, detected: np.ndarray,

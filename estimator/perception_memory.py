@@ -227,6 +227,16 @@ class PerceptionMemory:
         ``place_speed * place_dwell`` and turned less than ``place_spin * place_dwell``."""
         return np.array([self._rested(m, t) for m in range(self.M)], dtype=bool)
 
+    def mean_positions(self, t: float, span: float) -> np.ndarray:
+        """Mean detected position ``(M, 3)`` (m) of each object over the ``span`` seconds up to ``t``
+        (NaN for an object without a detection then)."""
+        out = np.full((self.M, 3), np.nan)
+        for m, hist in enumerate(self._history):
+            recent = [h[1] for h in hist if h[0] >= t - span - 1e-9]
+            if recent:
+                out[m] = np.mean(recent, axis=0)
+        return out
+
     def _rested(self, m: int, t: float, distance: float | None = None) -> bool:
         """:meth:`at_rest` for object m at time ``t`` (s), on the detections stored so far; with
         ``distance`` (m), the detections must also have moved less than that."""

@@ -20,8 +20,9 @@ class ParticleState:
       object (-inf: none; see :func:`actions.events.record_event_times`);
     * ``push_decided (K, M)``: time (s) at which the latest Push was decided (the object let go;
       -inf: none), from which it counts as recent (:func:`actions.events.recent_events`);
-    * ``holds (K, M, 5)``: per object, its height when it last rested free and the record of its
-      current held episode (Pick time, smoothed and highest height, held airborne; :mod:`actions.push`);
+    * ``holds (K, M, 6)``: per object, its height when it last rested free and the record of its
+      current held episode (Pick time, smoothed and highest height, held airborne, let go pending
+      confirmation; :mod:`actions.push`);
     * ``supported (K, M)`` bool: resting on or in something at the last update;
     * ``last_motion (K, M)``: distance (m) each object moved in the last update;
     * ``jolted (K, M)`` bool: objects displaced without physics since the worlds last saw them (to
