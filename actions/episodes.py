@@ -7,7 +7,9 @@ it (``modes_physics -> modes_after``). Read one by one (:func:`~actions.modes.sw
 Pick, Place and Release; read through the hold record (:mod:`actions.push`) they become what the
 person did:
 
-* a Pick of an object that never rested since it became known is none (it was already held);
+* a Pick of an object that never rested since it became known is none (it was already held); so
+  is the Pick of an object carried in or on a held one (a ball seen in a carried crate), whose
+  episode is silent: its end is no event either;
 * a Place waits for physics: the object let go on a support must rest where it was let go. While
   it waits (at most ``wait`` seconds) the episode stays open. If it is held again (it diverged
   from its simulation: the hand still had it), the Place was not one and the episode goes on, with
@@ -61,7 +63,8 @@ class UpdateEvents:
     modes: np.ndarray
 
 
-def update_events(holds: np.ndarray, acted_on: np.ndarray, modes_before: np.ndarray, modes_physics: np.ndarray,
+def update_events(holds: np.ndarray, acted_on: np.ndarray, carried: np.ndarray, modes_before: np.ndarray,
+                  modes_physics: np.ndarray,
                   modes_after: np.ndarray, release_codes: np.ndarray, supported: np.ndarray, resting: np.ndarray,
                   start_z: np.ndarray, z: np.ndarray, seen_z: np.ndarray, pick_t: np.ndarray, t: float,
                   rule: EpisodeRule = EpisodeRule(), let_go_t: float | None = None) -> UpdateEvents:
@@ -70,6 +73,7 @@ def update_events(holds: np.ndarray, acted_on: np.ndarray, modes_before: np.ndar
     Args:
         holds: ``(..., M, 6)`` the hold record before the update.
         acted_on: ``(..., M)`` bool, objects that had an event before the update.
+        carried: ``(..., M)`` bool, objects in or on an object held through this update.
         modes_before, modes_physics, modes_after: ``(..., M)`` int8, the modes handed to physics (after
             the releases of unperceived objects), after physics, and after the Place / Release rules.
         release_codes: ``(..., M)`` codes of the releases before physics (final: their objects were
@@ -93,7 +97,7 @@ def update_events(holds: np.ndarray, acted_on: np.ndarray, modes_before: np.ndar
                             np.asarray(modes_after).copy())
     again = pending & held  # held again: that Place was none, the same episode goes on
     picks = unrested_picks(switch_events(modes_before, modes_physics, supported), holds)
-    picks = np.where(again, NO_EVENT, picks).astype(picks.dtype)
+    picks = np.where(again | carried, NO_EVENT, picks).astype(picks.dtype)
     waiting = pending & ~held
     with np.errstate(invalid="ignore"):
         fell = waiting & resting & (seen_z - z > rule.lift)
@@ -103,7 +107,8 @@ def update_events(holds: np.ndarray, acted_on: np.ndarray, modes_before: np.ndar
     new_let_go = puts == PLACE
     puts = np.where(new_let_go, NO_EVENT, puts).astype(puts.dtype)
     codes = merge_events(release_codes, puts, picks, np.where(confirmed, PLACE, NO_EVENT).astype(puts.dtype))
-    holds = track_holds(holds, held, resting, supported, start_z, z, picks == PICK, acted_on, pick_t, rule.smoothing)
+    holds = track_holds(holds, held, resting, supported, start_z, z, picks == PICK, acted_on | carried, pick_t,
+                        rule.smoothing)
     codes, push_t = end_codes(codes, holds, rule.lift)
     times = np.where(codes == PICK, pick_t, np.where(codes == PUSH, push_t,
                                                      np.where(confirmed & (codes == PLACE), let_go, np.nan)))

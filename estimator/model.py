@@ -339,7 +339,9 @@ class SceneModel:
         resting = supported & (np.linalg.norm(out.velocities[..., :3], axis=-1) < rule.rest_speed)
         onset = mem.moving_since
         seen_z = np.where(perceived, mem.mean_positions(t, hr.place_dwell)[:, 2], np.nan)
-        ev = update_events(state.holds, np.isfinite(state.event_t).any(axis=-1), move.modes, after_physics, new_modes,
+        carried = ((state.is_in | state.on_top[..., :self.M]) & (after_physics == HELD)[:, None, :]).any(axis=-1)
+        ev = update_events(state.holds, np.isfinite(state.event_t).any(axis=-1), carried, move.modes, after_physics,
+                           new_modes,
                            move.release_codes, supported, resting, move.poses[..., 2], out.poses[..., 2], seen_z,
                            np.where((onset >= t - cfg.event_window) & (onset <= t), onset, t), t, rule,
                            let_go_t=t - hr.place_dwell)  # put down when it came to rest, a dwell ago

@@ -11,11 +11,12 @@ RULE = EpisodeRule(lift=0.02, smoothing=1.0, wait=0.5)
 
 
 def step(holds, before, physics, after, t, z, seen_z=None, resting=None, supported=None, acted=None,
-         release=None, pick_t=None):
+         release=None, pick_t=None, carried=None):
     """One update of M objects (lists), everything else defaulted: at rest on a support where free."""
     m = len(before)
     arr = lambda v, d: np.asarray(v if v is not None else d)  # noqa: E731
-    return update_events(holds, arr(acted, [False] * m), np.array(before, np.int8), np.array(physics, np.int8),
+    return update_events(holds, arr(acted, [False] * m), arr(carried, [False] * m), np.array(before, np.int8),
+                         np.array(physics, np.int8),
                          np.array(after, np.int8), arr(release, [0] * m).astype(np.int8),
                          arr(supported, [True] * m), arr(resting, [a == F for a in after]), np.array(z, float),
                          np.array(z, float), arr(seen_z, [np.nan] * m).astype(float),
@@ -99,7 +100,7 @@ def test_a_let_go_is_dated_when_given_but_never_before_its_pick():
     h = step(h, [F, F], [F, F], [F, F], 0.1, [0.7, 0.7]).holds
     h = step(h, [F, F], [H, H], [H, H], 1.0, [0.7, 0.7], pick_t=[0.9, 0.9]).holds
     m = 2
-    ev = update_events(h, np.zeros(m, bool), np.array([H, H], np.int8), np.array([H, H], np.int8),
+    ev = update_events(h, np.zeros(m, bool), np.zeros(m, bool), np.array([H, H], np.int8), np.array([H, H], np.int8),
                        np.array([F, F], np.int8), np.zeros(m, np.int8), np.ones(m, bool), np.zeros(m, bool),
                        np.full(m, 0.75), np.full(m, 0.75), np.full(m, np.nan), np.full(m, 1.5), 1.5, RULE,
                        let_go_t=np.array([1.2, 0.5]))
@@ -114,7 +115,7 @@ def test_the_quick_path_of_a_scene_at_rest_matches_the_full_one():
     z = rng.uniform(0.6, 0.8, (3, 4))
     resting = rng.uniform(size=(3, 4)) > 0.5
     free = np.zeros((3, 4), np.int8)
-    args = (np.zeros((3, 4), bool), free, free, free, np.zeros((3, 4), np.int8), np.ones((3, 4), bool), resting,
+    args = (np.zeros((3, 4), bool), np.zeros((3, 4), bool), free, free, free, np.zeros((3, 4), np.int8), np.ones((3, 4), bool), resting,
             z, z, np.full((3, 4), np.nan), np.full((3, 4), 1.0), 1.0, RULE)
     quick = update_events(h, *args)
     assert np.all(quick.codes == 0) and np.all(np.isnan(quick.times))
@@ -123,7 +124,20 @@ def test_the_quick_path_of_a_scene_at_rest_matches_the_full_one():
     h2 = np.concatenate([h, empty_holds((3, 1))], axis=1)
     held = np.zeros((3, 5), np.int8)
     held[:, 4] = HELD
-    full = update_events(h2, np.zeros((3, 5), bool), held, held, held, np.zeros((3, 5), np.int8), np.ones((3, 5), bool),
+    full = update_events(h2, np.zeros((3, 5), bool), np.zeros((3, 5), bool), held, held, held, np.zeros((3, 5), np.int8), np.ones((3, 5), bool),
                          np.append(resting, np.zeros((3, 1), bool), axis=1), np.append(z, np.ones((3, 1)), axis=1),
                          np.append(z, np.ones((3, 1)), axis=1), np.full((3, 5), np.nan), np.full((3, 5), 1.0), 1.0, RULE)
     assert np.array_equal(full.holds[:, :4], quick.holds, equal_nan=True) and np.all(full.codes[:, :4] == 0)
+
+
+def test_what_a_held_object_carries_gets_no_event():
+    h = empty_holds((2,))
+    h = step(h, [F, F], [F, F], [F, F], 0.1, [0.70, 0.66]).holds  # a crate, and a ball resting in it
+    # the crate is picked; the ball, in it, diverges too: held, silently
+    ev = step(h, [F, F], [H, H], [H, H], 1.0, [0.70, 0.66], carried=[False, True])
+    assert ev.codes.tolist() == [PICK, NO_EVENT] and ev.holds[1, PICK_T] == -np.inf
+    # both put down: the crate is placed, the ball's let-go is no event
+    ev = step(ev.holds, [H, H], [H, H], [H, H], 1.5, [0.80, 0.76])
+    ev = step(ev.holds, [H, H], [H, H], [F, F], 2.0, [0.70, 0.66], resting=[False, False])
+    ev = step(ev.holds, [F, F], [F, F], [F, F], 2.1, [0.70, 0.66])
+    assert ev.codes.tolist() == [PLACE, NO_EVENT]

@@ -153,6 +153,30 @@ def test_moved_container_carries_its_contents_with_rotation(smooth_motion):
         assert ball.position[2] == pytest.approx(TABLE_TOP + 0.01 + 0.03, abs=0.003)
 
 
+@pytest.mark.parametrize("particles", [1, 16])
+def test_a_visible_ball_carried_in_a_crate_gets_no_event_of_its_own(particles):
+    from estimator.config import default_config
+
+    z = TABLE_TOP + 0.06
+    scene = table_scene(
+        {"id": "crate", "container": {"size": [0.3, 0.2, 0.12], "wall": 0.01}, "mass": 0.7,
+         "pose": {"position": [0, 0, z]}},
+        {"id": "ball", "sphere": {"radius": 0.03}, "mass": 0.05,
+         "pose": {"position": [0.0, 0.0, TABLE_TOP + 0.01 + 0.03]}})
+    rng = np.random.default_rng(3)
+
+    def seen(t):  # lifted 10 cm, carried 30 cm and put down; the ball, seen inside, goes with it
+        s = float(np.clip((t - 0.6) / 1.5, 0, 1))
+        c = np.array([0.3 * s, 0.0, z + 0.1 * np.sin(np.pi * s)])
+        return {"crate": list(c + rng.normal(0, 0.003, 3)),
+                "ball": list(c + [0.0, 0.0, -0.02] + rng.normal(0, 0.003, 3))}
+
+    with SceneEstimator(scene, default_config(particles), np.random.default_rng(0)) as est:
+        est.run(frames(times(3.0), seen))
+        tl = est.timeline.to_json()
+    assert [(e["action"], e["subject"]) for e in tl["events"]] == [("Pick", "crate"), ("Place", "crate")]
+
+
 def test_paper_mode_is_deterministic_and_horizon_sets_the_rate():
     scene = table_scene(BOX)
     frs = frames(times(1.0), lambda t: {"box": [0.1, 0.0, TABLE_TOP + 0.05]})
