@@ -63,6 +63,15 @@ class UpdateEvents:
     modes: np.ndarray
 
 
+def carried(is_in: np.ndarray, on_top: np.ndarray, modes: np.ndarray) -> np.ndarray:
+    """``(..., M)`` bool: objects in or on top of an object that is HELD in ``modes (..., M)``, by the
+    relations ``is_in (..., M, M)`` and ``on_top (..., M, M + 1)`` (its last column, the floor, is
+    never held)."""
+    m = is_in.shape[-1]
+    held = (np.asarray(modes) == HELD)[..., None, :]
+    return ((np.asarray(is_in, dtype=bool) | np.asarray(on_top, dtype=bool)[..., :m]) & held).any(axis=-1)
+
+
 def update_events(holds: np.ndarray, acted_on: np.ndarray, carried: np.ndarray, modes_before: np.ndarray,
                   modes_physics: np.ndarray,
                   modes_after: np.ndarray, release_codes: np.ndarray, supported: np.ndarray, resting: np.ndarray,

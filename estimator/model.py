@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from actions.episodes import EpisodeRule, update_events
+from actions.episodes import EpisodeRule, carried, update_events
 from actions.events import N_ACTIONS
 from actions.modes import FREE, HELD
 from actions.push import empty_holds
@@ -315,9 +315,8 @@ class SceneModel:
     def settle(self, state: ParticleState, move: Move, out: BatchOutput, t: float, dt: float,
                detected: np.ndarray, perceived: np.ndarray) -> Settled:
         """Relations of the particles ``out`` gives (their exploded ones already reset); Place: a held
-        object perceived at rest on a support is put down (a Push if it was never lifted); Release in
-        view: a held object perceived falling (fast, or accelerating down with nothing under it) was
-        let go."""
+        object perceived at rest on a support is let go; Release in view: a held object perceived
+        falling (fast, or accelerating down with nothing under it) was let go; the events."""
         hr, cfg, mem = self.config.reasoner, self.config, self.memory
         new_modes = out.modes
         valid = np.broadcast_to(self.known, (self.K, self.M))
@@ -333,18 +332,15 @@ class SceneModel:
         held_seen = (new_modes == HELD) & perceived[None, :]
         after_physics = new_modes.copy()
         new_modes[held_seen & ((rested[None, :] & supported) | falling)] = FREE
-        # the switches read as actions (actions.episodes): a Pick when the object started moving, if
-        # lately; a Place once physics confirms it; a Push for what was never lifted
-        rule = EpisodeRule(hr.push_lift, hr.push_smoothing, hr.place_wait)
-        resting = supported & (np.linalg.norm(out.velocities[..., :3], axis=-1) < rule.rest_speed)
-        onset = mem.moving_since
-        seen_z = np.where(perceived, mem.mean_positions(t, hr.place_dwell)[:, 2], np.nan)
-        carried = ((state.is_in | state.on_top[..., :self.M]) & (after_physics == HELD)[:, None, :]).any(axis=-1)
-        ev = update_events(state.holds, np.isfinite(state.event_t).any(axis=-1), carried, move.modes, after_physics,
-                           new_modes,
-                           move.release_codes, supported, resting, move.poses[..., 2], out.poses[..., 2], seen_z,
-                           np.where((onset >= t - cfg.event_window) & (onset <= t), onset, t), t, rule,
-                           let_go_t=t - hr.place_dwell)  # put down when it came to rest, a dwell ago
+        # the switches read as actions (actions.episodes): a Pick dated when the object started
+        # moving, a Place once physics confirms it (dated when it came to rest), a Push if unlifted
+        rule, onset = EpisodeRule(hr.push_lift, hr.push_smoothing, hr.place_wait), mem.moving_since
+        ev = update_events(
+            state.holds, np.isfinite(state.event_t).any(axis=-1), carried(state.is_in, state.on_top, after_physics),
+            move.modes, after_physics, new_modes, move.release_codes, supported,
+            supported & (np.linalg.norm(out.velocities[..., :3], axis=-1) < rule.rest_speed), move.poses[..., 2],
+            out.poses[..., 2], np.where(perceived, mem.mean_positions(t, hr.place_dwell)[:, 2], np.nan),
+            np.where((onset >= t - cfg.event_window) & (onset <= t), onset, t), t, rule, let_go_t=t - hr.place_dwell)
         return Settled(out.poses, out.velocities, ev.modes, on_top, is_in, supported, ev.codes, vel, ev.holds,
                        ev.times)
 

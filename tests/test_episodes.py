@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from actions.episodes import EpisodeRule, update_events
+from actions.episodes import EpisodeRule, carried, update_events
 from actions.modes import FREE, HELD, NO_EVENT, PICK, PLACE, PUSH, RELEASE
 from actions.push import LET_GO_T, PICK_T, REF_Z, empty_holds
 
@@ -141,3 +141,13 @@ def test_what_a_held_object_carries_gets_no_event():
     ev = step(ev.holds, [H, H], [H, H], [F, F], 2.0, [0.70, 0.66], resting=[False, False])
     ev = step(ev.holds, [F, F], [F, F], [F, F], 2.1, [0.70, 0.66])
     assert ev.codes.tolist() == [PLACE, NO_EVENT]
+
+
+def test_carried_are_the_objects_in_or_on_a_held_one():
+    is_in = np.zeros((2, 3, 3), bool)
+    on_top = np.zeros((2, 3, 4), bool)
+    is_in[:, 1, 0] = True        # the ball is in the crate
+    on_top[:, 2, 3] = True       # the cup stands on the floor
+    on_top[1, 0, 2] = True       # particle 1: the crate stands on the cup (why not)
+    modes = np.array([[H, F, F], [F, F, H]], np.int8)
+    assert carried(is_in, on_top, modes).tolist() == [[False, True, False], [True, False, False]]
