@@ -8,7 +8,12 @@ previous -> new       condition                           event
 FREE -> HELD          (perceived or not)                  Pick
 HELD -> FREE          let go resting on a support         Place
 HELD -> FREE          let go in the air (drop, throw)     Release
+FREE -> HELD -> FREE  moved along its support, never      Push
+                      lifted, let go on it
 ====================  ==================================  ========
+
+A Push is decided when the object is let go (:mod:`actions.push`: a Place of an object that was
+never lifted becomes a Push at the time of its Pick, and that Pick is withdrawn).
 
 The functions work on arrays of any shape (one scene ``(M,)`` or particles ``(K, M)``).
 """
@@ -25,14 +30,18 @@ NO_EVENT = 0
 PICK = 1
 PLACE = 2
 RELEASE = 3
-EVENT_NAMES = {PICK: "Pick", PLACE: "Place", RELEASE: "Release"}
+PUSH = 4
+EVENT_NAMES = {PICK: "Pick", PLACE: "Place", RELEASE: "Release", PUSH: "Push"}
+"""Event code -> action name; codes are 1, 2, ... so that column ``code - 1`` of an event-time array
+``(..., M, len(EVENT_NAMES))`` holds that action's times."""
 
 
 def switch_events(previous: np.ndarray, new: np.ndarray, supported: np.ndarray) -> np.ndarray:
     """Event codes (``int8``, same shape) for the mode switches ``previous -> new``.
 
     ``supported`` says whether the object rests on or in something when it is let go; it broadcasts
-    against the modes. Codes: :data:`NO_EVENT`, :data:`PICK`, :data:`PLACE`, :data:`RELEASE`.
+    against the modes. Codes: :data:`NO_EVENT`, :data:`PICK`, :data:`PLACE`, :data:`RELEASE`
+    (Pushes are Places reclassified afterwards, :func:`actions.push.end_codes`).
     """
     previous = np.asarray(previous)
     new = np.asarray(new)

@@ -65,6 +65,14 @@ class ReasonerConfig:
       faster than ``release_speed``, or accelerating down faster than ``release_accel`` (while moving
       down at 0.3 m/s or more) with nothing under it, was let go (Release, in view). Velocities are
       measured over the reasoning period.
+    * ``push_lift`` (m), ``push_smoothing`` and ``place_wait`` (s): a held object let go on a
+      support whose height, smoothed over the updates (weight ``push_smoothing`` of the newest),
+      never rose more than ``push_lift`` above where it rested before was pushed, not picked up: its
+      Pick and Place are reported as one Push. A Place is dated when the object came to rest
+      (``place_dwell`` before the rule fired) and waits (at most ``place_wait`` from then) for the
+      object to rest where it was let go: if it is held again meanwhile, or falls more than
+      ``push_lift`` below where it is perceived, it had not been put down (:mod:`actions.episodes`;
+      not in the paper).
     * ``max_gap`` (s): an update simulates the stream time since the previous one, but at most this
       much: after a gap in the stream (a dropped connection, a paused recording) the scene is
       simulated for ``max_gap`` seconds, by which time what fell has landed and what rolls has
@@ -76,17 +84,24 @@ class ReasonerConfig:
     d_sim_perc: float = 0.045
     d_perc_prev: float = 0.032
     horizon: float = 0.08
-    place_speed: float = 0.15
+    place_speed: float = 0.08
     place_spin: float = 1.0
     place_dwell: float = 0.3
     place_gap: float = 0.03
     release_speed: float = 1.0
     release_accel: float = 4.0
     max_gap: float = 2.0
+    push_lift: float = 0.02
+    push_smoothing: float = 0.3
+    place_wait: float = 0.8
 
     def __post_init__(self):
         _check_positive(self, "t_perceived", "d_sim_perc", "d_perc_prev", "place_speed", "place_gap",
-                        "release_speed", "place_spin", "release_accel", "max_gap")
+                        "release_speed", "place_spin", "release_accel", "max_gap", "push_lift",
+                        "push_smoothing")
+        _check_nonneg(self, "place_wait")
+        if self.push_smoothing > 1:
+            raise ValueError(f"ReasonerConfig.push_smoothing must be in (0, 1], got {self.push_smoothing!r}")
         _check_nonneg(self, "place_dwell")
         _check_nonneg(self, "horizon")
 

@@ -28,7 +28,7 @@ import logging
 import numpy as np
 
 from actions.events import recent_events, record_event_times
-from actions.modes import HELD, RELEASE
+from actions.modes import HELD
 from physics.scene import Scene
 
 from .belief import Belief, compute_belief
@@ -72,7 +72,8 @@ class SceneEstimator:
     also readable as attributes: ``poses (K, M, 7)``, ``velocities (K, M, 6)``, ``params (K, M, 5)``
     (lateral / rolling / spinning friction, restitution, mass in kg), ``modes (K, M)`` int8
     (FREE / HELD), ``log_weights (K,)``, ``on_top (K, M, M+1)`` and ``is_in (K, M, M)`` (relations at
-    the last update), ``event_t (K, M, 3)``. ``known (M,)``: objects with a pose or perceived since.
+    the last update), ``event_t (K, M, 4)`` (latest Pick / Place / Release / Push times).
+    ``known (M,)``: objects with a pose or perceived since.
     """
 
     poses = _StateField()
@@ -226,11 +227,9 @@ class SceneEstimator:
         self.t_tick = t
         self.n_updates += 1
         # summarise
-        record_event_times(self.state.event_t, settled.codes, t)
-        if move.behind_cover is not None and np.any(move.behind_cover):  # let go back then, out of view
-            self.state.event_t[..., RELEASE - 1][move.behind_cover] = self.state.hidden_t[move.behind_cover]
+        record_event_times(self.state.event_t, settled.codes, t, settled.times, self.state.push_decided)
         step_events = recent_events(self.state.event_t, weights, t, cfg.event_window, self.object_ids,
-                                    threshold=cfg.hypothesis_min_p)
+                                    threshold=cfg.hypothesis_min_p, push_decided=self.state.push_decided)
         belief = compute_belief(t, self.object_ids, self.known, perceived, settled.poses, weights, settled.modes,
                                 settled.on_top, settled.is_in, step_events, ess, self.static, cfg.hypothesis_min_p,
                                 cov_floor=cfg.noise.covariance_floor_std ** 2)
@@ -310,7 +309,7 @@ class SceneEstimator:
             event_t=s.event_t, supported=settled.supported, last_motion=last_motion,
             jolted=np.zeros((self.K, self.M), dtype=bool), unseen_in_view=unseen_in_view,
             hold_error=move.hold_error, let_go_unseen=move.let_go_unseen, hidden_at=hidden[0],
-            hidden_t=hidden[1], hidden_n=hidden[2])
+            hidden_t=hidden[1], hidden_n=hidden[2], push_decided=s.push_decided, holds=settled.holds)
 
     def _resample(self, weights: np.ndarray, hidden: np.ndarray) -> None:
         """Systematic resampling, then the model's regularisation of hidden objects ``hidden (M,)`` and

@@ -10,7 +10,7 @@ and the worlds and calls, at each update:
    process noise on unperceived free objects, and what the physics must check and report;
 2. :meth:`SceneModel.batch`: the pool's input for the move (physics itself is the pool's, Alg. 1);
 3. :meth:`SceneModel.settle`: relations after physics, Place (a held object perceived at rest on
-   a support) and Release in view (perceived falling), the update's event codes;
+   a support) and Release in view (perceived falling), the update's events (:mod:`actions.episodes`);
 4. :meth:`SceneModel.evidence` and :meth:`SceneModel.log_weight`: the terms of
    :mod:`estimator.likelihood` (:attr:`SceneModel.terms`);
 5. after resampling, :meth:`SceneModel.regularise`: kernel jitter of hidden free objects and
@@ -23,7 +23,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from actions.modes import FREE, HELD, RELEASE, merge_events, switch_events
+from actions.episodes import EpisodeRule, carried, update_events
+from actions.events import N_ACTIONS
+from actions.modes import FREE, HELD, RELEASE
+from actions.push import empty_holds
 from physics.scene import Scene
 from physics.transforms import carry_pose, quat_from_rotvec, quat_multiply
 
@@ -105,8 +108,10 @@ class Move:
 class Settled:
     """The particles after physics and the Place / Release rules: ``poses (K, M, 7)``, ``velocities
     (K, M, 6)``, ``modes (K, M)``, ``on_top (K, M, M+1)``, ``is_in (K, M, M)``, ``supported (K, M)``,
-    ``codes (K, M)`` (event codes of the whole update) and ``tick_vel (M, 3)`` (perceived velocity
-    over the reasoning period, m/s)."""
+    ``codes (K, M)`` (event codes of the whole update), ``tick_vel (M, 3)`` (perceived velocity
+    over the reasoning period, m/s), ``holds (K, M, 6)`` (the hold records after the update,
+    :mod:`actions.push`) and ``times (K, M)`` (s, when each event of ``codes`` happened, if before
+    ``t``: a Pick's when the object started moving, a Push's its Pick's; NaN: at ``t``)."""
 
     poses: np.ndarray
     velocities: np.ndarray
@@ -116,6 +121,8 @@ class Settled:
     supported: np.ndarray
     codes: np.ndarray
     tick_vel: np.ndarray
+    holds: np.ndarray
+    times: np.ndarray
 
 
 class SceneModel:
@@ -175,11 +182,12 @@ class SceneModel:
         return ParticleState(poses=poses, velocities=np.zeros((K, M, 6)), params=params,
                              modes=np.zeros((K, M), dtype=np.int8), log_weights=np.zeros(K),
                              on_top=np.zeros((K, M, M + 1), dtype=bool), is_in=np.zeros((K, M, M), dtype=bool),
-                             event_t=np.full((K, M, 3), -np.inf), supported=np.zeros((K, M), dtype=bool),
+                             event_t=np.full((K, M, N_ACTIONS), -np.inf), supported=np.zeros((K, M), dtype=bool),
                              last_motion=np.zeros((K, M)), jolted=np.zeros((K, M), dtype=bool),
                              unseen_in_view=np.zeros((K, M), dtype=np.int32), hold_error=np.zeros((K, M, 3)),
                              let_go_unseen=np.full((K, M), -np.inf), hidden_at=np.zeros((K, M, 3)),
-                             hidden_t=np.full((K, M), -np.inf), hidden_n=np.zeros((K, M), dtype=np.int32))
+                             hidden_t=np.full((K, M), -np.inf), hidden_n=np.zeros((K, M), dtype=np.int32),
+                             push_decided=np.full((K, M), -np.inf), holds=empty_holds((K, M)))
 
     # -- the move -------------------------------------------------------------------------------------
     def move(self, state: ParticleState, frame: Frame, detected: np.ndarray, perceived: np.ndarray,
@@ -328,8 +336,8 @@ class SceneModel:
     def settle(self, state: ParticleState, move: Move, out: BatchOutput, t: float, dt: float,
                detected: np.ndarray, perceived: np.ndarray) -> Settled:
         """Relations of the particles ``out`` gives (their exploded ones already reset); Place: a held
-        object perceived at rest on a support is put down; Release in view: a held object perceived
-        falling (fast, or accelerating down with nothing under it) was let go."""
+        object perceived at rest on a support is let go; Release in view: a held object perceived
+        falling (fast, or accelerating down with nothing under it) was let go; the events."""
         hr, cfg, mem = self.config.reasoner, self.config, self.memory
         new_modes = out.modes
         valid = np.broadcast_to(self.known, (self.K, self.M))
@@ -345,10 +353,20 @@ class SceneModel:
         held_seen = (new_modes == HELD) & perceived[None, :]
         after_physics = new_modes.copy()
         new_modes[held_seen & ((rested[None, :] & supported) | falling)] = FREE
-        codes = merge_events(move.release_codes,
-                             switch_events(move.modes, after_physics, supported),
-                             switch_events(after_physics, new_modes, supported))
-        return Settled(out.poses, out.velocities, new_modes, on_top, is_in, supported, codes, vel)
+        # the switches read as actions (actions.episodes): a Pick dated when the object started
+        # moving, a Place once physics confirms it (dated when it came to rest), a Push if unlifted
+        rule, onset = EpisodeRule(hr.push_lift, hr.push_smoothing, hr.place_wait), mem.moving_since
+        ev = update_events(
+            state.holds, np.isfinite(state.event_t).any(axis=-1), carried(state.is_in, state.on_top, after_physics),
+            move.modes, after_physics, new_modes, move.release_codes, supported,
+            supported & (np.linalg.norm(out.velocities[..., :3], axis=-1) < rule.rest_speed), move.poses[..., 2],
+            out.poses[..., 2], np.where(perceived, mem.mean_positions(t, hr.place_dwell)[:, 2], np.nan),
+            np.where((onset >= t - cfg.event_window) & (onset <= t), onset, t), t, rule, let_go_t=t - hr.place_dwell)
+        times = ev.times
+        if move.behind_cover is not None and np.any(move.behind_cover):  # let go back then, out of view
+            times = np.where(move.behind_cover & (ev.codes == RELEASE), state.hidden_t, times)
+        return Settled(out.poses, out.velocities, ev.modes, on_top, is_in, supported, ev.codes, vel, ev.holds,
+                       times)
 
     # -- the weights ----------------------------------------------------------------------------------
     def evidence(self, move: Move, settled: Settled, out: BatchOutput, frame: Frame, detected: np.ndarray,

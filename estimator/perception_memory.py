@@ -22,6 +22,13 @@ HAND_RADIUS = 0.3
 """A tracked hand within this distance (m) of a detected object is taken to be the one holding it."""
 HAND_SMOOTHING = 3
 """Hand positions are averaged over this many latest frames before a displacement is measured."""
+MOTION_ONSET = 0.015
+"""m: an object still until now starts moving when a detection lies this far from where it was still
+(the average of its still detections); it started at its last detection closer than that."""
+STILL_FRAMES = 30
+"""A still object's position is the mean of its still detections, the latest :data:`STILL_FRAMES`
+weighing most (an exponential average of weight ``max(1 / n, 1 / STILL_FRAMES)``): it does not follow
+a slow slide."""
 
 
 class PerceptionMemory:
@@ -37,8 +44,10 @@ class PerceptionMemory:
     (s; -inf: never), ``last_std`` (m; NaN: the detector gave none), ``perc_vel (M, 6)`` (linear part
     from finite differences, m/s; angular part 0), ``pose_at_tick (M, 7)`` (``last_pose`` at the
     previous reasoning step), ``perceived_prev`` bool (perceived at the previous step),
-    ``hold_hand`` (name of the tracked hand near each object when last detected, or None) and
-    ``hold_offset (M, 3)`` (object minus hand position then, m).
+    ``hold_hand`` (name of the tracked hand near each object when last detected, or None),
+    ``hold_offset (M, 3)`` (object minus hand position then, m), ``still_position (M, 3)`` (m, average
+    detection while the object is still; NaN: not seen still) and ``moving_since (M,)`` (s, the time
+    a still object started moving, :data:`MOTION_ONSET`, until it is at rest again; NaN: still).
     """
 
     def __init__(self, scene: Scene, poses: np.ndarray, reasoner: ReasonerConfig, follow_hands: bool):
@@ -61,6 +70,9 @@ class PerceptionMemory:
         self._prev_tick_vel = np.zeros((M, 3))
         self._t_seen_at_tick = np.full(M, -np.inf)
         self._history: list[deque] = [deque() for _ in range(M)]
+        self.still_position = np.full((M, 3), np.nan)
+        self.moving_since = np.full(M, np.nan)
+        self._still_n = np.zeros(M, dtype=int)
         self.workspace = scene.workspace_bounds()
         self.rejected = 0
 
@@ -104,6 +116,7 @@ class PerceptionMemory:
                 continue
             detected[m] = True
             gap = frame.t - self.last_seen[m]
+            self._track_motion(m, frame.t, det.position, gap)
             if 0 < gap <= hr.t_perceived:
                 self.perc_vel[m, :3] = (det.position - self.last_pose[m, :3]) / gap
             else:
@@ -121,6 +134,25 @@ class PerceptionMemory:
                 hist.popleft()
             self._nearest_hand(frame, m)
         return detected
+
+    def _track_motion(self, m: int, t: float, position: np.ndarray, gap: float) -> None:
+        """Motion onset of object m from its detection at ``position`` (m) at ``t`` (s), ``gap`` (s)
+        after the previous one (before it is stored): a still object (its average still position
+        known) moves when the detection is :data:`MOTION_ONSET` away (``moving_since`` = the previous
+        detection's time); a moving one is still again once its detections over a ``place_dwell``
+        since it started moving stayed within :data:`MOTION_ONSET` (checked on the history before
+        this detection: it restarts the average here). After a loss (``gap`` over
+        ``t_perceived``) nothing is known: the object starts still where seen."""
+        still, since, last = self.still_position[m], self.moving_since[m], self.last_seen[m]
+        if not gap <= self.reasoner.t_perceived or np.isnan(still[0]) or (
+                last - since >= self.reasoner.place_dwell and self._rested(m, last, MOTION_ONSET)):
+            self.still_position[m], self.moving_since[m], self._still_n[m] = position, np.nan, 1
+        elif np.isnan(self.moving_since[m]):
+            if math.dist(still, position) > MOTION_ONSET:
+                self.moving_since[m] = self.last_seen[m]
+            else:
+                self._still_n[m] += 1
+                self.still_position[m] = still + max(1.0 / self._still_n[m], 1.0 / STILL_FRAMES) * (position - still)
 
     def _nearest_hand(self, frame: Frame, m: int) -> None:
         """Remember the tracked hand nearest to object m (within :data:`HAND_RADIUS`) and the offset."""
@@ -193,25 +225,38 @@ class PerceptionMemory:
     def at_rest(self, t: float) -> np.ndarray:
         """Objects ``(M,)`` whose detections over the last ``place_dwell`` seconds moved less than
         ``place_speed * place_dwell`` and turned less than ``place_spin * place_dwell``."""
-        hr = self.reasoner
-        out = np.zeros(self.M, dtype=bool)
-        horizon = t - hr.place_dwell + 1e-9
+        return np.array([self._rested(m, t) for m in range(self.M)], dtype=bool)
+
+    def mean_positions(self, t: float, span: float) -> np.ndarray:
+        """Mean detected position ``(M, 3)`` (m) of each object over the ``span`` seconds up to ``t``
+        (NaN for an object without a detection then)."""
+        out = np.full((self.M, 3), np.nan)
         for m, hist in enumerate(self._history):
-            if not hist or t - hist[-1][0] > hr.place_dwell:
-                continue
-            old = next((h for h in reversed(hist) if h[0] <= horizon), None)  # the latest one old enough
-            if old is None:
-                continue
-            t0, p0, q0 = old
-            t1, p1, q1 = hist[-1]
-            span = max(t1 - t0, hr.place_dwell)
-            moved = math.dist(p0, p1) < hr.place_speed * span
-            turned = True
-            if q0 is not None and q1 is not None:
-                dot = min(1.0, abs(sum(a * b for a, b in zip(q0, q1))))
-                turned = 2.0 * math.acos(dot) < hr.place_spin * span
-            out[m] = moved and turned
+            recent = [h[1] for h in hist if h[0] >= t - span - 1e-9]
+            if recent:
+                out[m] = np.mean(recent, axis=0)
         return out
+
+    def _rested(self, m: int, t: float, distance: float | None = None) -> bool:
+        """:meth:`at_rest` for object m at time ``t`` (s), on the detections stored so far; with
+        ``distance`` (m), the detections must also have moved less than that."""
+        hr = self.reasoner
+        hist = self._history[m]
+        if not hist or t - hist[-1][0] > hr.place_dwell:
+            return False
+        horizon = t - hr.place_dwell + 1e-9
+        old = next((h for h in reversed(hist) if h[0] <= horizon), None)  # the latest one old enough
+        if old is None:
+            return False
+        t0, p0, q0 = old
+        t1, p1, q1 = hist[-1]
+        span = max(t1 - t0, hr.place_dwell)
+        moved = math.dist(p0, p1) < min(hr.place_speed * span, math.inf if distance is None else distance)
+        turned = True
+        if q0 is not None and q1 is not None:
+            dot = min(1.0, abs(sum(a * b for a, b in zip(q0, q1))))
+            turned = 2.0 * math.acos(dot) < hr.place_spin * span
+        return moved and turned
 
     # -- end of a reasoning step ----------------------------------------------------------------------
     def end_tick(self, perceived: np.ndarray, detected: np.ndarray, tick_vel: np.ndarray) -> None:

@@ -16,8 +16,13 @@ class ParticleState:
     * ``log_weights (K,)``: unnormalised, the largest finite one 0;
     * ``on_top (K, M, M+1)``, ``is_in (K, M, M)`` bool: relations at the last update (column M of
       ``on_top`` is the floor);
-    * ``event_t (K, M, 3)``: time (s) of each particle's latest Pick / Place / Release per object
-      (-inf: none; see :func:`actions.events.record_event_times`);
+    * ``event_t (K, M, 4)``: time (s) of each particle's latest Pick / Place / Release / Push per
+      object (-inf: none; see :func:`actions.events.record_event_times`);
+    * ``push_decided (K, M)``: time (s) at which the latest Push was decided (the object let go;
+      -inf: none), from which it counts as recent (:func:`actions.events.recent_events`);
+    * ``holds (K, M, 6)``: per object, its height when it last rested free and the record of its
+      current held episode (Pick time, smoothed and highest height, held airborne, let go pending
+      confirmation; :mod:`actions.push`);
     * ``supported (K, M)`` bool: resting on or in something at the last update;
     * ``last_motion (K, M)``: distance (m) each object moved in the last update;
     * ``jolted (K, M)`` bool: objects displaced without physics since the worlds last saw them (to
@@ -50,6 +55,8 @@ class ParticleState:
     hidden_at: np.ndarray
     hidden_t: np.ndarray
     hidden_n: np.ndarray
+    push_decided: np.ndarray
+    holds: np.ndarray
 
     def take(self, ancestors: np.ndarray) -> "ParticleState":
         """The particles ``ancestors (K,)`` (indices, repeats allowed), copied, equally weighted."""

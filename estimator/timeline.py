@@ -5,6 +5,10 @@ when its probability reaches ``threshold`` and closes when it falls below; its `
 mean probability while open. An action enters the timeline when the probability that it happened
 within the estimator's event window reaches ``threshold``; its time is the probability-weighted mean
 time of the particles' switches, and its probability the highest reached while it stays above.
+
+A Push is known only when the object is let go, unlifted (:mod:`actions.push`), while its Pick
+entered the timeline when the object started moving: the Push then *revises* that Pick (same
+subject, times within ``merge``): the Pick is replaced by the Push, and does not come back.
 """
 from __future__ import annotations
 
@@ -35,6 +39,7 @@ class Timeline:
         self.events: list[EventRecord] = []
         self._open: dict[tuple, _OpenFact] = {}
         self._open_events: dict[tuple[str, str], int] = {}
+        self._revised: dict[str, list[float]] = {}  # subject -> times of Picks revised into Pushes
         self.t_end: float | None = None
 
     def observe_facts(self, t: float, probabilities: dict[tuple, float]) -> None:
@@ -59,7 +64,9 @@ class Timeline:
 
         An event enters when its probability reaches ``threshold``; while it stays above, later updates
         raise its recorded probability (and refine its time) instead of adding a new event, unless
-        the switch time moved on by more than ``merge`` seconds (a new action of the same kind).
+        the switch time moved on by more than ``merge`` seconds (a new action of the same kind). A
+        new Push takes the place of the Pick it revises (:meth:`_revised_pick`); that Pick does not
+        enter again.
         """
         new = []
         seen = set()
@@ -74,12 +81,31 @@ class Timeline:
                 if e.p > old.p:
                     self.events[idx] = EventRecord(e.t, e.action, e.subject, e.p)
                 continue
-            self.events.append(e)
-            self._open_events[key] = len(self.events) - 1
+            if e.action == "Pick" and any(abs(e.t - r) <= self.merge for r in self._revised.get(e.subject, ())):
+                continue  # a Pick already revised into a Push
+            j = self._revised_pick(e) if e.action == "Push" else None
+            if j is None:
+                self.events.append(e)
+                j = len(self.events) - 1
+            else:
+                self._revised.setdefault(e.subject, []).append(self.events[j].t)
+                if self._open_events.get((e.subject, "Pick")) == j:
+                    del self._open_events[(e.subject, "Pick")]
+                self.events[j] = e
+            self._open_events[key] = j
             new.append(e)
         for key in [k for k in self._open_events if k not in seen]:
             del self._open_events[key]
         return new
+
+    def _revised_pick(self, push: EventRecord) -> int | None:
+        """Index of the Pick in :attr:`events` that ``push`` revises: the one of the same subject whose
+        time is nearest the Push's, within ``merge`` seconds (None: none)."""
+        best, best_dt = None, self.merge + 1e-9
+        for i, e in enumerate(self.events):
+            if e.action == "Pick" and e.subject == push.subject and abs(e.t - push.t) <= best_dt:
+                best, best_dt = i, abs(e.t - push.t)
+        return best
 
     @staticmethod
     def _fact(key, f: _OpenFact, end: float | None) -> dict:

@@ -20,7 +20,7 @@ Entity paths (object ids are escaped as entity path parts; M objects)::
     plots/ess                           effective sample size
     plots/p_plausible/<id>, plots/p_held/<id>, plots/relations/<predicate>/<subject>/<object>
     plots/truth/held/<id>, plots/truth/relations/<predicate>/<subject>/<object>   0 / 1
-    log/events                          per-update event probabilities (Pick / Place / Release)
+    log/events                          per-update event probabilities (Pick / Place / Release / Push)
     log/timeline                        facts (begin / end) and events of the final timeline
     log/truth                           true events
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import shutil
 import subprocess
 import sys
@@ -14,7 +15,7 @@ import numpy as np
 import pytest
 
 from experiments.cli import evaluate as evaluate_cli
-from experiments.evaluation.report import paired_tests, summarize
+from experiments.evaluation.report import markdown_event_section, paired_tests, pooled_event_counts, summarize
 from experiments.evaluation.scoring import score_run
 from experiments.evaluation.sweep import SweepConfig, read_rows, run_sweep
 from experiments.evaluation.trials import TrialSpec, deterministic_part, run_trial, trial_rng
@@ -79,6 +80,8 @@ def test_a_perfect_estimate_scores_zero_error_and_f1_one():
     assert s["isin_f1"] == 1.0 and s["isin_acc"] == 1.0  # the ball ends in the box
     assert s["event_f1"] == 1.0 and s["event_precision"] == 1.0 and s["event_recall"] == 1.0
     assert s["event_latency"] == 0.0
+    assert s["release_f1"] == 1.0 and s["release_latency"] == 0.0 and s["release_true"] == s["release_matched"] == 1
+    assert math.isnan(s["push_f1"]) and s["push_true"] == 0 and s["pick_est"] == 0  # none in this scenario
     for f in ("brier_plausible", "ece_plausible", "brier_isin", "ece_isin", "brier_isontop", "ece_isontop"):
         assert s[f] == 0.0, f
     assert s["cover50_hidden"] == 1.0 and s["cover90_hidden"] == 1.0
@@ -140,6 +143,8 @@ def test_sweep_writes_rows_summary_and_figures(reference):
         assert (out / name).stat().st_size > 0, name
     md = (out / "summary.md").read_text()
     assert "| all scenarios | particles (K=4) |" in md and "Wilcoxon" in md
+    assert "| particles (K=4) | Push |" in md  # the events by action, pooled
+    assert all(k in rows[0] for k in ("push_f1", "push_precision", "push_recall", "push_latency", "pick_true"))
     summary = summarize(rows)
     assert {(r["scenario"], r["method"]) for r in summary} >= {(s, m) for s in SCENARIOS for m in METHODS}
     tests = paired_tests(rows)
@@ -301,3 +306,26 @@ def test_a_failing_trial_is_reported_and_retried_by_the_next_run(tmp_path, monke
     ran = []
     run_sweep(cfg, tmp_path, workers=1, progress=False, report=False, on_row=ran.append)
     assert [r["key"] for r in ran] == [bad]
+
+
+def test_pooled_event_counts_add_up_over_trials():
+    def row(method, seed, **counts):
+        r = {"method": method, "particles": 4 if method == "particles" else 1, "scenario": "s", "seed": seed}
+        for a in ("pick", "place", "release", "push"):
+            r.update({f"{a}_true": 0, f"{a}_est": 0, f"{a}_matched": 0})
+        r.update(counts)
+        return r
+    rows = [row("particles", 0, push_true=1, push_est=1, push_matched=1, pick_est=1),
+            row("particles", 1, push_true=1, push_est=0, push_matched=0, place_true=2, place_est=2, place_matched=2),
+            row("paper", 0, push_true=1, pick_est=1, place_est=1),
+            {"method": "paper", "particles": 1, "scenario": "s", "seed": 1}]  # an old row: no counts
+    got = {(c["method"], c["action"]): c for c in pooled_event_counts(rows)}
+    push = got[("particles", "Push")]
+    assert (push["n_true"], push["n_est"], push["n_matched"], push["trials"]) == (2, 1, 1, 2)
+    assert push["precision"] == 1.0 and push["recall"] == 0.5 and push["f1"] == pytest.approx(2 / 3)
+    assert got[("particles", "Pick")]["precision"] == 0.0 and math.isnan(got[("particles", "Pick")]["recall"])
+    assert math.isnan(got[("particles", "Release")]["f1"])
+    assert got[("paper", "Push")]["f1"] == 0.0 and got[("paper", "Push")]["trials"] == 1
+    md = markdown_event_section(rows)
+    assert "| particles (K=4) | Push | 2 | 1 | 1 | 1.00 | 0.50 | 0.67 |" in md
+    assert markdown_event_section([]) == ""

@@ -119,6 +119,26 @@ def test_event_scores_empty_and_per_action():
     assert picks["f1"] == 1.0 and picks["n_true"] == 1
 
 
+def test_event_scores_by_action_score_each_of_the_four_actions_alone():
+    truth = TRUE_EVENTS + [{"t": 4.0, "action": "Push", "subject": "box"}]
+    est = [{"t": 1.2, "action": "Pick", "subject": "cup"},      # matched, 0.2 s late
+           {"t": 2.1, "action": "Place", "subject": "cup"},     # matched, 0.1 s late
+           {"t": 3.9, "action": "Pick", "subject": "box"},      # a push read as a Pick: false Pick...
+           {"t": 4.8, "action": "Place", "subject": "box"}]     # ...and false Place; Release missed
+    by = M.event_scores_by_action(est, truth)
+    assert list(by) == ["Pick", "Place", "Release", "Push"] == list(M.ACTIONS)
+    assert by["Pick"]["precision"] == 0.5 and by["Pick"]["recall"] == 1.0
+    assert by["Pick"]["f1"] == pytest.approx(2 / 3) and by["Pick"]["latency_median"] == pytest.approx(0.2)
+    assert by["Place"]["n_matched"] == 1 and by["Place"]["latency_median"] == pytest.approx(0.1)
+    assert by["Release"]["f1"] == 0.0 and by["Release"]["recall"] == 0.0 and math.isnan(by["Release"]["precision"])
+    assert by["Push"]["f1"] == 0.0 and by["Push"]["n_true"] == 1 and by["Push"]["n_est"] == 0
+    pushed = M.event_scores_by_action([{"t": 4.3, "action": "Push", "subject": "box"}], truth)["Push"]
+    assert pushed["f1"] == 1.0 and pushed["latency_median"] == pytest.approx(0.3)
+    # an action absent from both lists is undefined, not perfect
+    none = M.event_scores_by_action([], [])["Push"]
+    assert math.isnan(none["f1"]) and none["n_true"] == 0
+
+
 # -- calibration -------------------------------------------------------------------------------------
 def test_gaussian_nll_matches_scipy_with_the_floor():
     mean = np.array([0.1, 0.2, 0.7])

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from actions.modes import FREE, HELD, PLACE, RELEASE
+from actions.push import LET_GO_T
 from estimator.config import EstimatorConfig, NoiseConfig
 from estimator.likelihood import Evidence
 from estimator.model import SceneModel, initial_poses
@@ -292,8 +293,20 @@ def test_place_a_held_object_perceived_at_rest_on_a_support():
     out = BatchOutput(st.poses.copy(), st.velocities.copy(), modes, np.zeros((2, 5)), aabbs, np.ones(2, bool),
                       np.zeros((2, 5)))
     s = model.settle(st, replace(mv, modes=modes.copy()), out, t, 0.08, perceived, perceived)
-    assert list(s.modes[:, CUP]) == [FREE, HELD] and list(s.codes[:, CUP]) == [PLACE, 0]
+    assert list(s.modes[:, CUP]) == [FREE, HELD] and list(s.codes[:, CUP]) == [0, 0]
     assert s.on_top[0, CUP, TABLE] and s.supported[0, CUP] and not s.supported[1, CUP]
+    # the Place waits for physics: at the next update the cup rests where it was let go (as perceived)
+    assert s.holds[0, CUP, LET_GO_T] == pytest.approx(t - model.config.reasoner.place_dwell)
+    assert np.isnan(s.holds[1, CUP, LET_GO_T])
+    st2 = replace(st, modes=s.modes.copy(), holds=s.holds, supported=s.supported)
+    poses = st.poses.copy()
+    poses[:, CUP, 2] = 0.14
+    out2 = BatchOutput(poses, np.zeros_like(st.velocities), s.modes.copy(), np.zeros((2, 5)), aabbs,
+                       np.ones(2, bool), np.zeros((2, 5)))
+    s2 = model.settle(st2, replace(mv, modes=s.modes.copy()), out2, t + 0.08, 0.08, perceived, perceived)
+    # dated when it came to rest, a dwell before the let-go rule fired
+    assert list(s2.codes[:, CUP]) == [PLACE, 0] and s2.times[0, CUP] == pytest.approx(t - model.config.reasoner.place_dwell)
+    assert list(s2.modes[:, CUP]) == [FREE, HELD]
 
 
 def test_log_weight_of_one_particle_is_only_the_explosion_mask():

@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from actions.modes import FREE, HELD, NO_EVENT, PICK, PLACE, RELEASE, ModePriors, merge_events, switch_events
+from actions.modes import (EVENT_NAMES, FREE, HELD, NO_EVENT, PICK, PLACE, PUSH, RELEASE, ModePriors, merge_events,
+                           switch_events)
 
 
 def test_switch_events_labels():
@@ -25,3 +26,10 @@ def test_priors_costs():
     assert np.allclose(c, np.log([0.1, 0.9, 0.3, 0.7, 1.0]))
     with pytest.raises(ValueError):
         ModePriors(pick=1.5)
+
+
+def test_event_codes_name_the_four_actions_in_column_order():
+    assert EVENT_NAMES == {PICK: "Pick", PLACE: "Place", RELEASE: "Release", PUSH: "Push"}
+    assert sorted(EVENT_NAMES) == list(range(1, len(EVENT_NAMES) + 1))  # code - 1 is the column
+    # a switch is never a Push by itself: it is a Place until the hold record says otherwise
+    assert PUSH not in switch_events(np.array([HELD, FREE]), np.array([FREE, HELD]), True)

@@ -144,3 +144,33 @@ def test_hand_travel_is_the_smoothed_hand_displacement_since_the_object_was_last
     for k, h in enumerate(later):
         mem.record(Frame(1.0 + 0.1 * k, {}, {"human/right": h}))
     assert mem.hand_travel()[CUP] == pytest.approx(np.linalg.norm(later[0] - at_seen))
+
+
+def test_motion_onset_is_the_last_still_detection_and_ends_when_still_again():
+    from estimator.perception_memory import MOTION_ONSET
+
+    mem = memory()
+    rng = np.random.default_rng(4)
+    still = [[0.3, 0.3, 0.14] + rng.normal(0, 0.002, 3) for _ in range(30)]  # 1 s still, 2 mm noise
+    t = _frames(mem, still)
+    assert np.isnan(mem.moving_since[CUP]) and np.allclose(mem.still_position[CUP], [0.3, 0.3, 0.14], atol=0.003)
+    # then it slides at 0.1 m/s: onset at the last detection closer than MOTION_ONSET to where it was
+    path = [[0.3 + 0.1 * (i + 1) / 30, 0.3, 0.14] for i in range(15)]
+    times = [t + (i + 1) / 30 for i in range(15)]
+    for ti, p in zip(times, path):
+        mem.record(Frame(ti, {"cup": det(p)}))
+    first_far = next(i for i, p in enumerate(path) if p[0] - 0.3 > MOTION_ONSET + 0.003)
+    assert times[first_far - 2] - 1e-9 <= mem.moving_since[CUP] <= times[first_far - 1] + 1e-9
+    assert mem.moving_since[CUP] > t  # after the still part
+    onset = mem.moving_since[CUP]
+    # still moving slowly: the onset stays (slow motion is not "still again")
+    mem.record(Frame(times[-1] + 1 / 30, {"cup": det([path[-1][0] + 0.003, 0.3, 0.14])}))
+    assert mem.moving_since[CUP] == onset
+    # at rest for longer than place_dwell: still again, at the new place
+    end = times[-1] + 1 / 30
+    for i in range(12):
+        mem.record(Frame(end + (i + 1) / 30, {"cup": det([path[-1][0] + 0.003, 0.3, 0.14])}))
+    assert np.isnan(mem.moving_since[CUP]) and np.isclose(mem.still_position[CUP][0], path[-1][0] + 0.003)
+    # after a loss the object starts still wherever it is seen again
+    mem.record(Frame(end + 5.0, {"cup": det([0.0, 0.0, 0.14])}))
+    assert np.isnan(mem.moving_since[CUP]) and np.allclose(mem.still_position[CUP], [0.0, 0.0, 0.14])

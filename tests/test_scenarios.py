@@ -144,7 +144,7 @@ def test_every_scenario_writes_well_formed_streams(name, tmp_path):
         for r in f["relations"]:
             assert r["predicate"] in ("isOnTop", "isIn") and r["subject"] in ids
         for e in f["events"]:
-            assert e["action"] in ("Pick", "Place", "Release") and e["subject"] in ids and e["p"] == 1.0
+            assert e["action"] in ("Pick", "Place", "Release", "Push") and e["subject"] in ids and e["p"] == 1.0
     # the estimator's scene holds the true settled initial poses
     first = truth[0]["objects"]
     for spec in scene.objects:

@@ -53,7 +53,14 @@ def test_a_cup_falls_behind_box_unseen(seed):
     assert ("isOnTop", "table") in _relations(last, "box")
     assert last["objects"]["box"]["position"][0] < first["objects"]["box"]["position"][0] - 0.2
     assert _perceived(res, "box") > 0.9 * len(res.observations)
-    assert res.events == [] and not any(o["held"] for f in res.truth for o in f["objects"].values())
+    assert not any(o["held"] for f in res.truth for o in f["objects"].values())
+    # the box was pushed (one Push, when it started moving under the hand); the cup, shoved off by
+    # the box, got nothing
+    assert [(e["action"], e["subject"]) for e in res.events] == [("Push", "box")]
+    x0 = first["objects"]["box"]["position"][0]
+    moved = [f["t"] for f in res.truth if abs(f["objects"]["box"]["position"][0] - x0) > 0.005]
+    assert moved and moved[0] - 1 / 30 - DT <= res.events[0]["t"] <= moved[0] + DT
+    _check_event_frames(res)
 
 
 def test_b_ball_released_lands_in_box_out_of_sight():
@@ -101,7 +108,8 @@ def test_d_ball_stays_in_moving_box(seed):
     path = max(np.linalg.norm(np.array(f["objects"]["box"]["position"]) - p0) for f in res.truth)
     assert path > 0.2
     assert _perceived(res, "ball") == 0
-    assert [e["action"] for e in res.events] == ["Pick", "Place"]
+    # the ball, carried inside the held box, gets no event
+    assert [(e["action"], e["subject"]) for e in res.events] == [("Pick", "box"), ("Place", "box")]
     _check_event_frames(res)
     # the hand is tracked in every frame, near the box while holding it
     assert all(HAND_ID in f["hands"] for f in res.observations)
@@ -202,3 +210,62 @@ def test_demo_files_are_shipped_and_consistent():
         "--seed 0 --out /tmp/demo` and copy scene.yaml / observations.jsonl / truth.jsonl / meta.json "
         "to experiments/data/demo_*")
     assert math.isclose(json.loads(lines[-1])["t"], res.observations[-1]["t"])
+
+
+def _push_scenario(obj: dict, hand_z: float, contents: list | None = None):
+    """A box (or container) on the table at x = 0, and a hand that comes from +x with ``collide: true``
+    and pushes it 20 cm towards -x along the table, then leaves."""
+    from experiments.scenarios import scenario_from_dict
+
+    return scenario_from_dict({
+        "name": "push_test", "duration": 3.0,
+        "scene": {"objects": [{"id": "table", "static": True, "urdf": "pybullet_data://table/table.urdf",
+                               "pose": {"position": [0, 0, 0]}}, obj, *(contents or [])]},
+        "hand": {"start": [0.3, 0.0, hand_z], "collide": True, "script": [
+            {"t": 0.6, "to": [0.14, 0.0, hand_z]},
+            {"t": 1.8, "by": [-0.2, 0.0, 0.0]},
+            {"t": 2.1, "by": [0.05, 0.0, 0.0], "collide": False},
+            {"t": 2.5, "by": [0.1, 0.0, 0.2]}]}})
+
+
+def test_a_box_pushed_along_the_table_is_one_push_and_no_pick_or_place():
+    box = {"id": "box", "box": {"size": [0.1, 0.1, 0.1]}, "mass": 0.3, "friction": 0.5,
+           "pose": {"position": [0.0, 0.0, 0.676]}}
+    res = simulate(_push_scenario(box, 0.68), 0)
+    assert [(e["action"], e["subject"]) for e in res.events] == [("Push", "box")]
+    _check_event_frames(res)
+    x = np.array([f["objects"]["box"]["position"][0] for f in res.truth])
+    t = np.array([f["t"] for f in res.truth])
+    assert x[-1] < x[0] - 0.1  # really pushed
+    started = t[np.argmax(np.abs(x - x[0]) > 0.005)]  # the first frame it had moved
+    assert started - 1 / 30 - DT <= res.events[0]["t"] <= started + DT
+    assert not any(f["objects"]["box"]["held"] for f in res.truth)
+    assert ("isOnTop", "table") in _relations(res.truth[-1], "box")
+
+
+def test_the_contents_of_a_pushed_container_get_no_event():
+    crate = {"id": "crate", "container": {"size": [0.2, 0.2, 0.12], "wall": 0.01}, "mass": 0.5, "friction": 0.5,
+             "pose": {"position": [-0.05, 0.0, 0.686]}}
+    ball = {"id": "ball", "sphere": {"radius": 0.03}, "mass": 0.05, "pose": {"position": [-0.05, 0.0, 0.666]}}
+    res = simulate(_push_scenario(crate, 0.70, [ball]), 0)
+    b0, b1 = (np.array(f["objects"]["ball"]["position"]) for f in (res.truth[0], res.truth[-1]))
+    assert np.linalg.norm(b1[:2] - b0[:2]) > 0.05  # the ball went with its crate...
+    assert all(("isIn", "crate") in _relations(f, "ball") for f in res.truth)
+    assert [(e["action"], e["subject"]) for e in res.events] == [("Push", "crate")]  # ...and has no event
+
+
+def test_a_box_knocked_off_the_table_is_no_push():
+    # the hand sweeps a light box off the table edge: it falls, it was not pushed along its support
+    box = {"id": "box", "box": {"size": [0.06, 0.06, 0.06]}, "mass": 0.1,
+           "pose": {"position": [-0.6, 0.0, 0.656]}}
+    from experiments.scenarios import scenario_from_dict
+
+    sc = scenario_from_dict({
+        "name": "knock", "duration": 2.5,
+        "scene": {"objects": [{"id": "table", "static": True, "urdf": "pybullet_data://table/table.urdf",
+                               "pose": {"position": [0, 0, 0]}}, box]},
+        "hand": {"start": [-0.3, 0.0, 0.66], "collide": True, "script": [
+            {"t": 1.0, "to": [-1.1, 0.0, 0.66]}]}})
+    res = simulate(sc, 0)
+    assert res.truth[-1]["objects"]["box"]["position"][2] < 0.1  # on the floor
+    assert res.events == []

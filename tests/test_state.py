@@ -9,13 +9,14 @@ def state(K=3, M=2):
     return ParticleState(poses=rng.normal(size=(K, M, 7)), velocities=rng.normal(size=(K, M, 6)),
                          params=rng.uniform(size=(K, M, 5)), modes=rng.integers(0, 2, (K, M)).astype(np.int8),
                          log_weights=np.array([0.0, -1.0, -2.0]), on_top=rng.uniform(size=(K, M, M + 1)) > 0.5,
-                         is_in=rng.uniform(size=(K, M, M)) > 0.5, event_t=rng.normal(size=(K, M, 3)),
+                         is_in=rng.uniform(size=(K, M, M)) > 0.5, event_t=rng.normal(size=(K, M, 4)),
                          supported=rng.uniform(size=(K, M)) > 0.5, last_motion=rng.uniform(size=(K, M)),
                          jolted=rng.uniform(size=(K, M)) > 0.5,
                          unseen_in_view=rng.integers(0, 5, (K, M)).astype(np.int32),
                          hold_error=rng.normal(size=(K, M, 3)), let_go_unseen=rng.normal(size=(K, M)),
                          hidden_at=rng.normal(size=(K, M, 3)), hidden_t=rng.normal(size=(K, M)),
-                         hidden_n=rng.integers(0, 5, (K, M)).astype(np.int32))
+                         hidden_n=rng.integers(0, 5, (K, M)).astype(np.int32),
+                         push_decided=rng.normal(size=(K, M)), holds=rng.normal(size=(K, M, 5)))
 
 
 def test_take_follows_the_ancestors_and_equalises_the_weights():
@@ -24,7 +25,7 @@ def test_take_follows_the_ancestors_and_equalises_the_weights():
     t = s.take(anc)
     for name in ("poses", "velocities", "params", "modes", "on_top", "is_in", "event_t", "supported",
                  "last_motion", "jolted", "unseen_in_view", "hold_error", "let_go_unseen", "hidden_at", "hidden_t",
-                 "hidden_n"):
+                 "hidden_n", "push_decided", "holds"):
         a, b = getattr(t, name), getattr(s, name)
         assert a.dtype == b.dtype and np.array_equal(a, b[anc]), name
     assert np.all(t.log_weights == 0) and len(t.log_weights) == 3

@@ -32,3 +32,27 @@ def test_events_enter_once_and_keep_their_highest_probability():
     tl.observe_events(3.5, [])
     assert len(tl.observe_events(3.6, [EventRecord(2.1, "Release", "cup", 0.7)])) == 1
     assert [e["t"] for e in tl.to_json()["events"]] == [1.04, 2.0, 2.1]
+
+
+def test_a_push_revises_the_pick_entered_while_the_object_moved():
+    tl = Timeline(threshold=0.5, merge=0.3)
+    tl.observe_events(0.5, [EventRecord(0.45, "Pick", "cup", 1.0)])  # an earlier, unrelated pick
+    tl.observe_events(0.6, [])
+    tl.observe_events(1.7, [EventRecord(1.63, "Pick", "box", 0.9)])
+    tl.observe_events(1.8, [EventRecord(1.64, "Pick", "box", 1.0)])
+    assert [(e.action, e.subject) for e in tl.events] == [("Pick", "cup"), ("Pick", "box")]
+    # put down unlifted: the particles withdraw the Pick and report a Push at its time
+    new = tl.observe_events(2.9, [EventRecord(1.62, "Pick", "box", 0.5), EventRecord(1.66, "Push", "box", 0.8)])
+    assert [(e.action, e.t) for e in new] == [("Push", 1.66)]
+    assert [(e.action, e.subject, e.t) for e in tl.events] == [("Pick", "cup", 0.45), ("Push", "box", 1.66)]
+    # the Push gains probability; the revised Pick does not come back, though still reported
+    tl.observe_events(3.0, [EventRecord(1.62, "Pick", "box", 0.6), EventRecord(1.65, "Push", "box", 0.95)])
+    tl.observe_events(3.1, [])
+    tl.observe_events(3.2, [EventRecord(1.62, "Pick", "box", 0.6)])
+    doc = tl.to_json()["events"]
+    assert [(e["action"], e["subject"], e["t"], e["p"]) for e in doc] == [("Pick", "cup", 0.45, 1.0),
+                                                                          ("Push", "box", 1.65, 0.95)]
+    # a Pick later than the merge window is a new action; a Push far from any Pick revises none
+    tl.observe_events(5.0, [EventRecord(4.9, "Pick", "box", 1.0), EventRecord(3.5, "Push", "cup", 1.0)])
+    assert [(e.action, e.subject) for e in tl.events] == [("Pick", "cup"), ("Push", "box"), ("Pick", "box"),
+                                                         ("Push", "cup")]

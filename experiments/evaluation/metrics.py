@@ -11,7 +11,8 @@ state or draws random numbers. Conventions:
 * **success** (at the end of a trial): error < 5 cm *and* the estimate's top hypothesis is a true
   support.
 * **events**: greedy one-to-one matching of estimated to true events with the same action and
-  subject within a window (0.5 s), closest pairs first. Latency = estimated t - true t.
+  subject within a window (0.5 s), closest pairs first. Latency = estimated t - true t. Scored over
+  all actions and per action (Pick, Place, Release, Push: :data:`ACTIONS`).
   Empty cases: no true and no estimated events: precision, recall and F1 are undefined (NaN); no
   estimates but some truth: precision NaN, recall 0, F1 0; estimates but no truth: precision 0,
   recall NaN, F1 0.
@@ -31,6 +32,8 @@ import math
 import numpy as np
 from scipy.stats import chi2
 
+from actions.modes import EVENT_NAMES
+
 SUCCESS_DISTANCE = 0.05
 """Success needs the final position error below this (m)."""
 EVENT_WINDOW = 0.5
@@ -39,6 +42,8 @@ COV_FLOOR_STD = 0.005
 """Standard deviation (m) added isotropically to every predicted covariance."""
 N_BINS = 10
 """Equal-width probability bins of the reliability diagrams and the ECE."""
+ACTIONS: tuple[str, ...] = tuple(EVENT_NAMES.values())
+"""The actions events are scored for one by one: Pick, Place, Release, Push."""
 
 
 # --------------------------------------------------------------------------------------------------
@@ -155,6 +160,13 @@ def event_scores(estimated: list[dict], truth: list[dict], window: float = EVENT
     out["latency_mean"] = float(np.mean(lat)) if lat.size else math.nan
     out.update(n_true=len(truth), n_est=len(estimated), n_matched=len(matches))
     return out
+
+
+def event_scores_by_action(estimated: list[dict], truth: list[dict], window: float = EVENT_WINDOW,
+                           actions: tuple[str, ...] = ACTIONS) -> dict[str, dict[str, float]]:
+    """:func:`event_scores` of each action alone: ``{action: scores}`` for every action of
+    ``actions`` (an action neither list has gets NaN precision, recall and F1 and zero counts)."""
+    return {a: event_scores(estimated, truth, window, actions=(a,)) for a in actions}
 
 
 # --------------------------------------------------------------------------------------------------

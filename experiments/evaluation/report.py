@@ -13,6 +13,7 @@ from typing import Iterable
 
 
 from experiments.evaluation.methods import METHODS, get_method
+from experiments.evaluation.metrics import ACTIONS
 from experiments.evaluation.stats import bootstrap_ci, group_rng, paired_wilcoxon
 
 
@@ -53,7 +54,8 @@ EXTRA_COLUMNS: tuple[Column, ...] = (
     Column("event_precision", "event precision"), Column("event_recall", "event recall"),
     Column("event_f1_loose", "event F1 (1.5 s window)"),
     Column("event_latency_loose", "event latency (1.5 s window, s)"),
-    Column("pick_f1", "Pick F1"), Column("place_f1", "Place F1"), Column("release_f1", "Release F1"),
+    *(Column(f"{a.lower()}_{m}", f"{a} {h}") for a in ACTIONS
+      for m, h in (("f1", "F1"), ("precision", "precision"), ("recall", "recall"), ("latency", "latency (s)"))),
     Column("nll", "NLL"), Column("nll_median", "NLL median"), Column("nll_hidden", "NLL hidden"),
     Column("cover50", "50% coverage"), Column("cover90", "90% coverage"),
     Column("cover50_hidden", "50% coverage hidden"),
@@ -209,6 +211,44 @@ def markdown_summary(summary: list[dict], tests: list[dict], columns=SUMMARY_COL
     return buf.getvalue()
 
 
+def pooled_event_counts(rows: list[dict]) -> list[dict]:
+    """Per (method, K) and action (:data:`~experiments.evaluation.metrics.ACTIONS`), the event counts
+    summed over all trials (``n_true``, ``n_est``, ``n_matched``) and the pooled ``precision``,
+    ``recall`` and ``f1`` they give (NaN where undefined). Rows without the counts are skipped."""
+    out = []
+    for m, k in _method_order(rows):
+        sel = [r for r in rows if r["method"] == m and r["particles"] == k]
+        for a in ACTIONS:
+            a_ = a.lower()
+            have = [r for r in sel if f"{a_}_true" in r]
+            if not have:
+                continue
+            n_true, n_est, n_match = (sum(int(r[f"{a_}_{c}"]) for r in have) for c in ("true", "est", "matched"))
+            p = n_match / n_est if n_est else math.nan
+            rc = n_match / n_true if n_true else math.nan
+            f1 = (2 * n_match / (n_true + n_est)) if (n_true + n_est) else math.nan
+            out.append({"method": m, "particles": k, "action": a, "trials": len(have), "n_true": n_true,
+                        "n_est": n_est, "n_matched": n_match, "precision": p, "recall": rc, "f1": f1})
+    return out
+
+
+def markdown_event_section(rows: list[dict]) -> str:
+    """The events by action, pooled over all trials (:func:`pooled_event_counts`), as Markdown."""
+    counts = pooled_event_counts(rows)
+    if not counts:
+        return ""
+    buf = io.StringIO()
+    buf.write("\n## Events by action (pooled over all trials, 0.5 s window)\n\n"
+              "| method | action | true | estimated | matched | precision | recall | F1 |\n"
+              "|---|---|---|---|---|---|---|---|\n")
+    for c in counts:
+        def f(v):
+            return "–" if not math.isfinite(v) else f"{v:.2f}"
+        buf.write(f"| {_method_label(c['method'], c['particles'])} | {c['action']} | {c['n_true']} | "
+                  f"{c['n_est']} | {c['n_matched']} | {f(c['precision'])} | {f(c['recall'])} | {f(c['f1'])} |\n")
+    return buf.getvalue()
+
+
 def write_summary_csv(summary: list[dict], path: str | os.PathLike) -> None:
     """``summary.csv``: one line per (scenario, method, K), raw units, mean / lo / hi per metric."""
     if not summary:
@@ -231,7 +271,8 @@ def write_report(rows: list[dict], out_dir: str | os.PathLike, plots: bool = Tru
     tests = paired_tests(rows)
     paths = {"summary.md": out / "summary.md", "summary.csv": out / "summary.csv"}
     from experiments.evaluation.tracker_report import markdown_tracker_section
-    paths["summary.md"].write_text(markdown_summary(summary, tests) + markdown_tracker_section(rows), encoding="utf-8")
+    paths["summary.md"].write_text(markdown_summary(summary, tests) + markdown_event_section(rows)
+                                   + markdown_tracker_section(rows), encoding="utf-8")
     write_summary_csv(summary, paths["summary.csv"])
     if tests:
         paths["tests.csv"] = out / "tests.csv"

@@ -116,8 +116,11 @@ def score_run(scene, truth: list[dict], true_events: list[dict], run: MethodRun,
                events_matched=ev["n_matched"])
     loose = M.event_scores(run.events, true_events, window=LOOSE_EVENT_WINDOW)
     out.update(event_f1_loose=loose["f1"], event_latency_loose=loose["latency_median"])
-    for action in ("Pick", "Place", "Release"):
-        out[f"{action.lower()}_f1"] = M.event_scores(run.events, true_events, actions=(action,))["f1"]
+    for action, sc in M.event_scores_by_action(run.events, true_events).items():
+        a = action.lower()
+        out.update({f"{a}_precision": sc["precision"], f"{a}_recall": sc["recall"], f"{a}_f1": sc["f1"],
+                    f"{a}_latency": sc["latency_median"], f"{a}_true": sc["n_true"], f"{a}_est": sc["n_est"],
+                    f"{a}_matched": sc["n_matched"]})
     # calibration of the position
     ok = np.isfinite(est).all(axis=-1)
     nll = np.where(ok, M.gaussian_nll(np.where(ok[..., None], est, 0.0), cov, tru), np.nan)

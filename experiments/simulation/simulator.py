@@ -26,10 +26,13 @@ Truth events (the estimator uses the same semantics):
 * ``Place``: the hand lets go of an object that rests on a support: it touches a body other than the
   hand, or the bounding-box relations (:mod:`estimator.relations`, 1.5 cm tolerance) put it on top of
   or inside another object or on the floor;
-* ``Release``: the hand lets go of an object in the air (it falls, is dropped, is thrown).
+* ``Release``: the hand lets go of an object in the air (it falls, is dropped, is thrown);
+* ``Push``: the hand, pushing (``collide``), moves an object it does not grasp along its support,
+  never lifting it (:mod:`experiments.simulation.pushes`; at the time it started moving).
 
-Objects moved without a grasp (pushed, pulled, or carried inside a container the hand holds, like the
-ball of a box being poured) get no event.
+Objects moved only by other objects (a cup shoved off the table by a pushed box) and contents
+carried inside a container the hand holds or pushes (the ball of a box being poured) get no event.
+Events are listed in time order, each in the first truth frame at or after its time.
 """
 from __future__ import annotations
 
@@ -55,6 +58,7 @@ from physics.world import PhysicsSettings, World
 
 from experiments.simulation.camera import SyntheticCamera
 from experiments.simulation.perception import PerceptionModel
+from experiments.simulation.pushes import PUSH_GAP, PushTracker
 from experiments.scenarios import HandTarget, Scenario, Waypoint, load_scenario
 
 FORMAT_VERSION = 1
@@ -230,6 +234,7 @@ class GroundTruth:
         self.held: dict[int, int] = {}  # object index -> constraint id
         self.collide = False
         self.events: list[tuple[int, dict]] = []  # (step, event)
+        self.pushes = PushTracker(int(round(PUSH_GAP / self.dt)))
         self.warnings: list[str] = []
         try:
             self._build_hand()
@@ -327,6 +332,7 @@ class GroundTruth:
         pb.changeConstraint(cid, maxForce=self.scenario.hand.max_force, physicsClientId=c)
         pb.setCollisionFilterPair(self.hand_uid, uid, -1, -1, 0, physicsClientId=c)
         self.held[index] = cid
+        self.pushes.cancel(index)  # grasped: a Pick, not a push
         if event:
             self._event(step, "Pick", index)
 
@@ -350,6 +356,38 @@ class GroundTruth:
         on_top, is_in = relation_masks(self.world.aabbs(), static=self.world.static,
                                        floor=self.world.scene.floor, hollow=self.world.scene.hollow)
         return bool(on_top[index].any() or is_in[index].any())
+
+    def _track_pushes(self, step: int) -> None:
+        """Follow the objects the pushing hand touches (:class:`~experiments.simulation.pushes.PushTracker`)
+        and record a ``Push`` for each episode that ends as one. Held objects, static ones and
+        contents of a container the hand holds or touches start no episode."""
+        if self.hand_uid < 0 or (not self.collide and not self.pushes.active):
+            return
+        touched: set[int] = set()
+        if self.collide:
+            world = self.world
+            for p in pb.getContactPoints(bodyA=self.hand_uid, physicsClientId=world.client):
+                i = world.index_of_uid(p[2])
+                if i >= 0 and not world.static[i] and i not in self.held:
+                    touched.add(i)
+            new = [i for i in touched if i not in self.pushes.active]
+            if new:
+                touched -= self._carried(new, touched)
+        idx = sorted(touched | set(self.pushes.active))
+        if not idx:
+            return
+        poses = self.world.get_poses(idx)
+        ended = self.pushes.step(step, touched, {i: poses[j, :3] for j, i in enumerate(idx)})
+        for i, start in ended:
+            self._event(start, "Push", i)
+
+    def _carried(self, indices: list[int], touched: set[int]) -> set[int]:
+        """The objects of ``indices`` inside a container (isIn) that the hand holds, touches or is
+        pushing: carried with it, not pushed themselves."""
+        moving = set(self.held) | touched | set(self.pushes.active)
+        _on_top, is_in = relation_masks(self.world.aabbs(), static=self.world.static,
+                                        floor=self.world.scene.floor, hollow=self.world.scene.hollow)
+        return {i for i in indices if any(is_in[i, j] for j in moving if j != i)}
 
     def _event(self, step: int, action: str, index: int) -> None:
         self.events.append((step, {"t": _r(step * self.dt), "action": action,
@@ -417,6 +455,19 @@ class GroundTruth:
                                               threshold=cfg.visibility_threshold)
         return base.moved_to(camera).visible_fractions()
 
+    def _frame_events(self, truth: list[dict], steps: list[int]) -> list[dict]:
+        """All events in time order (a Push is known only when its episode ends, after its time),
+        each also listed in ``truth`` (the frames, at simulation ``steps``) in the first frame at or
+        after its time. Returns the list."""
+        ordered = sorted(self.events, key=lambda se: se[0])  # stable: same-step events keep their order
+        j = 0
+        for s, e in ordered:
+            while j < len(steps) and steps[j] < s:
+                j += 1
+            if j < len(steps):
+                truth[j]["events"].append(e)
+        return [e for _s, e in ordered]
+
     def visible_fractions(self, poses: np.ndarray) -> np.ndarray:
         if self.camera is None:
             return np.ones(self.world.num_objects)
@@ -440,7 +491,7 @@ class GroundTruth:
         truth: list[dict] = []
         observations: list[dict] = []
         previous = None
-        emitted = 0
+        truth_steps: list[int] = []
 
         def snapshot() -> tuple:
             poses = world.get_poses()
@@ -456,6 +507,7 @@ class GroundTruth:
             world.step(1)
             if self.hand_uid >= 0:
                 self._advance_script(t, step)
+                self._track_pushes(step)
             is_frame = step in frame_of_step
             if not is_frame and step not in captures:
                 continue
@@ -470,8 +522,6 @@ class GroundTruth:
             previous = relation_masks(aabbs, static=world.static, floor=world.scene.floor, previous=previous,
                                       hollow=world.scene.hollow)
             held = set(self.held)
-            events = [e for s, e in self.events[emitted:] if s <= step]
-            emitted += len(events)
             objects = {}
             for i, oid in enumerate(world.object_ids):
                 objects[oid] = {"position": _rl(poses[i, :3]), "orientation": _rl(poses[i, 3:]),
@@ -479,10 +529,11 @@ class GroundTruth:
                                 "visible_fraction": _r(frac[i]), "held": i in held}
             line: dict[str, Any] = {"t": t_frame, "objects": objects,
                                     "relations": relation_list(previous[0], previous[1], world.object_ids),
-                                    "events": events}
+                                    "events": []}
             if hand is not None:
                 line["hands"] = {HAND_ID: _rl(hand)}
             truth.append(line)
+            truth_steps.append(step)
             cap = snapshots.pop(step - lag, None)
             if cap is None:
                 continue
@@ -494,8 +545,11 @@ class GroundTruth:
             if obs.hand is not None:
                 frame["hands"] = {HAND_ID: _rl(obs.hand)}
             observations.append(frame)
+        for i, start in self.pushes.finish():
+            self._event(start, "Push", i)
+        events = self._frame_events(truth, truth_steps)
         return SimulationResult(initial_poses=initial_poses, truth=truth, observations=observations,
-                                events=[e for _s, e in self.events], warnings=list(self.warnings),
+                                events=events, warnings=list(self.warnings),
                                 height_offsets=model.height_offsets.copy())
 
 

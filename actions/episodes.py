@@ -1,0 +1,128 @@
+"""The events of one update: mode switches read through each object's held episode.
+
+A scene model's update switches modes three times per particle and object: held objects not
+perceived may be let go before physics (``release_codes``), physics switches diverging free objects
+to HELD (``modes_before -> modes_physics``), and the Place / Release rules let held objects go after
+it (``modes_physics -> modes_after``). Read one by one (:func:`~actions.modes.switch_events`) they are
+Pick, Place and Release; read through the hold record (:mod:`actions.push`) they become what the
+person did:
+
+* a Pick of an object that never rested since it became known is none (it was already held); so
+  is the Pick of an object carried in or on a held one (a ball seen in a carried crate), whose
+  episode is silent: its end is no event either;
+* a Place waits for physics: the object let go on a support must rest where it was let go. While
+  it waits (at most ``wait`` seconds) the episode stays open. If it is held again (it diverged
+  from its simulation: the hand still had it), the Place was not one and the episode goes on, with
+  no new Pick. If it came to rest more than ``lift`` below where it was last perceived (``seen_z``,
+  the mean of the latest detections: it was held above its support, not put down), it is held
+  again, with no event. Otherwise the Place is confirmed, at the time it was let go;
+* a confirmed Place of an object never lifted since its Pick is a Push at the Pick's time
+  (:func:`~actions.push.end_codes`), and the end of a silent episode is no event.
+
+Arrays are ``(..., M)`` (one scene or ``(K, M)`` particles); heights in metres, times in seconds.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .modes import HELD, NO_EVENT, PICK, PLACE, PUSH, merge_events, switch_events
+from .push import LET_GO_T, PICK_T, REF_Z, SMOOTH_Z, end_codes, end_holds, track_holds, unrested_picks
+
+
+@dataclass(frozen=True)
+class EpisodeRule:
+    """``lift`` (m): an object raised more than this above where it rested was lifted (else a put-down
+    is a Push), and one that falls more than this once let go had not been put down; ``smoothing``:
+    weight of the newest height in the smoothed held height; ``wait`` (s): a Place is confirmed at the
+    latest this long after the let-go; ``rest_speed`` (m/s): a free object on a support slower than
+    this rests (what the caller's ``resting`` should mean)."""
+
+    lift: float = 0.02
+    smoothing: float = 0.3
+    wait: float = 0.8
+    rest_speed: float = 0.05
+
+    def __post_init__(self):
+        if not (self.lift > 0 and 0 < self.smoothing <= 1 and self.wait >= 0 and self.rest_speed > 0):
+            raise ValueError("EpisodeRule needs lift > 0, smoothing in (0, 1], wait >= 0 and rest_speed > 0, "
+                             f"got {self}")
+
+
+@dataclass(frozen=True)
+class UpdateEvents:
+    """The result of :func:`update_events`: ``codes (..., M)`` int8 event codes, ``times (..., M)``
+    (s, when each happened if before the update; NaN: at it), ``holds (..., M, 6)`` the record after
+    the update and ``modes (..., M)`` int8 the modes after it (objects that fell when let go are held
+    again)."""
+
+    codes: np.ndarray
+    times: np.ndarray
+    holds: np.ndarray
+    modes: np.ndarray
+
+
+def carried(is_in: np.ndarray, on_top: np.ndarray, modes: np.ndarray) -> np.ndarray:
+    """``(..., M)`` bool: objects in or on top of an object that is HELD in ``modes (..., M)``, by the
+    relations ``is_in (..., M, M)`` and ``on_top (..., M, M + 1)`` (its last column, the floor, is
+    never held)."""
+    m = is_in.shape[-1]
+    held = (np.asarray(modes) == HELD)[..., None, :]
+    return ((np.asarray(is_in, dtype=bool) | np.asarray(on_top, dtype=bool)[..., :m]) & held).any(axis=-1)
+
+
+def update_events(holds: np.ndarray, acted_on: np.ndarray, carried: np.ndarray, modes_before: np.ndarray,
+                  modes_physics: np.ndarray,
+                  modes_after: np.ndarray, release_codes: np.ndarray, supported: np.ndarray, resting: np.ndarray,
+                  start_z: np.ndarray, z: np.ndarray, seen_z: np.ndarray, pick_t: np.ndarray, t: float,
+                  rule: EpisodeRule = EpisodeRule(), let_go_t: float | None = None) -> UpdateEvents:
+    """The events of one update at time ``t`` (see the module docstring).
+
+    Args:
+        holds: ``(..., M, 6)`` the hold record before the update.
+        acted_on: ``(..., M)`` bool, objects that had an event before the update.
+        carried: ``(..., M)`` bool, objects in or on an object held through this update.
+        modes_before, modes_physics, modes_after: ``(..., M)`` int8, the modes handed to physics (after
+            the releases of unperceived objects), after physics, and after the Place / Release rules.
+        release_codes: ``(..., M)`` codes of the releases before physics (final: their objects were
+            not perceived; the record still judges them).
+        supported / resting: ``(..., M)`` bool, after physics: something under it / and slower than
+            ``rule.rest_speed``.
+        start_z, z: ``(..., M)`` heights before and after physics.
+        seen_z: ``(..., M)`` perceived height (mean of the latest detections; NaN: not perceived).
+        pick_t: ``(..., M)`` when a Pick now began (s; the object started moving).
+        let_go_t: when a let-go on a support now happened (s; default ``t``; the Place rule fires once
+            the object has been at rest a while), not before the episode's Pick; the wait counts
+            from it.
+    """
+    held = np.asarray(modes_physics) == HELD
+    let_go = holds[..., LET_GO_T]
+    pending = np.isfinite(let_go)
+    if not (held.any() or pending.any() or np.any(release_codes)):  # nothing held, let go or picked
+        out = holds.copy()
+        out[..., REF_Z] = np.where(resting & np.isnan(holds[..., SMOOTH_Z]), z, holds[..., REF_Z])
+        return UpdateEvents(np.zeros(held.shape, np.int8), np.full(held.shape, np.nan), out,
+                            np.asarray(modes_after).copy())
+    again = pending & held  # held again: that Place was none, the same episode goes on
+    picks = unrested_picks(switch_events(modes_before, modes_physics, supported), holds)
+    picks = np.where(again | carried, NO_EVENT, picks).astype(picks.dtype)
+    waiting = pending & ~held
+    with np.errstate(invalid="ignore"):
+        fell = waiting & resting & (seen_z - z > rule.lift)
+    confirmed = waiting & ~fell & (resting | (t - let_go >= rule.wait - 1e-9))
+    modes = np.where(fell, HELD, modes_after).astype(np.asarray(modes_after).dtype)
+    puts = switch_events(modes_physics, modes_after, supported)
+    new_let_go = puts == PLACE
+    puts = np.where(new_let_go, NO_EVENT, puts).astype(puts.dtype)
+    codes = merge_events(release_codes, puts, picks, np.where(confirmed, PLACE, NO_EVENT).astype(puts.dtype))
+    holds = track_holds(holds, held, resting, supported, start_z, z, picks == PICK, acted_on | carried, pick_t,
+                        rule.smoothing)
+    codes, push_t = end_codes(codes, holds, rule.lift)
+    times = np.where(codes == PICK, pick_t, np.where(codes == PUSH, push_t,
+                                                     np.where(confirmed & (codes == PLACE), let_go, np.nan)))
+    still_waiting = waiting & ~fell & ~confirmed
+    when = t if let_go_t is None else np.fmax(let_go_t, holds[..., PICK_T])
+    holds[..., LET_GO_T] = np.where(new_let_go, when, np.where(still_waiting, let_go, np.nan))
+    holds = end_holds(holds, (modes == HELD) | still_waiting | new_let_go)
+    return UpdateEvents(codes, times, holds, modes)
