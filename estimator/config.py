@@ -111,12 +111,21 @@ class NoiseConfig:
     """Perturbations of the particle filter. All zeros (:meth:`off`) gives the paper's reasoner.
 
     * ``position_std`` (m) / ``orientation_std`` (rad): perception noise model, used both for
-      initialising or overriding a particle's pose from perception and in the likelihood.
+      initialising or overriding a particle's pose from perception and in the likelihood (per axis).
+    * ``vertical_bias_std`` (m): trackers report objects floating above their support or sunk into
+      it by a centimetre or two (the paper's Fig. 1), an error along the vertical that does not
+      average away: the likelihood's vertical standard deviation is ``sqrt(std**2 +
+      vertical_bias_std**2)``, ``std`` being the detection's own ``position_std`` or the default.
+      A pose placed from perception gets no such noise: physics settles its height.
     * ``process_position_std`` (m per sqrt(s)) / ``process_orientation_std`` (rad per sqrt(s)):
       random-walk noise added to unperceived free objects at each update.
     * ``rest_speed`` (m/s): in a particle, an unperceived free object on a support and moving slower
       than this is at rest and gets no random walk: a resting object does not wander by itself (and,
       untouched, sleeps in its world, which makes resting scenes cheap to simulate).
+    * ``fuse_resting`` / ``fusion_floor_std`` (m): perceived objects that rest, still, on a support
+      take, in each particle, an ensemble Kalman step towards each detection (horizontal; prior
+      variance the particles' weighted one plus ``fusion_floor_std**2``): a resting object is a
+      static parameter of the filter, which resampling alone cannot move (:mod:`estimator.fusion`).
     * ``motion_noise``: unperceived free objects resting on or in something also get position noise
       with a standard deviation of this fraction of the distance they moved in the last update
       (rolling and sliding are chaotic: the model error grows with motion; flight is not noised).
@@ -151,10 +160,13 @@ class NoiseConfig:
     """
 
     position_std: float = 0.01
+    vertical_bias_std: float = 0.0
     orientation_std: float = 0.2
     process_position_std: float = 0.003
     process_orientation_std: float = 0.01
     motion_noise: float = 0.3
+    fuse_resting: bool = True
+    fusion_floor_std: float = 0.001
     rest_speed: float = 0.01
     covariance_floor_std: float = 0.005
     held_drift_std: float = 0.05
@@ -173,10 +185,10 @@ class NoiseConfig:
     hand_occlusion: float = 0.099  # fitted: scene-estimator fit-priors (seeds 100-119)
 
     def __post_init__(self):
-        _check_nonneg(self, "position_std", "orientation_std", "process_position_std",
+        _check_nonneg(self, "position_std", "vertical_bias_std", "orientation_std", "process_position_std",
                       "process_orientation_std", "held_drift_std", "held_offset_std", "param_jitter", "outlier_prob",
                       "miss_prob", "motion_noise", "rest_speed", "covariance_floor_std", "regularisation",
-                      "max_jitter_std")
+                      "max_jitter_std", "fusion_floor_std")
         _check_positive(self, "held_offset_time")
         if self.param_jitter >= 1:
             raise ValueError("NoiseConfig.param_jitter must be < 1")
@@ -195,12 +207,12 @@ class NoiseConfig:
     @classmethod
     def off(cls) -> "NoiseConfig":
         """No perturbation at all: the paper's deterministic reasoner."""
-        return cls(position_std=0.0, orientation_std=0.0, process_position_std=0.0,
+        return cls(position_std=0.0, vertical_bias_std=0.0, orientation_std=0.0, process_position_std=0.0,
                    process_orientation_std=0.0, motion_noise=0.0, covariance_floor_std=0.0,
                    held_drift_std=0.0, held_offset_std=0.0, friction_range=None,
                    rolling_friction_range=None, spinning_friction_range=None, restitution_range=None,
                    mass_scale_range=None, param_jitter=0.0, regularisation=0.0, outlier_prob=0.0,
-                   miss_prob=0.1, hand_occlusion=1.0)
+                   miss_prob=0.1, hand_occlusion=1.0, fuse_resting=False)
 
     @property
     def is_off(self) -> bool:

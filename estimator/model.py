@@ -32,6 +32,7 @@ from physics.transforms import carry_pose, quat_from_rotvec, quat_multiply
 
 from .belief import pose_stats
 from .config import EstimatorConfig
+from .fusion import ensemble_kalman_step
 from .holding import held_targets, release_behind_cover, release_on_loss
 from .likelihood import (DetectionTerm, Evidence, LogWeightTerm, ModeSwitchTerm, NegativeEvidenceTerm, ProposalTerm,
                          add_terms,
@@ -41,6 +42,7 @@ from .params import param_bounds, shrink_params
 from .perception_memory import PerceptionMemory
 from .pool import BatchInput, BatchOutput
 from .relations import relations_and_support
+from .resampling import normalise_log_weights
 from .state import ParticleState
 
 
@@ -60,6 +62,10 @@ def initial_poses(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
             poses[i, :3] = [50.0 + 3.0 * i, 50.0, -50.0]  # parked until first perceived
     return poses, known
 
+
+FUSION_MIN_STEP = 5e-4
+"""Ensemble Kalman steps of resting objects shorter than this (m) are not taken: a converged object
+stays asleep in its world (:meth:`SceneModel.fuse_resting`)."""
 
 MOVING_MAX_VERTICAL_SPEED = 0.2
 """With ``moving_teleports``, only objects perceived moving along their support (vertical speed below
@@ -82,7 +88,8 @@ class Move:
     ``cameras``: the cameras that took the frames of the update (None: the scene's camera);
     ``behind_cover (K, M)`` bool: objects let go now where their hand hid them earlier, at
     ``state.hidden_t`` (:func:`~estimator.holding.release_behind_cover`), and ``proposal_log_weight
-    (K,)`` the weight factor of that move.
+    (K,)`` the weight factor of that move; ``fused (K, M)`` bool: objects at rest moved towards
+    their detection (:meth:`SceneModel.fuse_resting`; scored where the particle expected them).
     """
 
     poses: np.ndarray
@@ -102,6 +109,7 @@ class Move:
     cameras: tuple | None = None
     behind_cover: np.ndarray | None = None
     proposal_log_weight: np.ndarray | None = None
+    fused: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -154,7 +162,7 @@ class SceneModel:
     def log_weight_terms(self) -> tuple[LogWeightTerm, ...]:
         """The terms a particle's log-weight is the sum of. A new term goes here."""
         nz, cfg = self.config.noise, self.config
-        return (DetectionTerm(nz.position_std, nz.orientation_std, nz.outlier_prob),
+        return (DetectionTerm(nz.position_std, nz.orientation_std, nz.outlier_prob, nz.vertical_bias_std),
                 NegativeEvidenceTerm(nz.miss_prob, cfg.visibility_threshold, nz.hand_occlusion),
                 ModeSwitchTerm(cfg.priors), ProposalTerm())
 
@@ -223,6 +231,7 @@ class SceneModel:
             release_codes[cover] = RELEASE
             poses[cover, :3] = state.hidden_at[cover]
             vel[cover] = 0.0
+        nudged = self.fuse_resting(poses, state, modes, detected & perceived & ~tele, rng)
         let_go = state.let_go_unseen.copy()
         let_go[(release_codes != 0) & (mem.perceived_prev & ~perceived)[None, :]] = frame.t
         target, target_vel, hold_error = self.held_targets(frame, poses, modes, detected, perceived, dt, rng,
@@ -242,7 +251,7 @@ class SceneModel:
         depen = (np.broadcast_to(placed & (cfg.noise.position_std > 0), (self.K, self.M)) | jolted
                  | state.jolted | cover) & (modes == FREE)
         return Move(poses, vel, predicted, prev_modes, modes, release_codes, tele, target, target_vel, check,
-                    depen, vis_query, hold_error, let_go, cameras, cover, proposal)
+                    depen, vis_query, hold_error, let_go, cameras, cover, proposal, nudged)
 
     def teleport(self, poses: np.ndarray, vel: np.ndarray, idx: np.ndarray, newly_known: np.ndarray,
                  is_in: np.ndarray, rng: np.random.Generator, moving: np.ndarray | None = None) -> None:
@@ -255,7 +264,7 @@ class SceneModel:
         nz, mem, K = self.config.noise, self.memory, self.K
         new = poses[:, idx].copy()
         new[..., :3] = mem.last_pose[idx, :3]
-        if nz.position_std > 0:
+        if nz.position_std > 0:  # physics settles the height: no height bias here (likelihood only)
             new[..., :3] += rng.normal(0.0, nz.position_std, new[..., :3].shape)
         has_q = mem.last_has_orientation[idx]
         new[:, has_q, 3:] = mem.last_pose[idx[has_q], 3:]
@@ -278,6 +287,33 @@ class SceneModel:
         if moving is not None:
             keep = moving[idx]
             vel[:, idx[keep], 3:] = spin[:, keep]
+
+    def fuse_resting(self, poses: np.ndarray, state: ParticleState, modes: np.ndarray, seen: np.ndarray,
+                     rng: np.random.Generator) -> np.ndarray:
+        """In place on ``poses (K, M, 7)``: the horizontal position of every object ``seen (M,)`` now
+        (detected, perceived, not teleported), perceived still (no motion onset since it was last
+        at rest) and, in a particle, free and resting on a support, takes an ensemble Kalman step
+        towards its latest detection (:func:`~estimator.fusion.ensemble_kalman_step`; the prior
+        variance floored at ``fusion_floor_std``, steps under ``FUSION_MIN_STEP`` not taken).
+        Returns the entries moved ``(K, M)`` (no entry when ``fuse_resting`` is off)."""
+        nz, mem = self.config.noise, self.memory
+        out = np.zeros((self.K, self.M), dtype=bool)
+        still = seen & self.dynamic & np.isnan(mem.moving_since) & np.isfinite(mem.still_position[:, 0])
+        if not nz.fuse_resting or self.K < 2 or not np.any(still):
+            return out
+        resting = state.supported & (np.linalg.norm(state.velocities[..., :3], axis=-1) < nz.rest_speed)
+        idx = np.flatnonzero(still)
+        mask = (modes[:, idx] == FREE) & resting[:, idx]
+        if not np.any(mask):
+            return out
+        weights, _ = normalise_log_weights(state.log_weights)
+        std = mem.last_std[idx]
+        std = np.where(np.isfinite(std), std, max(nz.position_std, 1e-3))
+        new, moved = ensemble_kalman_step(poses[:, idx, :2], weights, mem.last_pose[idx, :2], std, mask, rng,
+                                          floor_std=nz.fusion_floor_std, min_step=FUSION_MIN_STEP)
+        poses[:, idx, :2] = new
+        out[:, idx] = moved
+        return out
 
     def release(self, modes: np.ndarray, perceived: np.ndarray, supported: np.ndarray,
                 rng: np.random.Generator, tracked: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -356,8 +392,11 @@ class SceneModel:
         # the switches read as actions (actions.episodes): a Pick dated when the object started
         # moving, a Place once physics confirms it (dated when it came to rest), a Push if unlifted
         rule, onset = EpisodeRule(hr.push_lift, hr.push_smoothing, hr.place_wait), mem.moving_since
+        # what is in or on an object held, or perceived moving (a pushed box not yet held in this
+        # particle), is carried: whoever moves it moves its support
+        carrier = np.where((np.isfinite(onset) & perceived)[None, :], HELD, after_physics)
         ev = update_events(
-            state.holds, np.isfinite(state.event_t).any(axis=-1), carried(state.is_in, state.on_top, after_physics),
+            state.holds, np.isfinite(state.event_t).any(axis=-1), carried(state.is_in, state.on_top, carrier),
             move.modes, after_physics, new_modes, move.release_codes, supported,
             supported & (np.linalg.norm(out.velocities[..., :3], axis=-1) < rule.rest_speed), move.poses[..., 2],
             out.poses[..., 2], np.where(perceived, mem.mean_positions(t, hr.place_dwell)[:, 2], np.nan),
@@ -383,7 +422,7 @@ class SceneModel:
                         unseen_in_view=unseen_in_view,
                         fell_unseen=(settled.modes == FREE)
                         & (frame.t - move.let_go_unseen < self.config.reasoner.t_perceived - 1e-9),
-                        proposal_log_weight=move.proposal_log_weight)
+                        proposal_log_weight=move.proposal_log_weight, fused=move.fused)
 
     def log_weight(self, previous: np.ndarray, ev: Evidence) -> np.ndarray:
         """New log-weights ``(K,)``: ``previous (K,)`` plus every term of :attr:`terms` (one particle

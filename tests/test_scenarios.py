@@ -14,7 +14,8 @@ from physics.scene import load_scene
 PAPER = ["cup_falls_behind_box", "ball_dropped_into_box", "box_emptied_into_box", "ball_in_moving_box",
          "cup_hidden_behind_back"]
 OTHERS = ["static_floating", "stacked_tower", "mug_and_tray", "cluttered_table", "cup_carried_behind_box",
-          "cup_stashed_behind_screen", "ball_bounces_behind_screen", "ball_rolls_behind_box"]
+          "cup_stashed_behind_screen", "ball_bounces_behind_screen", "ball_rolls_behind_box",
+          "stack_pushed_along_table"]
 
 MINIMAL = """\
 name: tiny
