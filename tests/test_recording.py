@@ -284,7 +284,7 @@ def test_simulate_writes_a_readable_recording(tmp_path):
     args = parser.parse_args(["ball_dropped_into_box", "--duration", "2.0", "--out", str(tmp_path / "sim"),
                               "--rerun", str(rrd), "--quiet"])
     assert run_simulate(args) == 0
-    from experiments.simulation.simulator import read_jsonl
+    from experiments.simulation.files import read_jsonl
 
     truth = read_jsonl(tmp_path / "sim" / "truth.jsonl")
     obs = read_jsonl(tmp_path / "sim" / "observations.jsonl")

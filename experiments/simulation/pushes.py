@@ -13,7 +13,7 @@ The Push's time is the step at which the object had moved :data:`PUSH_START` fro
 first touched (when it started moving under the hand). Steps count from 1 at ``t = dt``; positions
 are metres in the world frame, z up. Deciding which objects may start an episode (touched by the
 hand, not held, not carried inside a container the hand moves) is the simulator's
-(:class:`~experiments.simulation.simulator.GroundTruth`).
+(:class:`~experiments.simulation.ground_truth.GroundTruth`).
 """
 from __future__ import annotations
 

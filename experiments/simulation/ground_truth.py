@@ -1,0 +1,370 @@
+"""The ground-truth world of a scenario's variant: the scene's objects, a scripted hand (a dynamic
+sphere pulled along its script by a constraint), an optional torso and the synthetic camera,
+stepped at 240 Hz; it records the truth and what the faulty tracker reports (see
+:mod:`experiments.simulation.simulator` for the whole run and the truth's events)."""
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import pybullet as pb
+
+from estimator.relations import relation_list, relation_masks
+from physics.errors import InputError
+from physics.scene import CameraSpec
+from physics.transforms import pose_compose, pose_inverse
+from physics.world import PhysicsSettings, World
+
+from experiments.simulation.camera import SyntheticCamera
+from experiments.simulation.files import SimulationResult, _r, _rl
+from experiments.simulation.hand_path import _quat_from_rpy, _Segment
+from experiments.simulation.perception import PerceptionModel
+from experiments.simulation.pushes import PUSH_GAP, PushTracker
+from experiments.simulation.variants import Variant
+from experiments.scenarios import HandTarget
+
+HAND_ID = "human/right"
+GRASP_REACH = 0.04
+"""A grasp needs the object's bounding box within hand radius + this distance (m) of the hand centre."""
+CONTACT_DISTANCE = 0.003
+"""At a release, an object with a contact closer than this (m) rests on a support (a Place)."""
+
+
+# --------------------------------------------------------------------------------------------------
+# the ground-truth world
+
+
+class GroundTruth:
+    """The true world of a variant: scene objects, hand, torso and camera, stepped at 240 Hz.
+
+    Use as a context manager (it owns a pybullet client). :meth:`run` simulates the whole scenario.
+    """
+
+    def __init__(self, variant: Variant, settings: PhysicsSettings | None = None):
+        self.variant = variant
+        self.scenario = variant.scenario
+        self.world = World(variant.scene, settings or PhysicsSettings())
+        self.dt = self.world.settings.time_step
+        self.hand_uid = -1
+        self.torso_uid = -1
+        self.held: dict[int, int] = {}  # object index -> constraint id
+        self.collide = False
+        self.events: list[tuple[int, dict]] = []  # (step, event)
+        self.pushes = PushTracker(int(round(PUSH_GAP / self.dt)))
+        self.warnings: list[str] = []
+        try:
+            self._build_hand()
+            self._build_torso()
+            cam = variant.scene.camera
+            cfg = self.scenario.perception
+            self.camera = (SyntheticCamera(self.world, cam, points_per_object=cfg.points_per_object,
+                                           threshold=cfg.visibility_threshold) if cam is not None else None)
+        except BaseException:
+            self.world.close()
+            raise
+
+    def close(self) -> None:
+        self.world.close()
+
+    def __enter__(self) -> "GroundTruth":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- bodies -------------------------------------------------------------------------------------
+    def _all_bodies(self) -> list[tuple[int, int]]:
+        """(uid, link) of every scene body and link, and the floor."""
+        c = self.world.client
+        out = [(self.world.floor_uid, -1)] if self.world.floor_uid >= 0 else []
+        for uid in self.world.uids:
+            out.extend((uid, link) for link in range(-1, pb.getNumJoints(uid, physicsClientId=c)))
+        return out
+
+    def _build_hand(self) -> None:
+        hand = self.scenario.hand
+        if hand is None:
+            return
+        c = self.world.client
+        shape = pb.createCollisionShape(pb.GEOM_SPHERE, radius=hand.radius, physicsClientId=c)
+        q = _quat_from_rpy(hand.rpy_deg)
+        start = np.asarray(hand.start, dtype=float)
+        self.hand_uid = pb.createMultiBody(hand.mass, shape, -1, start.tolist(), q.tolist(), physicsClientId=c)
+        pb.changeDynamics(self.hand_uid, -1, activationState=pb.ACTIVATION_STATE_DISABLE_SLEEPING,
+                          linearDamping=0.0, angularDamping=0.0, physicsClientId=c)
+        self.hand_constraint = pb.createConstraint(self.hand_uid, -1, -1, -1, pb.JOINT_FIXED, [0, 0, 0],
+                                                   [0, 0, 0], start.tolist(), childFrameOrientation=q.tolist(),
+                                                   physicsClientId=c)
+        pb.changeConstraint(self.hand_constraint, maxForce=hand.max_force, physicsClientId=c)
+        self._set_collide(hand.collide)
+        self.segment = _Segment(0.0, 0.0, start, start, q, q)
+        self.next_waypoint = 0
+        if hand.holding is not None:
+            self._grasp(self.world.index(hand.holding), step=0, event=False)
+
+    def _build_torso(self) -> None:
+        torso = self.scenario.torso
+        if torso is None:
+            return
+        c = self.world.client
+        shape = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=[v / 2 for v in torso.size],
+                                        physicsClientId=c)
+        self.torso_uid = pb.createMultiBody(0, shape, -1, list(torso.position), physicsClientId=c)
+        bodies = self._all_bodies() + ([(self.hand_uid, -1)] if self.hand_uid >= 0 else [])
+        for uid, link in bodies:
+            pb.setCollisionFilterPair(self.torso_uid, uid, -1, link, 0, physicsClientId=c)
+
+    def _set_collide(self, on: bool) -> None:
+        c = self.world.client
+        held_uids = {self.world.uids[i] for i in self.held}
+        for uid, link in self._all_bodies():
+            enable = int(on and uid not in held_uids)
+            pb.setCollisionFilterPair(self.hand_uid, uid, -1, link, enable, physicsClientId=c)
+        self.collide = on
+
+    # -- hand actions -------------------------------------------------------------------------------
+    def hand_position(self) -> np.ndarray | None:
+        if self.hand_uid < 0:
+            return None
+        p, _q = pb.getBasePositionAndOrientation(self.hand_uid, physicsClientId=self.world.client)
+        return np.array(p, dtype=float)
+
+    def _grasp(self, index: int, step: int, event: bool = True, where: str = "hand.holding") -> None:
+        c = self.world.client
+        uid = self.world.uids[index]
+        hp, hq = pb.getBasePositionAndOrientation(self.hand_uid, physicsClientId=c)
+        box = self.world.aabbs([index])[0]
+        gap = float(np.linalg.norm(np.asarray(hp) - np.clip(hp, box[0], box[1])))
+        if gap > self.scenario.hand.radius + GRASP_REACH:
+            raise InputError(f"the hand is {gap:.3f} m away from {self.world.object_ids[index]!r} "
+                             f"when grasping it (at t = {step * self.dt:.3f} s)",
+                             path=self.scenario.source, field=where)
+        op, oq = pb.getBasePositionAndOrientation(uid, physicsClientId=c)  # centre-of-mass frames
+        rel = pose_compose(pose_inverse(np.array([*hp, *hq])), np.array([*op, *oq]))
+        rel_p, rel_q = rel[:3].tolist(), rel[3:].tolist()
+        cid = pb.createConstraint(self.hand_uid, -1, uid, -1, pb.JOINT_FIXED, [0, 0, 0], rel_p, [0, 0, 0],
+                                  parentFrameOrientation=rel_q, childFrameOrientation=[0, 0, 0, 1],
+                                  physicsClientId=c)
+        pb.changeConstraint(cid, maxForce=self.scenario.hand.max_force, physicsClientId=c)
+        pb.setCollisionFilterPair(self.hand_uid, uid, -1, -1, 0, physicsClientId=c)
+        self.held[index] = cid
+        self.pushes.cancel(index)  # grasped: a Pick, not a push
+        if event:
+            self._event(step, "Pick", index)
+
+    def _release(self, index: int, step: int) -> None:
+        c = self.world.client
+        uid = self.world.uids[index]
+        pb.removeConstraint(self.held.pop(index), physicsClientId=c)
+        pb.setCollisionFilterPair(self.hand_uid, uid, -1, -1, int(self.collide), physicsClientId=c)
+        self._event(step, "Place" if self.supported(index) else "Release", index)
+
+    def supported(self, index: int) -> bool:
+        """Whether object ``index`` rests on a support: it touches a body other than the hand, or the
+        bounding-box relations put it on top of something (the floor included) or inside a
+        container (so a cup let go a few millimetres above the table is placed, not dropped)."""
+        c = self.world.client
+        uid = self.world.uids[index]
+        contacts = [p for p in pb.getContactPoints(bodyA=uid, physicsClientId=c)
+                    if p[2] != self.hand_uid and p[8] < CONTACT_DISTANCE]
+        if contacts:
+            return True
+        on_top, is_in = relation_masks(self.world.aabbs(), static=self.world.static,
+                                       floor=self.world.scene.floor, hollow=self.world.scene.hollow)
+        return bool(on_top[index].any() or is_in[index].any())
+
+    def _track_pushes(self, step: int) -> None:
+        """Follow the objects the pushing hand touches (:class:`~experiments.simulation.pushes.PushTracker`)
+        and record a ``Push`` for each episode that ends as one. Held objects, static ones and
+        contents of a container the hand holds or touches start no episode."""
+        if self.hand_uid < 0 or (not self.collide and not self.pushes.active):
+            return
+        touched: set[int] = set()
+        if self.collide:
+            world = self.world
+            for p in pb.getContactPoints(bodyA=self.hand_uid, physicsClientId=world.client):
+                i = world.index_of_uid(p[2])
+                if i >= 0 and not world.static[i] and i not in self.held:
+                    touched.add(i)
+            new = [i for i in touched if i not in self.pushes.active]
+            if new:
+                touched -= self._carried(new, touched)
+        idx = sorted(touched | set(self.pushes.active))
+        if not idx:
+            return
+        poses = self.world.get_poses(idx)
+        ended = self.pushes.step(step, touched, {i: poses[j, :3] for j, i in enumerate(idx)})
+        for i, start in ended:
+            self._event(start, "Push", i)
+
+    def _carried(self, indices: list[int], touched: set[int]) -> set[int]:
+        """The objects of ``indices`` inside a container (isIn) that the hand holds, touches or is
+        pushing: carried with it, not pushed themselves."""
+        moving = set(self.held) | touched | set(self.pushes.active)
+        _on_top, is_in = relation_masks(self.world.aabbs(), static=self.world.static,
+                                        floor=self.world.scene.floor, hollow=self.world.scene.hollow)
+        return {i for i in indices if any(is_in[i, j] for j in moving if j != i)}
+
+    def _event(self, step: int, action: str, index: int) -> None:
+        self.events.append((step, {"t": _r(step * self.dt), "action": action,
+                                   "subject": self.world.object_ids[index], "p": 1.0}))
+
+    def _resolve(self, target: HandTarget | None, previous: np.ndarray) -> np.ndarray:
+        if target is None:
+            return previous
+        if target.position is not None:
+            return np.asarray(target.position, dtype=float)
+        if target.by is not None:
+            return previous + np.asarray(target.by, dtype=float)
+        pos = self.world.get_poses([self.world.index(target.object)])[0, :3]
+        return pos + np.asarray(target.offset, dtype=float)
+
+    def _start_segment(self, t0: float) -> None:
+        script = self.variant.script
+        k = self.next_waypoint
+        p0, q0 = self.segment.p1, self.segment.q1
+        if k >= len(script):
+            self.segment = _Segment(t0, t0, p0, p0, q0, q0)
+            return
+        wp = script[k]
+        p1 = self._resolve(wp.to, p0)
+        q1 = _quat_from_rpy(wp.rpy_deg) if wp.rpy_deg is not None else q0
+        self.segment = _Segment(t0, wp.t, p0, p1, q0, q1)
+
+    def _advance_script(self, t: float, step: int) -> None:
+        script = self.variant.script
+        while self.next_waypoint < len(script) and script[self.next_waypoint].t <= t + 1e-9:
+            k = self.next_waypoint
+            wp = script[k]
+            if wp.release is not None:
+                self._release(self.world.index(wp.release), step)
+            if wp.grasp is not None:
+                self._grasp(self.world.index(wp.grasp), step, where=f"hand.script[{k}].grasp")
+            if wp.collide is not None:
+                self._set_collide(wp.collide)
+            self.next_waypoint += 1
+            self._start_segment(wp.t)
+
+    def _drive_hand(self, t: float) -> None:
+        p, q = self.segment.at(t)
+        pb.changeConstraint(self.hand_constraint, jointChildPivot=p.tolist(),
+                            jointChildFrameOrientation=q.tolist(), maxForce=self.scenario.hand.max_force,
+                            physicsClientId=self.world.client)
+
+    # -- the run ------------------------------------------------------------------------------------
+    def settle(self) -> None:
+        """Simulate ``scenario.settle`` seconds with the hand at its start; the state reached is t = 0."""
+        n = int(round(self.scenario.settle / self.dt))
+        for _ in range(n):
+            if self.hand_uid >= 0:
+                self._drive_hand(0.0)
+            self.world.step(1)
+        if self.hand_uid >= 0:
+            self._start_segment(0.0)
+            self._advance_script(0.0, 0)
+
+    def look(self, camera: CameraSpec) -> np.ndarray:
+        """Visible fractions ``(M,)`` of every object to ``camera`` in the world's present state
+        (hand and torso occlude; the scenario's sample points and nothing else changed)."""
+        cfg = self.scenario.perception
+        base = self.camera or SyntheticCamera(self.world, camera, points_per_object=cfg.points_per_object,
+                                              threshold=cfg.visibility_threshold)
+        return base.moved_to(camera).visible_fractions()
+
+    def _frame_events(self, truth: list[dict], steps: list[int]) -> list[dict]:
+        """All events in time order (a Push is known only when its episode ends, after its time),
+        each also listed in ``truth`` (the frames, at simulation ``steps``) in the first frame at or
+        after its time. Returns the list."""
+        ordered = sorted(self.events, key=lambda se: se[0])  # stable: same-step events keep their order
+        j = 0
+        for s, e in ordered:
+            while j < len(steps) and steps[j] < s:
+                j += 1
+            if j < len(steps):
+                truth[j]["events"].append(e)
+        return [e for _s, e in ordered]
+
+    def visible_fractions(self, poses: np.ndarray) -> np.ndarray:
+        if self.camera is None:
+            return np.ones(self.world.num_objects)
+        return self.camera.visible_fractions(poses)
+
+    def run(self, duration: float, perception_rng: np.random.Generator) -> "SimulationResult":
+        """Settle, then simulate ``duration`` seconds; returns the recorded streams."""
+        cfg = self.scenario.perception
+        world = self.world
+        self.settle()
+        initial_poses = world.get_poses()
+        n_steps = int(round(duration / self.dt))
+        n_frames = int(math.floor(duration * cfg.rate_hz + 1e-9))
+        frame_times = [j / cfg.rate_hz for j in range(1, n_frames + 1)]
+        frame_steps = [int(round(t / self.dt)) for t in frame_times]
+        frame_of_step = {s: j for j, s in enumerate(frame_steps)}
+        lag = int(round(cfg.latency_s / self.dt))
+        captures = {s - lag for s in frame_steps if s - lag >= 0}
+        model = PerceptionModel(cfg, world.object_ids, world.static, perception_rng)
+        snapshots: dict[int, tuple] = {}
+        truth: list[dict] = []
+        observations: list[dict] = []
+        previous = None
+        truth_steps: list[int] = []
+
+        def snapshot() -> tuple:
+            poses = world.get_poses()
+            frac = self.visible_fractions(poses)
+            return poses, frac, self.hand_position()
+
+        if 0 in captures:
+            snapshots[0] = snapshot()
+        for step in range(1, n_steps + 1):
+            t = step * self.dt
+            if self.hand_uid >= 0:
+                self._drive_hand(t)
+            world.step(1)
+            if self.hand_uid >= 0:
+                self._advance_script(t, step)
+                self._track_pushes(step)
+            is_frame = step in frame_of_step
+            if not is_frame and step not in captures:
+                continue
+            snap = snapshot()
+            if step in captures:
+                snapshots[step] = snap
+            if not is_frame:
+                continue
+            t_frame = _r(frame_times[frame_of_step[step]])
+            poses, frac, hand = snap
+            aabbs = world.aabbs()
+            previous = relation_masks(aabbs, static=world.static, floor=world.scene.floor, previous=previous,
+                                      hollow=world.scene.hollow)
+            held = set(self.held)
+            objects = {}
+            for i, oid in enumerate(world.object_ids):
+                objects[oid] = {"position": _rl(poses[i, :3]), "orientation": _rl(poses[i, 3:]),
+                                "visible": bool(frac[i] >= cfg.visibility_threshold),
+                                "visible_fraction": _r(frac[i]), "held": i in held}
+            line: dict[str, Any] = {"t": t_frame, "objects": objects,
+                                    "relations": relation_list(previous[0], previous[1], world.object_ids),
+                                    "events": []}
+            if hand is not None:
+                line["hands"] = {HAND_ID: _rl(hand)}
+            truth.append(line)
+            truth_steps.append(step)
+            cap = snapshots.pop(step - lag, None)
+            if cap is None:
+                continue
+            c_poses, c_frac, c_hand = cap
+            obs = model.observe(c_poses, c_frac >= cfg.visibility_threshold, c_hand)
+            seen = {oid: {"position": _rl(obs.poses[i, :3]), "orientation": _rl(obs.poses[i, 3:])}
+                    for i, oid in enumerate(world.object_ids) if obs.reported[i]}
+            frame: dict[str, Any] = {"t": t_frame, "objects": seen}
+            if obs.hand is not None:
+                frame["hands"] = {HAND_ID: _rl(obs.hand)}
+            observations.append(frame)
+        for i, start in self.pushes.finish():
+            self._event(start, "Push", i)
+        events = self._frame_events(truth, truth_steps)
+        return SimulationResult(initial_poses=initial_poses, truth=truth, observations=observations,
+                                events=events, warnings=list(self.warnings),
+                                height_offsets=model.height_offsets.copy())

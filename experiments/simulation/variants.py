@@ -1,0 +1,119 @@
+"""Seeded variants of a scenario: the geometry, masses, frictions and timing one seed draws."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from physics.bodies import DEFAULT_PRIMITIVE_MASS
+from physics.scene import Scene
+from physics.transforms import quat_from_axis_angle, quat_multiply, quat_normalize
+
+from experiments.scenarios import Scenario, Waypoint
+from experiments.simulation.files import DECIMALS, _r
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One seeded instance of a scenario: the true scene (before settling), the retimed hand script,
+    and the sampled values (``sampled``, plain JSON) for meta.json."""
+
+    scenario: Scenario
+    seed: int
+    scene: Scene
+    script: tuple[Waypoint, ...]
+    sampled: dict
+
+
+def _resize(spec, factor: float):
+    """``spec`` scaled by ``factor`` about its centre, moved so that its bottom stays put (primitives
+    are assumed upright; URDFs scale about their frame)."""
+    kw: dict[str, Any] = {}
+    half_before = half_after = 0.0
+    factor = round(factor, DECIMALS)
+    if spec.shape in ("box", "container"):
+        kw["size"] = tuple(_r(v * factor) for v in spec.size)
+        half_before, half_after = spec.size[2] / 2, kw["size"][2] / 2
+    elif spec.shape == "sphere":
+        kw["radius"] = _r(spec.radius * factor)
+        half_before, half_after = spec.radius, kw["radius"]
+    elif spec.shape == "cylinder":
+        kw["radius"], kw["height"] = _r(spec.radius * factor), _r(spec.height * factor)
+        half_before, half_after = spec.height / 2, kw["height"] / 2
+    else:
+        kw["scale"] = _r(spec.scale * factor)
+    if spec.position is not None:
+        p = list(spec.position)
+        p[2] += half_after - half_before
+        kw["position"] = tuple(p)
+    return replace(spec, **kw)
+
+
+def sample_variant(scenario: Scenario, seed: int) -> Variant:
+    """Draw the variant of ``scenario`` for ``seed`` (``numpy.random.default_rng(seed)``).
+
+    Draws happen in a fixed order: objects in scene order, each in the order position (x, y, z), yaw,
+    size, mass, friction, rolling_friction, spinning_friction, restitution; then one duration factor
+    per waypoint and the script delay.
+    """
+    rng = np.random.default_rng(seed)
+    rand = {r.id: r for r in scenario.randomize.objects}
+    objects = list(scenario.scene.objects)
+    sampled_objects: dict[str, Any] = {}
+    for i, spec in enumerate(objects):
+        r = rand.get(spec.id)
+        if r is None:
+            continue
+        rec: dict[str, Any] = {}
+        if r.position is not None:
+            d = [float(rng.uniform(lo, hi)) for lo, hi in r.position]
+            if spec.position is not None:
+                spec = replace(spec, position=tuple(float(a + b) for a, b in zip(spec.position, d)))
+            rec["position_offset"] = d
+        if r.yaw_deg is not None:
+            yaw = float(rng.uniform(*r.yaw_deg))
+            q = quat_multiply(quat_from_axis_angle(np.array([0.0, 0.0, 1.0]), math.radians(yaw)),
+                              np.asarray(spec.orientation))
+            spec = replace(spec, orientation=tuple(float(v) for v in quat_normalize(q)))
+            rec["yaw_deg"] = yaw
+        if r.size is not None:
+            factor = float(rng.uniform(*r.size))
+            spec = _resize(spec, factor)
+            rec["size_factor"] = factor
+        if r.mass is not None:
+            factor = float(rng.uniform(*r.mass))
+            base = spec.mass if spec.mass is not None else DEFAULT_PRIMITIVE_MASS
+            spec = replace(spec, mass=base * factor)
+            rec["mass"] = spec.mass
+        for key in ("friction", "rolling_friction", "spinning_friction", "restitution"):
+            lo_hi = getattr(r, key)
+            if lo_hi is not None:
+                value = float(rng.uniform(*lo_hi))
+                spec = replace(spec, **{key: value})
+                rec[key] = value
+        objects[i] = spec
+        sampled_objects[spec.id] = rec
+    script: tuple[Waypoint, ...] = ()
+    timing: dict[str, Any] = {}
+    if scenario.hand is not None:
+        wps = scenario.hand.script
+        lo, hi = scenario.randomize.time_scale
+        scales = [float(rng.uniform(lo, hi)) if hi > lo else lo for _ in wps]
+        dlo, dhi = scenario.randomize.delay
+        delay = float(rng.uniform(dlo, dhi)) if dhi > dlo else dlo
+        times, t_prev, t_new = [], 0.0, delay
+        for wp, s in zip(wps, scales):
+            t_new += (wp.t - t_prev) * s
+            t_prev = wp.t
+            times.append(t_new)
+        limit = scenario.duration - 0.1
+        if times and times[-1] > limit:  # keep the whole script inside the run
+            k = max(limit - delay, 0.0) / max(times[-1] - delay, 1e-9)
+            times = [delay + (t - delay) * k for t in times]
+        script = tuple(replace(wp, t=float(t)) for wp, t in zip(wps, times))
+        timing = {"delay": delay, "segment_scale": scales}
+    sampled = {"objects": sampled_objects, "timing": timing}
+    return Variant(scenario=scenario, seed=int(seed), scene=scenario.scene.with_objects(objects),
+                   script=script, sampled=sampled)
