@@ -36,17 +36,16 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-import pybullet as pb
 import rerun as rr
 import rerun.blueprint as rrb
 from rerun.components import FillMode
-from scipy.spatial.transform import Rotation
 
 from estimator.belief import Belief
 from estimator.observations import Frame
-from physics.scene import ObjectSpec, Scene
-from physics.transforms import pose_compose, quat_rotate
+from physics.scene import Scene
 from physics.world import World
+
+from experiments.recording_geometry import boxes_at, covariance_ellipsoids, local_boxes, static_geometry
 
 APPLICATION_ID = "scene-estimator"
 TIMELINE = "t"
@@ -56,12 +55,10 @@ GREEN = (40, 200, 80, 255)
 GREEN_SHADE = (40, 200, 80, 70)
 ORANGE = (255, 150, 0, 255)
 TRUTH_GREY = (150, 150, 150, 255)
-SCENE_GREY = (205, 205, 205, 255)
 FLOOR_GREY = (120, 120, 120, 255)
 PARTICLE_LIGHT = np.array([190.0, 215.0, 255.0, 90.0])
 PARTICLE_DARK = np.array([20.0, 40.0, 170.0, 255.0])
 
-_GEOM_SPHERE, _GEOM_BOX, _GEOM_CYLINDER, _GEOM_MESH = pb.GEOM_SPHERE, pb.GEOM_BOX, pb.GEOM_CYLINDER, pb.GEOM_MESH
 
 
 @dataclass(frozen=True)
@@ -95,50 +92,9 @@ class RecorderOptions:
             raise ValueError(f"sigma must be > 0, got {self.sigma}")
 
 
-@dataclass(frozen=True)
-class LocalBox:
-    """An object's bounding box in its own link frame: ``center (3,)`` and ``half_size (3,)`` (m)."""
-
-    center: np.ndarray
-    half_size: np.ndarray
-
-
 def path(*parts: str) -> str:
     """An entity path from raw parts (object ids may hold ``/`` or spaces): ``/plots/p_held/cup``."""
     return "/" + "/".join(rr.escape_entity_path_part(p) for p in parts)
-
-
-def local_boxes(world: World) -> dict[str, LocalBox]:
-    """Link-frame bounding box of every object of ``world`` (placed at the identity pose to measure
-    it; the world's poses are changed). Units: metres."""
-    poses = np.zeros((world.num_objects, 7))
-    poses[:, 6] = 1.0
-    world.set_poses(poses)
-    boxes = world.aabbs()
-    return {oid: LocalBox(0.5 * (b[0] + b[1]), 0.5 * (b[1] - b[0])) for oid, b in zip(world.object_ids, boxes)}
-
-
-def boxes_at(boxes: list[LocalBox], positions: np.ndarray, orientations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """World centres ``(n, 3)`` and half sizes ``(n, 3)`` of local ``boxes`` placed at link-frame
-    ``positions (n, 3)`` / ``orientations (n, 4)`` x,y,z,w."""
-    if not boxes:
-        return np.zeros((0, 3)), np.zeros((0, 3))
-    offsets = np.array([b.center for b in boxes])
-    centers = np.asarray(positions, float) + quat_rotate(np.asarray(orientations, float), offsets)
-    return centers, np.array([b.half_size for b in boxes])
-
-
-def covariance_ellipsoids(cov: np.ndarray, sigma: float, floor: float = 1e-4) -> tuple[np.ndarray, np.ndarray]:
-    """Half axes ``(n, 3)`` (m, ``sigma`` standard deviations, at least ``floor``) and orientation
-    quaternions ``(n, 4)`` x,y,z,w of the ellipsoids of position covariances ``(n, 3, 3)`` (m^2)."""
-    cov = np.asarray(cov, float).reshape(-1, 3, 3)
-    if not len(cov):
-        return np.zeros((0, 3)), np.zeros((0, 4))
-    vals, vecs = np.linalg.eigh(0.5 * (cov + np.swapaxes(cov, -1, -2)))
-    flip = np.linalg.det(vecs) < 0
-    vecs[flip, :, 0] *= -1.0
-    half = np.maximum(sigma * np.sqrt(np.clip(vals, 0.0, None)), floor)
-    return half, Rotation.from_matrix(vecs).as_quat()
 
 
 def weight_colors(weights: np.ndarray) -> np.ndarray:
@@ -224,7 +180,7 @@ class Recorder:
         self._paths: dict[tuple[str, ...], str] = {}
         self._closed = True
         with World(scene) as world:
-            statics = _static_geometry(world, scene)
+            statics = static_geometry(world, scene)
             self._local = local_boxes(world)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.stream = rr.RecordingStream(APPLICATION_ID, recording_id=self.recording_id)
@@ -468,93 +424,6 @@ def default_blueprint() -> rrb.Blueprint:
         ),
         collapse_panels=True,
     )
-
-
-# --------------------------------------------------------------------------------------------------
-# static geometry
-
-
-def _static_geometry(world: World, scene: Scene) -> list[tuple[str, object]]:
-    """(object id, archetype) drawing each static object at its scene pose: URDF visual meshes (or
-    their primitives) read back from pybullet, primitives from the scene file."""
-    out = []
-    poses = world.get_poses()
-    for i, spec in enumerate(scene.objects):
-        if not spec.static:
-            continue
-        if spec.shape == "urdf":
-            mesh = _urdf_visual_mesh(world, i)
-            if mesh is not None:
-                out.append((spec.id, mesh))
-                continue
-        out.append((spec.id, _primitive(spec, poses[i])))
-    return out
-
-
-def _primitive(spec: ObjectSpec, pose: np.ndarray):
-    p, q = pose[:3], pose[3:]
-    color = [tuple(int(255 * c) for c in spec.color)] if spec.color is not None else [SCENE_GREY]
-    if spec.shape == "sphere":
-        return rr.Ellipsoids3D(half_sizes=[[spec.radius] * 3], centers=[p], colors=color, fill_mode=FillMode.Solid)
-    if spec.shape == "cylinder":
-        return rr.Cylinders3D(lengths=[spec.height], radii=[spec.radius], centers=[p], quaternions=[q],
-                              colors=color, fill_mode=FillMode.Solid)
-    if spec.shape == "container":
-        sx, sy, sz = (0.5 * v for v in spec.size)
-        w = 0.5 * spec.wall
-        local_c = np.array([[0, 0, -sz + w], [sx - w, 0, 0], [-sx + w, 0, 0], [0, sy - w, 0], [0, -sy + w, 0]])
-        half = np.array([[sx, sy, w], [w, sy, sz], [w, sy, sz], [sx, w, sz], [sx, w, sz]])
-        centers = p + quat_rotate(np.broadcast_to(q, (5, 4)), local_c)
-        return rr.Boxes3D(half_sizes=half, centers=centers, quaternions=[q] * 5, colors=color, fill_mode=FillMode.Solid)
-    if spec.shape == "box":
-        return rr.Boxes3D(half_sizes=[[0.5 * v for v in spec.size]], centers=[p], quaternions=[q], colors=color,
-                          fill_mode=FillMode.Solid)
-    raise ValueError(f"no drawing for shape {spec.shape!r}")
-
-
-def _urdf_visual_mesh(world: World, index: int):
-    """One :class:`rerun.Mesh3D` with every visual shape of a URDF object in world coordinates, or
-    ``None`` when it has none that can be read (then its bounding box is drawn instead)."""
-    import trimesh
-
-    c = world.client
-    uid = world.uids[index]
-    parts, colors = [], []
-    for v in pb.getVisualShapeData(uid, physicsClientId=c):
-        link, geom, dims, fname, lpos, lorn, rgba = v[1], v[2], v[3], v[4], v[5], v[6], v[7]
-        if geom == _GEOM_MESH:
-            try:
-                m = trimesh.load(fname.decode() if isinstance(fname, bytes) else fname, force="mesh")
-            except (OSError, ValueError):
-                continue
-            m = m.copy()
-            m.apply_scale(dims)
-        elif geom == _GEOM_BOX:
-            m = trimesh.creation.box(extents=dims)
-        elif geom == _GEOM_SPHERE:
-            m = trimesh.creation.icosphere(subdivisions=2, radius=dims[0])
-        elif geom == _GEOM_CYLINDER:
-            m = trimesh.creation.cylinder(radius=dims[1], height=dims[0])
-        else:
-            continue
-        if link < 0:  # pybullet reports visual frames relative to the centre-of-mass frame
-            wpos, worn = pb.getBasePositionAndOrientation(uid, physicsClientId=c)
-        else:
-            state = pb.getLinkState(uid, link, physicsClientId=c)
-            wpos, worn = state[0], state[1]
-        placed = pose_compose(np.array([*wpos, *worn]), np.array([*lpos, *lorn]))
-        ppos, porn = placed[:3], placed[3:]
-        rot = np.broadcast_to(porn, (len(m.vertices), 4))
-        verts = np.asarray(ppos) + quat_rotate(rot, m.vertices)
-        parts.append((verts, np.asarray(m.faces), quat_rotate(rot, m.vertex_normals)))
-        colors.append(np.broadcast_to((np.asarray(rgba) * 255).astype(np.uint8), (len(verts), 4)))
-    if not parts:
-        return None
-    offsets = np.cumsum([0] + [len(p[0]) for p in parts[:-1]])
-    verts = np.concatenate([p[0] for p in parts])
-    faces = np.concatenate([p[1] + o for p, o in zip(parts, offsets)])
-    return rr.Mesh3D(vertex_positions=verts, triangle_indices=faces,
-                     vertex_normals=np.concatenate([p[2] for p in parts]), vertex_colors=np.concatenate(colors))
 
 
 def record_simulation(path: str | os.PathLike, scene: Scene, truth: list[dict], observations: list[dict],

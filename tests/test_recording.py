@@ -9,7 +9,8 @@ from rerun.chunk import RrdReader
 
 from estimator.config import EstimatorConfig, NoiseConfig
 from estimator.filter import SceneEstimator
-from experiments.recording import APPLICATION_ID, Recorder, RecorderOptions, covariance_ellipsoids
+from experiments.recording import APPLICATION_ID, Recorder, RecorderOptions
+from experiments.recording_geometry import covariance_ellipsoids
 from experiments.cli.simulate import add_simulate_arguments, run_simulate
 
 from helpers import TABLE_TOP, frames, table_scene
