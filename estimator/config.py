@@ -24,7 +24,7 @@ from typing import Any
 
 from actions.modes import ModePriors
 from physics.errors import ConfigError
-from physics.scene import _Fields, read_yaml_with_lines
+from physics.fields import _Fields, read_yaml_with_lines
 from physics.world import PhysicsSettings
 
 from .relations import RelationConfig

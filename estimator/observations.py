@@ -28,7 +28,8 @@ from typing import Callable, Iterable, Iterator
 import numpy as np
 
 from physics.errors import ObservationError
-from physics.scene import CameraSpec, _Fields, camera_to_dict, parse_camera
+from physics.fields import _Fields
+from physics.scene import CameraSpec, camera_to_dict, parse_camera
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from physics.errors import InputError
-from physics.scene import CameraSpec, Scene, _Fields, parse_camera, read_yaml_with_lines
+from physics.fields import _Fields, read_yaml_with_lines
+from physics.scene import CameraSpec, Scene, parse_camera
 from physics.world import World
 
 from .regions import Region

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from typing import Any, Iterable
 
 from physics.errors import ObservationError
-from physics.scene import _Fields, read_yaml_with_lines
+from physics.fields import _Fields, read_yaml_with_lines
 
 #: Source types and the ROS message type each one reads.
 SOURCE_TYPES = {"tf": "tf2_msgs/msg/TFMessage", "pose": "geometry_msgs/msg/PoseStamped"}

@@ -49,7 +49,8 @@ from pathlib import Path
 from typing import Any
 
 from physics.errors import InputError, SceneError
-from physics.scene import Scene, _Fields, read_yaml_with_lines, scene_from_dict
+from physics.fields import _Fields, read_yaml_with_lines
+from physics.scene import Scene, scene_from_dict
 
 from experiments.simulation.perception import PerceptionConfig
 
