@@ -39,8 +39,9 @@ from .model import Move, SceneModel, Settled, initial_poses
 from .observations import Frame
 from .perception_memory import PerceptionMemory
 from .person import person_probabilities
-from .pool import BatchOutput, WorldPool, camera_key
+from .pool import BatchOutput, WorldPool
 from .resampling import effective_sample_size, keep_survivors_in_place, normalise_log_weights, systematic_resample
+from .shard import camera_key
 from .state import ParticleState
 from .timeline import Timeline
 

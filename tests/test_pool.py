@@ -230,7 +230,7 @@ def test_looks_with_copies_and_shortcuts_equal_plain_ray_tests_for_any_worker_co
 
 
 def test_a_shard_keeps_a_bounded_number_of_cameras_the_scenes_always_first_built():
-    from estimator.pool import CACHED_CAMERAS, _Shard
+    from estimator.shard import CACHED_CAMERAS, _Shard
     from physics.scene import CameraSpec
     from physics.world import PhysicsSettings
 
