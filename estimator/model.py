@@ -18,7 +18,6 @@ and the worlds and calls, at each update:
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,10 +29,10 @@ from actions.push import empty_holds
 from physics.scene import Scene
 from physics.transforms import carry_pose, quat_from_rotvec, quat_multiply
 
-from .belief import pose_stats
 from .config import EstimatorConfig
 from .fusion import ensemble_kalman_step
 from .holding import held_targets, release_behind_cover, release_on_loss
+from .noise import process_noise, regularisation_kernels
 from .likelihood import (DetectionTerm, Evidence, LogWeightTerm, ModeSwitchTerm, NegativeEvidenceTerm, ProposalTerm,
                          add_terms,
                          exploded_log_likelihood)
@@ -331,35 +330,12 @@ class SceneModel:
     def process_noise(self, poses: np.ndarray, modes: np.ndarray, perceived: np.ndarray, supported: np.ndarray,
                       resting: np.ndarray, last_motion: np.ndarray, dt: float,
                       rng: np.random.Generator) -> np.ndarray:
-        """Process noise, in place, on the free, unperceived, known dynamic objects that are not
-        ``resting (K, M)`` (on a support and slower than ``rest_speed``: a resting object does not
-        wander, and, untouched, sleeps in its world): a random walk of ``process_position_std`` /
-        ``process_orientation_std`` per sqrt(s), plus model error of ``motion_noise`` times the
-        distance ``last_motion (K, M)`` an object moved on or in its support (``supported (K, M)``)
-        in the last update (rolling and sliding are chaotic; flight is not), capped at
-        ``max_jitter_std``. An object on its support is moved along it only (horizontally, turned
-        about the vertical): noise into the support or tilting it would be undone by the contact
-        solver at the cost of the object's momentum, and a rolling ball or can would stop short.
+        """Process noise (:func:`~estimator.noise.process_noise`), in place, on the free, unperceived,
+        known dynamic objects that are not ``resting (K, M)`` (on a support and slower than
+        ``rest_speed``: a resting object does not wander, and, untouched, sleeps in its world).
         Returns the objects moved by more than 2 mm std ``(K, M)``."""
-        nz, K, M = self.config.noise, self.K, self.M
         free_unseen = (modes == FREE) & (~perceived & self.dynamic & self.known)[None, :] & ~resting
-        jolted = np.zeros((K, M), dtype=bool)
-        if (nz.process_position_std > 0 or nz.motion_noise > 0) and np.any(free_unseen):
-            rolling = np.where(supported, last_motion, 0.0)
-            s = np.sqrt(nz.process_position_std ** 2 * dt + (nz.motion_noise * rolling) ** 2)
-            s = np.minimum(s, nz.max_jitter_std)  # never through a wall
-            step = rng.normal(0.0, 1.0, (K, M, 3)) * s[..., None]
-            step[..., 2] = np.where(supported, 0.0, step[..., 2])  # its support holds it: along it only
-            poses[..., :3] += np.where(free_unseen[..., None], step, 0.0)
-            jolted = free_unseen & (s > 0.002)
-        if nz.process_orientation_std > 0 and np.any(free_unseen):
-            s = nz.process_orientation_std * math.sqrt(dt)
-            rotvec = rng.normal(0.0, s, (K, M, 3))
-            rotvec[..., :2] = np.where(supported[..., None], 0.0, rotvec[..., :2])  # on a support: about z only
-            dq = quat_from_rotvec(rotvec)
-            rotated = quat_multiply(dq, poses[..., 3:])
-            poses[..., 3:] = np.where(free_unseen[..., None], rotated, poses[..., 3:])
-        return jolted
+        return process_noise(poses, free_unseen, supported, last_motion, dt, self.config.noise, rng)
 
     def batch(self, move: Move, state: ParticleState, reset: np.ndarray, settled: np.ndarray | None) -> BatchInput:
         """The pool's input for ``move``; ``reset (K, M)``: entries the worlds must load; ``settled
@@ -443,21 +419,10 @@ class SceneModel:
     # -- after resampling -----------------------------------------------------------------------------
     def regularisation_kernels(self, poses: np.ndarray, weights: np.ndarray,
                                hidden: np.ndarray) -> dict[int, np.ndarray]:
-        """Per hidden object m (``hidden (M,)``) with a spread, the Cholesky factor ``(3, 3)`` (m) of the
-        jitter kernel: bandwidth ``regularisation`` times the weighted covariance of ``poses (K, M, 7)``
-        under ``weights (K,)``, scaled down so that its largest std is at most ``max_jitter_std``."""
+        """The jitter kernels of the hidden objects ``hidden (M,)`` after resampling
+        (:func:`~estimator.noise.regularisation_kernels`)."""
         nz = self.config.noise
-        h = nz.regularisation
-        kernels = {}
-        if h > 0:
-            _, covs, _, _ = pose_stats(poses, weights)
-            for m in np.flatnonzero(hidden):
-                cov = covs[m]
-                if np.trace(cov) > 1e-10:
-                    chol = np.linalg.cholesky(cov * h * h + 1e-12 * np.eye(3))
-                    largest = np.sqrt(np.max(np.linalg.eigvalsh(cov)) * h * h)
-                    kernels[int(m)] = chol * min(1.0, nz.max_jitter_std / largest)
-        return kernels
+        return regularisation_kernels(poses, weights, hidden, nz.regularisation, nz.max_jitter_std)
 
     def regularise(self, state: ParticleState, kernels: dict[int, np.ndarray], rng: np.random.Generator) -> None:
         """In place, after resampling: jitter the free copies of each hidden object with its kernel (a
