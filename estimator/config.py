@@ -143,6 +143,11 @@ class NoiseConfig:
       object and particle (``None`` keeps the scene's value). Rolling and spinning friction are not
       perturbed by default: any rolling friction makes Bullet's contact solving much slower
       for resting boxes.
+    * ``rolling_friction_scale`` (low, high): when ``rolling_friction_range`` is None, objects that
+      can roll (spheres and cylinders) with a rolling friction in the scene get it multiplied, per
+      particle, by a log-uniform factor in this range: a user rarely knows a ball's or a can's
+      rolling friction within a factor of two, and it decides where a rolled object stops. Boxes
+      keep theirs. None: not perturbed.
     * ``param_jitter``: after resampling, parameters are shrunk toward their weighted mean by
       ``a = sqrt(1 - jitter**2)`` and jittered so that their spread is kept (Liu & West); 0 disables.
     * ``regularisation``: after resampling, hidden free objects are jittered with a Gaussian kernel
@@ -174,6 +179,7 @@ class NoiseConfig:
     held_offset_time: float = 0.5
     friction_range: tuple[float, float] | None = (0.3, 1.0)
     rolling_friction_range: tuple[float, float] | None = None
+    rolling_friction_scale: tuple[float, float] | None = (0.5, 2.0)
     spinning_friction_range: tuple[float, float] | None = None
     restitution_range: tuple[float, float] | None = (0.0, 0.3)
     mass_scale_range: tuple[float, float] | None = (0.8, 1.25)
@@ -201,6 +207,9 @@ class NoiseConfig:
             r = getattr(self, n)
             if r is not None and not (len(r) == 2 and 0 <= r[0] <= r[1] and math.isfinite(r[1])):
                 raise ValueError(f"NoiseConfig.{n} must be (low, high) with 0 <= low <= high, got {r!r}")
+        r = self.rolling_friction_scale
+        if r is not None and not (len(r) == 2 and 0 < r[0] <= r[1] and math.isfinite(r[1])):
+            raise ValueError(f"NoiseConfig.rolling_friction_scale must be (low, high) with 0 < low <= high, got {r!r}")
         if self.mass_scale_range is not None and self.mass_scale_range[0] <= 0:
             raise ValueError("NoiseConfig.mass_scale_range must be positive")
 
@@ -210,7 +219,8 @@ class NoiseConfig:
         return cls(position_std=0.0, vertical_bias_std=0.0, orientation_std=0.0, process_position_std=0.0,
                    process_orientation_std=0.0, motion_noise=0.0, covariance_floor_std=0.0,
                    held_drift_std=0.0, held_offset_std=0.0, friction_range=None,
-                   rolling_friction_range=None, spinning_friction_range=None, restitution_range=None,
+                   rolling_friction_range=None, rolling_friction_scale=None, spinning_friction_range=None,
+                   restitution_range=None,
                    mass_scale_range=None, param_jitter=0.0, regularisation=0.0, outlier_prob=0.0,
                    miss_prob=0.1, hand_occlusion=1.0, fuse_resting=False)
 

@@ -152,6 +152,7 @@ class SceneModel:
         self.static = np.array([o.static for o in scene.objects], dtype=bool)
         self.dynamic = ~self.static
         self.hollow = np.array(scene.hollow, dtype=bool)
+        self.round = np.array([o.shape in ("sphere", "cylinder") for o in scene.objects], dtype=bool)
         self.known = initial_poses(scene)[1]
         self.base_params = base_params
         self.param_bounds = param_bounds(config)
@@ -179,6 +180,11 @@ class SceneModel:
         for col, r in enumerate(ranges):
             if r is not None:
                 params[:, dyn, col] = rng.uniform(r[0], r[1], size=(K, len(dyn)))
+        if nz.rolling_friction_range is None and nz.rolling_friction_scale is not None:
+            rollers = np.flatnonzero(self.dynamic & self.round & (base[:, 1] > 0))
+            if len(rollers):
+                lo, hi = np.log(nz.rolling_friction_scale)
+                params[:, rollers, 1] = base[rollers, 1] * np.exp(rng.uniform(lo, hi, size=(K, len(rollers))))
         if nz.mass_scale_range is not None:
             lo, hi = nz.mass_scale_range
             params[:, dyn, 4] = base[dyn, 4] * rng.uniform(lo, hi, size=(K, len(dyn)))

@@ -385,3 +385,22 @@ def test_a_still_resting_object_takes_a_kalman_step_to_its_detection_and_a_movin
     assert np.array_equal(mv.poses[:, CUP, 2], before[:, CUP, 2])  # the height is physics's
     off = make(EstimatorConfig(particles=400, noise=NoiseConfig(fuse_resting=False)))
     assert not off.fuse_resting(st.poses.copy(), st, st.modes, detected, np.random.default_rng(1)).any()
+
+
+def test_round_objects_rolling_friction_is_scaled_log_uniformly_and_boxes_keep_theirs():
+    sc = scene()
+    cfg = EstimatorConfig(particles=4000, noise=NoiseConfig())
+    memory = PerceptionMemory(sc, initial_poses(sc)[0], cfg.reasoner, cfg.follow_hands)
+    base = np.tile([0.5, 0.002, 0.0, 0.1, 0.2], (len(sc.objects), 1))  # every object has one
+    st = SceneModel(sc, cfg, memory, base).initial_state(np.random.default_rng(0))
+    lo, hi = cfg.noise.rolling_friction_scale
+    for m in (BALL, CUP, MYSTERY):  # sphere, cylinder, sphere
+        f = np.log(st.params[:, m, 1] / 0.002)
+        assert np.all((f >= np.log(lo) - 1e-12) & (f <= np.log(hi) + 1e-12))
+        # log-uniform on [log lo, log hi]: mean 0 for (0.5, 2), std (log 4) / sqrt(12)
+        sd = np.log(hi / lo) / np.sqrt(12)
+        assert abs(f.mean() - np.log(lo * hi) / 2) < 3 * sd / np.sqrt(len(f))
+    assert np.all(st.params[:, CRATE, 1] == 0.002) and np.all(st.params[:, TABLE, 1] == 0.002)
+    fixed = EstimatorConfig(particles=50, noise=NoiseConfig(rolling_friction_range=(0.0, 0.001)))
+    st = SceneModel(sc, fixed, memory, base).initial_state(np.random.default_rng(0))
+    assert np.all(st.params[:, [CRATE, BALL], 1] <= 0.001)  # an absolute range replaces the scale
