@@ -13,9 +13,10 @@ person did:
 * a Place waits for physics: the object let go on a support must rest where it was let go. While
   it waits (at most ``wait`` seconds) the episode stays open. If it is held again (it diverged
   from its simulation: the hand still had it), the Place was not one and the episode goes on, with
-  no new Pick. If it came to rest more than ``lift`` below where it was last perceived (``seen_z``,
-  the mean of the latest detections: it was held above its support, not put down), it is held
-  again, with no event. Otherwise the Place is confirmed, at the time it was let go;
+  no new Pick. If it came to rest more than ``lift`` below where it is seen now (``seen_z``: it
+  is held above its support, not put down), it is held again, with no event. If it is not seen
+  and came to rest more than ``lift`` below the height it was held at, it was dropped: a Release.
+  Otherwise the Place is confirmed. Either is dated when it was let go;
 * a confirmed Place of an object never lifted since its Pick is a Push at the Pick's time
   (:func:`~actions.push.end_codes`), and the end of a silent episode is no event.
 
@@ -27,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .modes import HELD, NO_EVENT, PICK, PLACE, PUSH, merge_events, switch_events
+from .modes import HELD, NO_EVENT, PICK, PLACE, PUSH, RELEASE, merge_events, switch_events
 from .push import LET_GO_T, PICK_T, REF_Z, SMOOTH_Z, end_codes, end_holds, track_holds, unrested_picks
 
 
@@ -90,7 +91,7 @@ def update_events(holds: np.ndarray, acted_on: np.ndarray, carried: np.ndarray, 
         supported / resting: ``(..., M)`` bool, after physics: something under it / and slower than
             ``rule.rest_speed``.
         start_z, z: ``(..., M)`` heights before and after physics.
-        seen_z: ``(..., M)`` perceived height (mean of the latest detections; NaN: not perceived).
+        seen_z: ``(..., M)`` height where the object is seen in this update (NaN: not detected).
         pick_t: ``(..., M)`` when a Pick now began (s; the object started moving).
         let_go_t: when a let-go on a support now happened (s; default ``t``; the Place rule fires once
             the object has been at rest a while), not before the episode's Pick; the wait counts
@@ -110,17 +111,19 @@ def update_events(holds: np.ndarray, acted_on: np.ndarray, carried: np.ndarray, 
     waiting = pending & ~held
     with np.errstate(invalid="ignore"):
         fell = waiting & resting & (seen_z - z > rule.lift)
+        dropped = waiting & resting & np.isnan(seen_z) & (holds[..., SMOOTH_Z] - z > rule.lift)
     confirmed = waiting & ~fell & (resting | (t - let_go >= rule.wait - 1e-9))
     modes = np.where(fell, HELD, modes_after).astype(np.asarray(modes_after).dtype)
     puts = switch_events(modes_physics, modes_after, supported)
     new_let_go = puts == PLACE
     puts = np.where(new_let_go, NO_EVENT, puts).astype(puts.dtype)
-    codes = merge_events(release_codes, puts, picks, np.where(confirmed, PLACE, NO_EVENT).astype(puts.dtype))
+    ends = np.where(confirmed, np.where(dropped, RELEASE, PLACE), NO_EVENT).astype(puts.dtype)
+    codes = merge_events(release_codes, puts, picks, ends)
     holds = track_holds(holds, held, resting, supported, start_z, z, picks == PICK, acted_on | carried, pick_t,
                         rule.smoothing)
     codes, push_t = end_codes(codes, holds, rule.lift)
     times = np.where(codes == PICK, pick_t, np.where(codes == PUSH, push_t,
-                                                     np.where(confirmed & (codes == PLACE), let_go, np.nan)))
+                                                     np.where(confirmed & (codes == ends), let_go, np.nan)))
     still_waiting = waiting & ~fell & ~confirmed
     when = t if let_go_t is None else np.fmax(let_go_t, holds[..., PICK_T])
     holds[..., LET_GO_T] = np.where(new_let_go, when, np.where(still_waiting, let_go, np.nan))

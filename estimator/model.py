@@ -66,6 +66,11 @@ FUSION_MIN_STEP = 5e-4
 """Ensemble Kalman steps of resting objects shorter than this (m) are not taken: a converged object
 stays asleep in its world (:meth:`SceneModel.fuse_resting`)."""
 
+CARRIER_SHIFT = 0.02
+"""An object perceived moving (motion onset) and more than this (m) away horizontally from where it
+was still carries what is in or on it: those get no events of their own (:meth:`SceneModel.settle`).
+A perception spike (a detection sunk into the table) moves it vertically and does not count."""
+
 MOVING_MAX_VERTICAL_SPEED = 0.2
 """With ``moving_teleports``, only objects perceived moving along their support (vertical speed below
 this, m/s) keep their velocity when teleported: a falling object's finite-difference velocity (over
@@ -374,20 +379,31 @@ class SceneModel:
         # the switches read as actions (actions.episodes): a Pick dated when the object started
         # moving, a Place once physics confirms it (dated when it came to rest), a Push if unlifted
         rule, onset = EpisodeRule(hr.push_lift, hr.push_smoothing, hr.place_wait), mem.moving_since
-        # what is in or on an object held, or perceived moving (a pushed box not yet held in this
-        # particle), is carried: whoever moves it moves its support
-        carrier = np.where((np.isfinite(onset) & perceived)[None, :], HELD, after_physics)
+        # what is in or on an object held, or perceived moving along its support (a pushed box not
+        # yet held in this particle: moved CARRIER_SHIFT from where it was still), is carried:
+        # whoever moves it moves its support
+        shift = np.linalg.norm(mem.last_pose[:, :2] - mem.still_position[:, :2], axis=1)
+        with np.errstate(invalid="ignore"):
+            pushed = np.isfinite(onset) & perceived & (shift > CARRIER_SHIFT)
+        carrier = np.where(pushed[None, :], HELD, after_physics)
         ev = update_events(
             state.holds, np.isfinite(state.event_t).any(axis=-1), carried(state.is_in, state.on_top, carrier),
             move.modes, after_physics, new_modes, move.release_codes, supported,
             supported & (np.linalg.norm(out.velocities[..., :3], axis=-1) < rule.rest_speed), move.poses[..., 2],
-            out.poses[..., 2], np.where(perceived, mem.mean_positions(t, hr.place_dwell)[:, 2], np.nan),
+            out.poses[..., 2], self._seen_z(t, detected),
             np.where((onset >= t - cfg.event_window) & (onset <= t), onset, t), t, rule, let_go_t=t - hr.place_dwell)
         times = ev.times
         if move.behind_cover is not None and np.any(move.behind_cover):  # let go back then, out of view
             times = np.where(move.behind_cover & (ev.codes == RELEASE), state.hidden_t, times)
         return Settled(out.poses, out.velocities, ev.modes, on_top, is_in, supported, ev.codes, vel, ev.holds,
                        times)
+
+    def _seen_z(self, t: float, detected: np.ndarray) -> np.ndarray:
+        """Height ``(M,)`` (m) where each object detected since the last update is seen now: the lower
+        of its latest detection and their mean over ``place_dwell`` (noise averaged, and an object
+        that just fell is seen where it fell); NaN where not detected."""
+        mean = self.memory.mean_positions(t, self.config.reasoner.place_dwell)[:, 2]
+        return np.where(detected, np.fmin(self.memory.last_pose[:, 2], mean), np.nan)
 
     # -- the weights ----------------------------------------------------------------------------------
     def evidence(self, move: Move, settled: Settled, out: BatchOutput, frame: Frame, detected: np.ndarray,

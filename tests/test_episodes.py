@@ -71,8 +71,20 @@ def test_a_place_is_confirmed_after_the_wait_and_unseen_objects_are_not_held_aga
     assert ev.codes.tolist() == [NO_EVENT] and ev.holds[0, LET_GO_T] == 2.0
     ev = step(ev.holds, [F], [F], [F], 2.5, [0.71], resting=[False])
     assert ev.codes.tolist() == [PLACE] and ev.times.tolist() == [2.0]
-    ev = step(h, [F], [F], [F], 2.1, [0.60])  # rested lower, but not perceived: confirmed
+    ev = step(h, [F], [F], [F], 2.1, [0.73])  # rested where let go, not perceived: a Place
     assert ev.codes.tolist() == [PLACE] and ev.modes.tolist() == [F]
+
+
+def test_an_unseen_object_resting_far_below_where_it_was_held_was_dropped():
+    # held 4 cm up, let go on a support, then not seen, at rest 14 cm lower (into a box): not held
+    # again (nothing shows it up there), and not a Place: a Release at the let-go time
+    ev = step(_held_and_let_go(), [F], [F], [F], 2.1, [0.60])
+    assert ev.codes.tolist() == [RELEASE] and ev.modes.tolist() == [F] and ev.times.tolist() == [2.0]
+    # seen at rest where it lies, the episode's record is not asked: a Place (a drop in view is a
+    # Release by the falling-detection rule before it comes to this); seen up there, it was held
+    # above its support (the test above)
+    ev = step(_held_and_let_go(), [F], [F], [F], 2.1, [0.60], seen_z=[0.61])
+    assert ev.codes.tolist() == [PLACE]
 
 
 def test_no_pick_for_what_never_rested_and_releases_are_final():
