@@ -71,6 +71,10 @@ CARRIER_SHIFT = 0.02
 was still carries what is in or on it: those get no events of their own (:meth:`SceneModel.settle`).
 A perception spike (a detection sunk into the table) moves it vertically and does not count."""
 
+FUSION_SETTLED = 1.5e-3
+"""A resting object whose particles' weighted mean is within this (m, horizontally) of the average of
+its detections while still takes no Kalman step: it has converged (:meth:`SceneModel.fuse_resting`)."""
+
 MOVING_MAX_VERTICAL_SPEED = 0.2
 """With ``moving_teleports``, only objects perceived moving along their support (vertical speed below
 this, m/s) keep their velocity when teleported: a falling object's finite-difference velocity (over
@@ -317,6 +321,10 @@ class SceneModel:
         if not np.any(mask):
             return out
         weights, _ = normalise_log_weights(state.log_weights)
+        # converged: the cloud's mean within FUSION_SETTLED of the average still detection, the
+        # object is left asleep (a step every update would wake it in every world)
+        mean = np.einsum("k,kmd->md", weights, poses[:, idx, :2])
+        mask &= (np.linalg.norm(mean - mem.still_position[idx, :2], axis=1) > FUSION_SETTLED)[None, :]
         std = mem.last_std[idx]
         std = np.where(np.isfinite(std), std, max(nz.position_std, 1e-3))
         new, moved = ensemble_kalman_step(poses[:, idx, :2], weights, mem.last_pose[idx, :2], std, mask, rng,
