@@ -77,7 +77,8 @@ def update_events(holds: np.ndarray, acted_on: np.ndarray, carried: np.ndarray, 
                   modes_physics: np.ndarray,
                   modes_after: np.ndarray, release_codes: np.ndarray, supported: np.ndarray, resting: np.ndarray,
                   start_z: np.ndarray, z: np.ndarray, seen_z: np.ndarray, pick_t: np.ndarray, t: float,
-                  rule: EpisodeRule = EpisodeRule(), let_go_t: float | None = None) -> UpdateEvents:
+                  rule: EpisodeRule = EpisodeRule(), let_go_t: float | None = None,
+                  release_t: np.ndarray | None = None) -> UpdateEvents:
     """The events of one update at time ``t`` (see the module docstring).
 
     Args:
@@ -96,6 +97,8 @@ def update_events(holds: np.ndarray, acted_on: np.ndarray, carried: np.ndarray, 
         let_go_t: when a let-go on a support now happened (s; default ``t``; the Place rule fires once
             the object has been at rest a while), not before the episode's Pick; the wait counts
             from it.
+        release_t: ``(..., M)`` when the Releases of ``release_codes`` happened (s; NaN, or None for
+            all: at ``t``; an object let go out of view earlier).
     """
     held = np.asarray(modes_physics) == HELD
     let_go = holds[..., LET_GO_T]
@@ -124,6 +127,8 @@ def update_events(holds: np.ndarray, acted_on: np.ndarray, carried: np.ndarray, 
     codes, push_t = end_codes(codes, holds, rule.lift)
     times = np.where(codes == PICK, pick_t, np.where(codes == PUSH, push_t,
                                                      np.where(confirmed & (codes == ends), let_go, np.nan)))
+    if release_t is not None:
+        times = np.where((codes == RELEASE) & (np.asarray(release_codes) == RELEASE), release_t, times)
     still_waiting = waiting & ~fell & ~confirmed
     when = t if let_go_t is None else np.fmax(let_go_t, holds[..., PICK_T])
     holds[..., LET_GO_T] = np.where(new_let_go, when, np.where(still_waiting, let_go, np.nan))

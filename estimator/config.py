@@ -99,11 +99,9 @@ class ReasonerConfig:
         _check_positive(self, "t_perceived", "d_sim_perc", "d_perc_prev", "place_speed", "place_gap",
                         "release_speed", "place_spin", "release_accel", "max_gap", "push_lift",
                         "push_smoothing")
-        _check_nonneg(self, "place_wait")
+        _check_nonneg(self, "place_wait", "place_dwell", "horizon")
         if self.push_smoothing > 1:
             raise ValueError(f"ReasonerConfig.push_smoothing must be in (0, 1], got {self.push_smoothing!r}")
-        _check_nonneg(self, "place_dwell")
-        _check_nonneg(self, "horizon")
 
 
 @dataclass(frozen=True)
@@ -111,12 +109,7 @@ class NoiseConfig:
     """Perturbations of the particle filter. All zeros (:meth:`off`) gives the paper's reasoner.
 
     * ``position_std`` (m) / ``orientation_std`` (rad): perception noise model, used both for
-      initialising or overriding a particle's pose from perception and in the likelihood (per axis).
-    * ``vertical_bias_std`` (m): trackers report objects floating above their support or sunk into
-      it by a centimetre or two (the paper's Fig. 1), an error along the vertical that does not
-      average away: the likelihood's vertical standard deviation is ``sqrt(std**2 +
-      vertical_bias_std**2)``, ``std`` being the detection's own ``position_std`` or the default.
-      A pose placed from perception gets no such noise: physics settles its height.
+      initialising or overriding a particle's pose from perception and in the likelihood.
     * ``process_position_std`` (m per sqrt(s)) / ``process_orientation_std`` (rad per sqrt(s)):
       random-walk noise added to unperceived free objects at each update.
     * ``rest_speed`` (m/s): in a particle, an unperceived free object on a support and moving slower
@@ -165,7 +158,6 @@ class NoiseConfig:
     """
 
     position_std: float = 0.01
-    vertical_bias_std: float = 0.0
     orientation_std: float = 0.2
     process_position_std: float = 0.003
     process_orientation_std: float = 0.01
@@ -191,7 +183,7 @@ class NoiseConfig:
     hand_occlusion: float = 0.099  # fitted: scene-estimator fit-priors (seeds 100-119)
 
     def __post_init__(self):
-        _check_nonneg(self, "position_std", "vertical_bias_std", "orientation_std", "process_position_std",
+        _check_nonneg(self, "position_std", "orientation_std", "process_position_std",
                       "process_orientation_std", "held_drift_std", "held_offset_std", "param_jitter", "outlier_prob",
                       "miss_prob", "motion_noise", "rest_speed", "covariance_floor_std", "regularisation",
                       "max_jitter_std", "fusion_floor_std")
@@ -216,7 +208,7 @@ class NoiseConfig:
     @classmethod
     def off(cls) -> "NoiseConfig":
         """No perturbation at all: the paper's deterministic reasoner."""
-        return cls(position_std=0.0, vertical_bias_std=0.0, orientation_std=0.0, process_position_std=0.0,
+        return cls(position_std=0.0, orientation_std=0.0, process_position_std=0.0,
                    process_orientation_std=0.0, motion_noise=0.0, covariance_floor_std=0.0,
                    held_drift_std=0.0, held_offset_std=0.0, friction_range=None,
                    rolling_friction_range=None, rolling_friction_scale=None, spinning_friction_range=None,

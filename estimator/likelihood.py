@@ -46,17 +46,14 @@ def position_log_likelihood(positions: np.ndarray, detected: np.ndarray, std: np
     Args:
         positions: ``(K, N, 3)`` the particles' positions of the N detected objects (m).
         detected: ``(N, 3)`` the detected positions (m).
-        std: ``(N,)`` standard deviation of each detection, the same on every axis, or ``(N, 3)``
-            one per axis (x, y, z; m): an axis-aligned Gaussian.
+        std: ``(N,)`` standard deviation of each detection, per axis (m; isotropic Gaussian).
         outlier_prob: weight ``eps`` in [0, 1) of a uniform outlier density of 1 per m^3: the
-            likelihood is ``(1 - eps) N(x; mu, diag(std^2)) + eps`` (heavy tails: one wild
-            detection does not kill every particle).
+            likelihood is ``(1 - eps) N(x; mu, std^2 I) + eps`` (heavy tails: one wild detection
+            does not kill every particle).
     """
-    std = np.asarray(std, dtype=float)
-    if std.ndim == 1:
-        std = np.repeat(std[:, None], 3, axis=1)
-    z2 = np.sum(((positions - detected) / std) ** 2, axis=-1)
-    log_n = -0.5 * z2 - 0.5 * np.sum(np.log(2 * math.pi * std**2), axis=-1)
+    axes = np.repeat(np.asarray(std, dtype=float)[:, None], 3, axis=1)  # (N, 3): one std per axis
+    z2 = np.sum(((positions - detected) / axes) ** 2, axis=-1)
+    log_n = -0.5 * z2 - 0.5 * np.sum(np.log(2 * math.pi * axes**2), axis=-1)
     return _with_outliers(log_n, outlier_prob)
 
 
@@ -87,7 +84,7 @@ def detection_log_likelihood(poses: np.ndarray, detected: np.ndarray, has_orient
         poses: ``(K, N, 7)`` the particles' poses (position m, quaternion x, y, z, w) of the objects.
         detected: ``(N, 7)`` the detected poses (the quaternion is read only where ``has_orientation``).
         has_orientation: ``(N,)`` bool, detections that came with an orientation.
-        position_std: ``(N,)`` or ``(N, 3)`` m, see :func:`position_log_likelihood`.
+        position_std: ``(N,)`` m, see :func:`position_log_likelihood`.
         orientation_std: rad; 0 ignores orientations.
         outlier_prob: see :func:`position_log_likelihood`.
     """
@@ -249,13 +246,11 @@ LogWeightTerm = Callable[[Evidence], np.ndarray]
 @dataclass(frozen=True)
 class DetectionTerm:
     """The detections of this update (:func:`detection_log_likelihood`). A detection without a std
-    uses ``max(default_std, 1e-3)`` m; the vertical axis adds ``vertical_bias_std`` (m) in
-    quadrature (see :class:`~estimator.config.NoiseConfig`)."""
+    uses ``max(default_std, 1e-3)`` m."""
 
     default_std: float
     orientation_std: float
     outlier_prob: float
-    vertical_bias_std: float = 0.0
 
     def __call__(self, ev: Evidence) -> np.ndarray:
         idx = np.flatnonzero(ev.detected)
@@ -265,10 +260,8 @@ class DetectionTerm:
         if ev.fused is not None:
             expected = expected | ev.fused[:, idx]
         src = np.where(expected[..., None], ev.predicted[:, idx], ev.poses[:, idx])
-        iso = ev.detection_std[idx]
-        iso = np.where(np.isfinite(iso), iso, max(self.default_std, 1e-3))
-        std = np.repeat(iso[:, None], 3, axis=1)
-        std[:, 2] = np.sqrt(iso ** 2 + self.vertical_bias_std ** 2)
+        std = ev.detection_std[idx]
+        std = np.where(np.isfinite(std), std, max(self.default_std, 1e-3))
         return detection_log_likelihood(src, ev.detected_poses[idx], ev.has_orientation[idx], std,
                                         self.orientation_std, self.outlier_prob)
 

@@ -67,9 +67,9 @@ FUSION_MIN_STEP = 5e-4
 stays asleep in its world (:meth:`SceneModel.fuse_resting`)."""
 
 CARRIER_SHIFT = 0.02
-"""An object perceived moving (motion onset) and more than this (m) away horizontally from where it
-was still carries what is in or on it: those get no events of their own (:meth:`SceneModel.settle`).
-A perception spike (a detection sunk into the table) moves it vertically and does not count."""
+"""An object perceived moving and more than this (m) away horizontally from where it was still
+(:meth:`~estimator.perception_memory.PerceptionMemory.shifted`) carries what is in or on it: those
+get no events of their own (:meth:`SceneModel.settle`)."""
 
 FUSION_SETTLED = 1.5e-3
 """A resting object whose particles' weighted mean is within this (m, horizontally) of the average of
@@ -165,13 +165,15 @@ class SceneModel:
         self.known = initial_poses(scene)[1]
         self.base_params = base_params
         self.param_bounds = param_bounds(config)
+        hr = config.reasoner
+        self.episode_rule = EpisodeRule(hr.push_lift, hr.push_smoothing, hr.place_wait)
         self._just_initialised = np.zeros(self.M, dtype=bool)
         self.terms: tuple[LogWeightTerm, ...] = self.log_weight_terms()
 
     def log_weight_terms(self) -> tuple[LogWeightTerm, ...]:
         """The terms a particle's log-weight is the sum of. A new term goes here."""
         nz, cfg = self.config.noise, self.config
-        return (DetectionTerm(nz.position_std, nz.orientation_std, nz.outlier_prob, nz.vertical_bias_std),
+        return (DetectionTerm(nz.position_std, nz.orientation_std, nz.outlier_prob),
                 NegativeEvidenceTerm(nz.miss_prob, cfg.visibility_threshold, nz.hand_occlusion),
                 ModeSwitchTerm(cfg.priors), ProposalTerm())
 
@@ -245,13 +247,14 @@ class SceneModel:
             release_codes[cover] = RELEASE
             poses[cover, :3] = state.hidden_at[cover]
             vel[cover] = 0.0
-        nudged = self.fuse_resting(poses, state, modes, detected & perceived & ~tele, rng)
+        # at rest in the particle (on a support, slower than rest_speed) before this update
+        resting = state.supported & (np.linalg.norm(state.velocities[..., :3], axis=-1)
+                                     < self.config.noise.rest_speed)
+        nudged = self.fuse_resting(poses, state.log_weights, modes, resting, detected & perceived & ~tele, rng)
         let_go = state.let_go_unseen.copy()
         let_go[(release_codes != 0) & (mem.perceived_prev & ~perceived)[None, :]] = frame.t
         target, target_vel, hold_error = self.held_targets(frame, poses, modes, detected, perceived, dt, rng,
                                                            state.hold_error, tele)
-        resting = state.supported & (np.linalg.norm(state.velocities[..., :3], axis=-1)
-                                     < self.config.noise.rest_speed)
         jolted = self.process_noise(poses, modes, perceived, state.supported, resting, state.last_motion, dt, rng)
         # what physics checks and reports
         vis_query = self.known & self.dynamic & ~detected
@@ -278,7 +281,7 @@ class SceneModel:
         nz, mem, K = self.config.noise, self.memory, self.K
         new = poses[:, idx].copy()
         new[..., :3] = mem.last_pose[idx, :3]
-        if nz.position_std > 0:  # physics settles the height: no height bias here (likelihood only)
+        if nz.position_std > 0:
             new[..., :3] += rng.normal(0.0, nz.position_std, new[..., :3].shape)
         has_q = mem.last_has_orientation[idx]
         new[:, has_q, 3:] = mem.last_pose[idx[has_q], 3:]
@@ -302,25 +305,24 @@ class SceneModel:
             keep = moving[idx]
             vel[:, idx[keep], 3:] = spin[:, keep]
 
-    def fuse_resting(self, poses: np.ndarray, state: ParticleState, modes: np.ndarray, seen: np.ndarray,
-                     rng: np.random.Generator) -> np.ndarray:
+    def fuse_resting(self, poses: np.ndarray, log_weights: np.ndarray, modes: np.ndarray, resting: np.ndarray,
+                     seen: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """In place on ``poses (K, M, 7)``: the horizontal position of every object ``seen (M,)`` now
         (detected, perceived, not teleported), perceived still (no motion onset since it was last
-        at rest) and, in a particle, free and resting on a support, takes an ensemble Kalman step
-        towards its latest detection (:func:`~estimator.fusion.ensemble_kalman_step`; the prior
-        variance floored at ``fusion_floor_std``, steps under ``FUSION_MIN_STEP`` not taken).
+        at rest) and, in a particle (``log_weights (K,)``), free and ``resting (K, M)``, takes an
+        ensemble Kalman step towards its latest detection (:func:`~estimator.fusion.ensemble_kalman_step`;
+        the prior variance floored at ``fusion_floor_std``, steps under ``FUSION_MIN_STEP`` not taken).
         Returns the entries moved ``(K, M)`` (no entry when ``fuse_resting`` is off)."""
         nz, mem = self.config.noise, self.memory
         out = np.zeros((self.K, self.M), dtype=bool)
         still = seen & self.dynamic & np.isnan(mem.moving_since) & np.isfinite(mem.still_position[:, 0])
         if not nz.fuse_resting or self.K < 2 or not np.any(still):
             return out
-        resting = state.supported & (np.linalg.norm(state.velocities[..., :3], axis=-1) < nz.rest_speed)
         idx = np.flatnonzero(still)
         mask = (modes[:, idx] == FREE) & resting[:, idx]
         if not np.any(mask):
             return out
-        weights, _ = normalise_log_weights(state.log_weights)
+        weights, _ = normalise_log_weights(log_weights)
         # converged: the cloud's mean within FUSION_SETTLED of the average still detection, the
         # object is left asleep (a step every update would wake it in every world)
         mean = np.einsum("k,kmd->md", weights, poses[:, idx, :2])
@@ -386,25 +388,21 @@ class SceneModel:
         new_modes[held_seen & ((rested[None, :] & supported) | falling)] = FREE
         # the switches read as actions (actions.episodes): a Pick dated when the object started
         # moving, a Place once physics confirms it (dated when it came to rest), a Push if unlifted
-        rule, onset = EpisodeRule(hr.push_lift, hr.push_smoothing, hr.place_wait), mem.moving_since
+        rule, onset = self.episode_rule, mem.moving_since
         # what is in or on an object held, or perceived moving along its support (a pushed box not
-        # yet held in this particle: moved CARRIER_SHIFT from where it was still), is carried:
-        # whoever moves it moves its support
-        shift = np.linalg.norm(mem.last_pose[:, :2] - mem.still_position[:, :2], axis=1)
-        with np.errstate(invalid="ignore"):
-            pushed = np.isfinite(onset) & perceived & (shift > CARRIER_SHIFT)
-        carrier = np.where(pushed[None, :], HELD, after_physics)
+        # yet held in this particle), is carried: whoever moves it moves its support
+        carrier = np.where((mem.shifted(CARRIER_SHIFT) & perceived)[None, :], HELD, after_physics)
+        # objects let go behind cover were let go back then, out of view
+        release_t = None if move.behind_cover is None else np.where(move.behind_cover, state.hidden_t, np.nan)
         ev = update_events(
             state.holds, np.isfinite(state.event_t).any(axis=-1), carried(state.is_in, state.on_top, carrier),
             move.modes, after_physics, new_modes, move.release_codes, supported,
             supported & (np.linalg.norm(out.velocities[..., :3], axis=-1) < rule.rest_speed), move.poses[..., 2],
             out.poses[..., 2], self._seen_z(t, detected),
-            np.where((onset >= t - cfg.event_window) & (onset <= t), onset, t), t, rule, let_go_t=t - hr.place_dwell)
-        times = ev.times
-        if move.behind_cover is not None and np.any(move.behind_cover):  # let go back then, out of view
-            times = np.where(move.behind_cover & (ev.codes == RELEASE), state.hidden_t, times)
+            np.where((onset >= t - cfg.event_window) & (onset <= t), onset, t), t, rule, let_go_t=t - hr.place_dwell,
+            release_t=release_t)
         return Settled(out.poses, out.velocities, ev.modes, on_top, is_in, supported, ev.codes, vel, ev.holds,
-                       times)
+                       ev.times)
 
     def _seen_z(self, t: float, detected: np.ndarray) -> np.ndarray:
         """Height ``(M,)`` (m) where each object detected since the last update is seen now: the lower

@@ -227,6 +227,14 @@ class PerceptionMemory:
         ``place_speed * place_dwell`` and turned less than ``place_spin * place_dwell``."""
         return np.array([self._rested(m, t) for m in range(self.M)], dtype=bool)
 
+    def shifted(self, distance: float) -> np.ndarray:
+        """Objects ``(M,)`` perceived moving (a motion onset since they were still) whose latest
+        detection lies more than ``distance`` (m) horizontally from where they were still: moved
+        along their support, not a perception spike (a detection sunk into the table)."""
+        shift = np.linalg.norm(self.last_pose[:, :2] - self.still_position[:, :2], axis=1)
+        with np.errstate(invalid="ignore"):
+            return np.isfinite(self.moving_since) & (shift > distance)
+
     def mean_positions(self, t: float, span: float) -> np.ndarray:
         """Mean detected position ``(M, 3)`` (m) of each object over the ``span`` seconds up to ``t``
         (NaN for an object without a detection then)."""

@@ -163,3 +163,15 @@ def test_carried_are_the_objects_in_or_on_a_held_one():
     on_top[1, 0, 2] = True       # particle 1: the crate stands on the cup (why not)
     modes = np.array([[H, F, F], [F, F, H]], np.int8)
     assert carried(is_in, on_top, modes).tolist() == [[False, True, False], [True, False, False]]
+
+
+def test_a_release_before_physics_takes_the_time_it_is_given():
+    # object 0 let go out of view back at 1.4 s (behind cover), object 1 at this update
+    h = step(empty_holds((2,)), [F, F], [F, F], [F, F], 0.1, [0.7, 0.7]).holds
+    h = step(h, [F, F], [H, H], [H, H], 1.0, [0.7, 0.7]).holds
+    ev = update_events(h, np.zeros(2, bool), np.zeros(2, bool), np.array([F, F], np.int8), np.array([F, F], np.int8),
+                       np.array([F, F], np.int8), np.array([RELEASE, RELEASE], np.int8), np.zeros(2, bool),
+                       np.zeros(2, bool), np.full(2, 0.9), np.full(2, 0.9), np.full(2, np.nan), np.full(2, 2.0),
+                       2.0, RULE, release_t=np.array([1.4, np.nan]))
+    assert ev.codes.tolist() == [RELEASE, RELEASE]
+    assert ev.times[0] == 1.4 and np.isnan(ev.times[1])  # NaN: at the update

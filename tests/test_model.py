@@ -383,12 +383,13 @@ def test_a_still_resting_object_takes_a_kalman_step_to_its_detection_and_a_movin
     sd = np.sqrt(p * 0.01 ** 2 / (p + 0.01 ** 2) / 400)
     assert abs(mv.poses[:, CUP, 0].mean() - expect) < 4 * sd
     assert np.array_equal(mv.poses[:, CUP, 2], before[:, CUP, 2])  # the height is physics's
+    resting = np.ones((400, 5), bool)  # supported, at rest (zero velocities)
     # converged (the cloud's mean at the average still detection): no step, the object sleeps on
     st.poses[:, CUP, :2] = mem.still_position[CUP, :2] + np.random.default_rng(2).normal(0, 0.002, (400, 2))
     st.poses[:, CUP, :2] -= st.poses[:, CUP, :2].mean(axis=0) - mem.still_position[CUP, :2]
-    assert not model.fuse_resting(st.poses.copy(), st, st.modes, detected, np.random.default_rng(1))[:, CUP].any()
+    assert not model.fuse_resting(st.poses.copy(), st.log_weights, st.modes, resting, detected, np.random.default_rng(1))[:, CUP].any()
     off = make(EstimatorConfig(particles=400, noise=NoiseConfig(fuse_resting=False)))
-    assert not off.fuse_resting(st.poses.copy(), st, st.modes, detected, np.random.default_rng(1)).any()
+    assert not off.fuse_resting(st.poses.copy(), st.log_weights, st.modes, resting, detected, np.random.default_rng(1)).any()
 
 
 def test_round_objects_rolling_friction_is_scaled_log_uniformly_and_boxes_keep_theirs():

@@ -174,3 +174,15 @@ def test_motion_onset_is_the_last_still_detection_and_ends_when_still_again():
     # after a loss the object starts still wherever it is seen again
     mem.record(Frame(end + 5.0, {"cup": det([0.0, 0.0, 0.14])}))
     assert np.isnan(mem.moving_since[CUP]) and np.allclose(mem.still_position[CUP], [0.0, 0.0, 0.14])
+
+
+def test_shifted_means_moved_along_the_support_not_a_spike():
+    mem = memory()
+    t = _frames(mem, [[0.3, 0.3, 0.14]] * 15)
+    assert not mem.shifted(0.02).any()
+    # a detection sunk 3 cm into the table: an onset, but no horizontal shift
+    mem.record(Frame(t + 1 / 30, {"cup": det([0.3, 0.3, 0.11])}))
+    assert np.isfinite(mem.moving_since[CUP]) and not mem.shifted(0.02)[CUP]
+    # dragged 3 cm along the table: shifted
+    mem.record(Frame(t + 2 / 30, {"cup": det([0.33, 0.3, 0.14])}))
+    assert mem.shifted(0.02)[CUP] and not mem.shifted(0.04)[CUP] and not mem.shifted(0.02)[BALL]

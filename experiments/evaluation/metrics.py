@@ -99,12 +99,14 @@ def binary_scores(predicted: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     if p.shape != y.shape:
         raise ValueError(f"shapes differ: {p.shape} vs {y.shape}")
     tp = int(np.sum(p & y))
-    out = _prf(tp, int(p.sum()), int(y.sum()))
+    out = precision_recall_f1(tp, int(p.sum()), int(y.sum()))
     out["accuracy"] = float(np.mean(p == y)) if p.size else math.nan
     return out
 
 
-def _prf(tp: int, n_est: int, n_true: int) -> dict[str, float]:
+def precision_recall_f1(tp: int, n_est: int, n_true: int) -> dict[str, float]:
+    """``{"precision", "recall", "f1"}`` of ``tp`` true positives among ``n_est`` estimates and
+    ``n_true`` true cases (NaN where undefined: see the module docstring's empty cases)."""
     precision = tp / n_est if n_est else math.nan
     recall = tp / n_true if n_true else math.nan
     if n_est == 0 and n_true == 0:
@@ -154,7 +156,7 @@ def event_scores(estimated: list[dict], truth: list[dict], window: float = EVENT
         estimated = [e for e in estimated if e["action"] in actions]
         truth = [g for g in truth if g["action"] in actions]
     matches = match_events(estimated, truth, window)
-    out = _prf(len(matches), len(estimated), len(truth))
+    out = precision_recall_f1(len(matches), len(estimated), len(truth))
     lat = np.array([float(estimated[i]["t"]) - float(truth[j]["t"]) for i, j in matches])
     out["latency_median"] = float(np.median(lat)) if lat.size else math.nan
     out["latency_mean"] = float(np.mean(lat)) if lat.size else math.nan

@@ -13,7 +13,7 @@ from typing import Iterable
 
 
 from experiments.evaluation.methods import METHODS, get_method
-from experiments.evaluation.metrics import ACTIONS
+from experiments.evaluation.metrics import ACTIONS, precision_recall_f1
 from experiments.evaluation.stats import bootstrap_ci, group_rng, paired_wilcoxon
 
 
@@ -224,11 +224,8 @@ def pooled_event_counts(rows: list[dict]) -> list[dict]:
             if not have:
                 continue
             n_true, n_est, n_match = (sum(int(r[f"{a_}_{c}"]) for r in have) for c in ("true", "est", "matched"))
-            p = n_match / n_est if n_est else math.nan
-            rc = n_match / n_true if n_true else math.nan
-            f1 = (2 * n_match / (n_true + n_est)) if (n_true + n_est) else math.nan
             out.append({"method": m, "particles": k, "action": a, "trials": len(have), "n_true": n_true,
-                        "n_est": n_est, "n_matched": n_match, "precision": p, "recall": rc, "f1": f1})
+                        "n_est": n_est, "n_matched": n_match, **precision_recall_f1(n_match, n_est, n_true)})
     return out
 
 
