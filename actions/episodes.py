@@ -18,7 +18,10 @@ person did:
   and came to rest more than ``lift`` below the height it was held at, it was dropped: a Release.
   Otherwise the Place is confirmed. Either is dated when it was let go;
 * a confirmed Place of an object never lifted since its Pick is a Push at the Pick's time
-  (:func:`~actions.push.end_codes`), and the end of a silent episode is no event.
+  (:func:`~actions.push.end_codes`), and the end of a silent episode is no event;
+* an object free at the start of an update that physics switched to HELD and the Release rule let
+  go in the same update (it diverged from its simulation because it fell: a ball rolling off an
+  edge) was never held: neither a Pick nor a Release.
 
 Arrays are ``(..., M)`` (one scene or ``(K, M)`` particles); heights in metres, times in seconds.
 """
@@ -118,6 +121,9 @@ def update_events(holds: np.ndarray, acted_on: np.ndarray, carried: np.ndarray, 
     confirmed = waiting & ~fell & (resting | (t - let_go >= rule.wait - 1e-9))
     modes = np.where(fell, HELD, modes_after).astype(np.asarray(modes_after).dtype)
     puts = switch_events(modes_physics, modes_after, supported)
+    flash = (np.asarray(modes_before) != HELD) & held & (puts == RELEASE)  # held and let fall at once
+    puts = np.where(flash, NO_EVENT, puts).astype(puts.dtype)
+    picks = np.where(flash, NO_EVENT, picks).astype(picks.dtype)
     new_let_go = puts == PLACE
     puts = np.where(new_let_go, NO_EVENT, puts).astype(puts.dtype)
     ends = np.where(confirmed, np.where(dropped, RELEASE, PLACE), NO_EVENT).astype(puts.dtype)

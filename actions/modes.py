@@ -83,6 +83,18 @@ class ModePriors:
     * ``release_hidden``: probability that an object its tracked hand carried out of view, and did
       not let go when it was lost, was let go while the hand hid it: weighed when the hand shows in
       view again without it (:func:`estimator.holding.release_behind_cover`). Fitted the same way.
+    * ``held_out_of_reach``: probability that an object held by an agent is detected farther than
+      :data:`~estimator.perception_memory.HAND_RADIUS` from every hand tracked in that frame (a hand
+      nobody tracks moves it); a particle that holds such an object pays its log at every update
+      (:func:`estimator.likelihood.hand_reach_log_likelihood`), so an object flicked or pushed and
+      then left to roll is not followed as if carried. Fitted the same way, over the frames where an
+      object is held in truth, detected, and a hand is tracked.
+    * ``let_go_moving``: the proposal rate of a let-go in motion: each update, a held object seen
+      moving along its support (faster than 0.2 m/s, not falling) with no tracked hand within reach
+      is let go in that fraction of the particles that hold it (a ball flicked or pushed and then
+      left to roll: physics takes it on from its velocity). The switch is a Place while perceived,
+      whose prior ``place`` the weights keep: the proposal is corrected for (importance weights), so
+      this sets how many particles try it, not how likely it is (0: never tried; paper mode).
     """
 
     pick: float = 0.02
@@ -92,13 +104,15 @@ class ModePriors:
     release_on_loss_carried: float = 0.024  # fitted: scene-estimator fit-priors (seeds 100-119), 0 of 40
     release_on_loss_still: float = 0.5  # fitted: no such loss in the scenarios (Laplace: 0.5)
     release_hidden: float = 0.226  # fitted: fit-priors on every built-in scenario with tracked hands, 11 of 51
+    held_out_of_reach: float = 6.7e-05  # fitted: scene-estimator fit-priors (seeds 100-119), 0 of 14828 frames
+    let_go_moving: float = 0.2
     carry_distance: float = 0.05
 
     def __post_init__(self):
         if not (isinstance(self.carry_distance, (int, float)) and 0 <= self.carry_distance < float("inf")):
             raise ValueError(f"ModePriors.carry_distance must be >= 0 metres, got {self.carry_distance!r}")
         for name in ("pick", "place", "release", "release_on_loss", "release_on_loss_carried",
-                     "release_on_loss_still", "release_hidden"):
+                     "release_on_loss_still", "release_hidden", "held_out_of_reach", "let_go_moving"):
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
                 raise ValueError(f"ModePriors.{name} must be in [0, 1], got {v}")

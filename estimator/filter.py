@@ -28,7 +28,7 @@ import logging
 import numpy as np
 
 from actions.events import recent_events, record_event_times
-from actions.modes import HELD
+from actions.modes import FREE, HELD
 from physics.scene import Scene
 
 from .belief import Belief, compute_belief
@@ -310,7 +310,8 @@ class SceneEstimator:
             event_t=s.event_t, supported=settled.supported, last_motion=last_motion,
             jolted=np.zeros((self.K, self.M), dtype=bool), unseen_in_view=unseen_in_view,
             hold_error=move.hold_error, let_go_unseen=move.let_go_unseen, hidden_at=hidden[0],
-            hidden_t=hidden[1], hidden_n=hidden[2], push_decided=s.push_decided, holds=settled.holds)
+            hidden_t=hidden[1], hidden_n=hidden[2], push_decided=s.push_decided, holds=settled.holds,
+            jitter=move.jitter * ((move.modes == FREE) & (settled.modes == FREE))[..., None])  # held: at the target
 
     def _resample(self, weights: np.ndarray, hidden: np.ndarray) -> None:
         """Systematic resampling, then the model's regularisation of hidden objects ``hidden (M,)`` and

@@ -81,12 +81,13 @@ class HeldObjects:
     """
 
     def __init__(self, w: World, target: np.ndarray, target_vel: np.ndarray, contents: np.ndarray,
-                 n_steps: int):
+                 n_steps: int, moving: bool = False):
         self.w = w
         self.target = target
         self.tvel = target_vel
         self.contents = contents
         self.n = max(1, int(n_steps))
+        self.moving = bool(moving)
         self.items: list[tuple] = []  # (body id, per-step com positions, per-step orientations, lin, ang)
 
     def glide(self, uid: int, com: list, orn: list, lin: list, ang: list) -> None:
@@ -95,27 +96,36 @@ class HeldObjects:
         entries, client frame) and the matching velocity ``lin``, ``ang``."""
         self.items.append((uid, com, orn, lin, ang))
 
-    def jump(self, indices: list[int]) -> None:
-        """Add objects that became held now: move them (and their contents) to the target at once,
-        waking them and what they touched (see :attr:`PhysicsSettings.sleeping`)."""
+    def jump(self, indices: list[int], step: int | None = None) -> None:
+        """Add objects that became held after step ``step`` (default: the last): move them (and their
+        contents) to the target at once, waking them and what they touched (see
+        :attr:`PhysicsSettings.sleeping`). With ``moving``, a target moves at its velocity and
+        reaches ``target`` at the update's end: the objects follow it from where it is now."""
         w = self.w
         if w.settings.sleeping:
             wake(w, sorted(set(indices) | set(touching(w, indices)) | set(
                 int(j) for i in indices for j in np.flatnonzero(self.contents[:, i]))))
+        s = self.n if step is None else min(int(step), self.n)
+        dt = w.settings.time_step
+        # the target's position before each step (n + 1 entries) relative to its end: -v (n - k) dt
+        lag = (np.arange(self.n + 1) - self.n)[None, :, None] * dt * (
+            self.tvel[indices, None, :3] if self.moving else np.zeros((len(indices), 1, 3)))
         before = w.get_poses(indices)
-        w.set_poses(self.target[indices], indices)
+        now = self.target[indices].copy()
+        now[:, :3] += lag[:, s]
+        w.set_poses(now, indices)
         w.set_velocities(self.tvel[indices], indices)
         for k, i in enumerate(indices):
             ch = [int(j) for j in np.flatnonzero(self.contents[:, i]) if j not in indices]
             if ch:
-                w.set_poses(carry_pose(w.get_poses(ch), before[k], self.target[i]), ch)
+                w.set_poses(carry_pose(w.get_poses(ch), before[k], now[k]), ch)
                 cv = w.get_velocities(ch)
                 cv[:, :3] = self.tvel[i, :3]
                 w.set_velocities(cv, ch)
         com = w.com_positions(self.target[indices], indices) + w.origin
         for k, i in enumerate(indices):
             v = self.tvel[i].tolist()
-            pos = [com[k].tolist()] * (self.n + 1)
+            pos = (com[k][None, :] + lag[k]).tolist()
             orn = [self.target[i, 3:].tolist()] * (self.n + 1)
             self.items.append((w.uids[i], pos, orn, v[:3], v[3:]))
 

@@ -57,7 +57,9 @@ def held_targets(frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: n
     :func:`~estimator.propagate.propagate_batch`); held objects not detected in this update follow the
     hand that held them when last detected, if it is tracked, at its offset then plus each particle's
     error (``hold_error (K, M, 3)`` before, walked by :func:`~estimator.held.hand_offset_walk`), else
-    stay where they were perceived (while perceived) or where the particle has them, drifting by
+    stay where they were perceived (while perceived; with ``moving_teleports``, where their last
+    detection carried on at its perceived velocity puts them now: an object seen moving and then not
+    seen goes on, not pinned where it was seen) or where the particle has them, drifting by
     ``held_drift_std`` (m per sqrt(s)) when not perceived. Others: their pose in ``poses (K, M, 7)``."""
     K, M = modes.shape
     new_error = np.zeros_like(hold_error)
@@ -75,6 +77,10 @@ def held_targets(frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: n
             with_vel = perceived & (np.zeros(M, bool) if teleported is None else teleported)
         vidx = np.flatnonzero(with_vel)
         target_vel[:, vidx, :3] = memory.perc_vel[vidx, :3]
+        if moving_teleports:  # not detected now: the detection ages, carried on at its velocity
+            cidx = np.flatnonzero(perceived & ~detected)
+            target[:, cidx, :3] = memory.position_at(frame.t)[cidx]
+            target_vel[:, cidx, :3] = memory.perc_vel[cidx, :3]
     held = (modes == HELD) & ~detected[None, :]
     for m in np.flatnonzero(held.any(axis=0)):
         rows = held[:, m]

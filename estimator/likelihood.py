@@ -8,6 +8,7 @@ function returns log-likelihoods (natural log, float64) and needs no estimator o
 * :func:`detection_log_likelihood`: both, summed over the detected objects;
 * :func:`negative_evidence_log_likelihood`: undetected objects a particle puts in plain view;
 * :func:`mode_switch_log_prior`: the prior cost of the evidence-triggered mode switches;
+* :func:`hand_reach_log_likelihood`: a held object seen out of reach of every tracked hand;
 * :func:`exploded_log_likelihood`: zero weight for particles whose simulation exploded.
 
 The scene model (:class:`~estimator.model.SceneModel`) weighs a particle with a tuple of *terms*:
@@ -186,6 +187,26 @@ def mode_switch_log_prior(priors: ModePriors, previous: np.ndarray, new: np.ndar
     return priors.log_prior_cost(previous, new, np.asarray(perceived, dtype=bool)[None, :]).sum(axis=1)
 
 
+def hand_reach_log_likelihood(modes: np.ndarray, out_of_reach: np.ndarray, held_out_of_reach: float) -> np.ndarray:
+    """Log-likelihood ``(K,)`` float64 of where the tracked hands are, given who holds what: each
+    particle pays ``log(held_out_of_reach)`` for every object it has HELD that is detected out of reach
+    of every tracked hand (an agent moves what it holds with a hand; the prior is the probability
+    that it is a hand nobody tracks). Free objects, and held objects within reach, pay nothing: the
+    hands' positions say nothing about them.
+
+    Args:
+        modes: ``(K, M)`` int8, FREE / HELD after this update.
+        out_of_reach: ``(M,)`` bool, objects detected in this update farther than the reach from every
+            hand tracked in it (none when no hand is tracked).
+        held_out_of_reach: probability in [0, 1] (0: such a particle gets zero weight).
+    """
+    n = np.sum((np.asarray(modes) == HELD) & np.asarray(out_of_reach, dtype=bool)[None, :], axis=1)
+    if not np.any(n):
+        return np.zeros(len(n))
+    with np.errstate(divide="ignore"):
+        return np.where(n > 0, n * math.log(held_out_of_reach) if held_out_of_reach > 0 else -np.inf, 0.0)
+
+
 def exploded_log_likelihood(finite: np.ndarray) -> np.ndarray:
     """``(K,)`` float64: 0 for particles whose simulation stayed finite, -inf (zero weight) for those
     that exploded (NaN or runaway velocities; ``finite (K,)`` bool from the pool)."""
@@ -217,6 +238,8 @@ class Evidence:
     * ``fused (K, M)`` bool: resting objects moved towards their detection before physics
       (:func:`~estimator.fusion.ensemble_kalman_step`), scored, as teleported ones, where the
       particle expected them (None: none).
+    * ``out_of_reach (M,)`` bool: objects detected in this update out of reach of every tracked
+      hand (None: no hand tracked, or hands not followed).
     """
 
     poses: np.ndarray
@@ -237,6 +260,7 @@ class Evidence:
     fell_unseen: np.ndarray | None = None
     proposal_log_weight: np.ndarray | None = None
     fused: np.ndarray | None = None
+    out_of_reach: np.ndarray | None = None
 
 
 LogWeightTerm = Callable[[Evidence], np.ndarray]
@@ -288,6 +312,18 @@ class ModeSwitchTerm:
 
     def __call__(self, ev: Evidence) -> np.ndarray:
         return mode_switch_log_prior(self.priors, ev.previous_modes, ev.modes, ev.perceived)
+
+
+@dataclass(frozen=True)
+class HandReachTerm:
+    """Held objects seen out of reach of the tracked hands (:func:`hand_reach_log_likelihood`)."""
+
+    held_out_of_reach: float
+
+    def __call__(self, ev: Evidence) -> np.ndarray:
+        if ev.out_of_reach is None:
+            return np.zeros(len(ev.poses))
+        return hand_reach_log_likelihood(ev.modes, ev.out_of_reach, self.held_out_of_reach)
 
 
 @dataclass(frozen=True)

@@ -18,13 +18,14 @@ and the worlds and calls, at each update:
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from actions.episodes import EpisodeRule, carried, update_events
 from actions.events import N_ACTIONS
-from actions.modes import FREE, HELD, RELEASE
+from actions.modes import FREE, HELD, PLACE, RELEASE
 from actions.push import empty_holds
 from physics.scene import Scene
 from physics.transforms import carry_pose, quat_from_rotvec, quat_multiply
@@ -33,12 +34,12 @@ from .config import EstimatorConfig
 from .fusion import ensemble_kalman_step
 from .holding import held_targets, release_behind_cover, release_on_loss
 from .noise import process_noise, regularisation_kernels
-from .likelihood import (DetectionTerm, Evidence, LogWeightTerm, ModeSwitchTerm, NegativeEvidenceTerm, ProposalTerm,
+from .likelihood import (DetectionTerm, Evidence, HandReachTerm, LogWeightTerm, ModeSwitchTerm, NegativeEvidenceTerm, ProposalTerm,
                          add_terms,
                          exploded_log_likelihood)
 from .observations import Frame
 from .params import param_bounds, shrink_params
-from .perception_memory import PerceptionMemory
+from .perception_memory import HAND_RADIUS, PerceptionMemory
 from .pool import BatchInput, BatchOutput
 from .relations import relations_and_support
 from .resampling import normalise_log_weights
@@ -78,7 +79,10 @@ its detections while still takes no Kalman step: it has converged (:meth:`SceneM
 MOVING_MAX_VERTICAL_SPEED = 0.2
 """With ``moving_teleports``, only objects perceived moving along their support (vertical speed below
 this, m/s) keep their velocity when teleported: a falling object's finite-difference velocity (over
-a bounce, into a container) throws its particles off, and the paper's teleport at rest serves it well."""
+a bounce, into a container) throws its particles off, and the paper's teleport at rest serves it well.
+A falling object that was moving along its support at the previous update, horizontally faster than
+this, rolled off an edge: it keeps its horizontal velocity and its particle's spin (a dropped
+object's horizontal finite difference is mostly noise)."""
 
 
 @dataclass(frozen=True)
@@ -97,7 +101,8 @@ class Move:
     ``behind_cover (K, M)`` bool: objects let go now where their hand hid them earlier, at
     ``state.hidden_t`` (:func:`~estimator.holding.release_behind_cover`), and ``proposal_log_weight
     (K,)`` the weight factor of that move; ``fused (K, M)`` bool: objects at rest moved towards
-    their detection (:meth:`SceneModel.fuse_resting`; scored where the particle expected them).
+    their detection (:meth:`SceneModel.fuse_resting`; scored where the particle expected them);
+    ``jitter (K, M, 3)``: the teleports' position noise (see :class:`~estimator.state.ParticleState`).
     """
 
     poses: np.ndarray
@@ -118,6 +123,7 @@ class Move:
     behind_cover: np.ndarray | None = None
     proposal_log_weight: np.ndarray | None = None
     fused: np.ndarray | None = None
+    jitter: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -162,6 +168,7 @@ class SceneModel:
         self.dynamic = ~self.static
         self.hollow = np.array(scene.hollow, dtype=bool)
         self.round = np.array([o.shape in ("sphere", "cylinder") for o in scene.objects], dtype=bool)
+        self.ball_radius = np.array([o.radius if o.shape == "sphere" else np.nan for o in scene.objects])
         self.known = initial_poses(scene)[1]
         self.base_params = base_params
         self.param_bounds = param_bounds(config)
@@ -175,7 +182,7 @@ class SceneModel:
         nz, cfg = self.config.noise, self.config
         return (DetectionTerm(nz.position_std, nz.orientation_std, nz.outlier_prob),
                 NegativeEvidenceTerm(nz.miss_prob, cfg.visibility_threshold, nz.hand_occlusion),
-                ModeSwitchTerm(cfg.priors), ProposalTerm())
+                ModeSwitchTerm(cfg.priors), HandReachTerm(cfg.priors.held_out_of_reach), ProposalTerm())
 
     # -- the prior ------------------------------------------------------------------------------------
     def initial_state(self, rng: np.random.Generator) -> ParticleState:
@@ -211,7 +218,8 @@ class SceneModel:
                              unseen_in_view=np.zeros((K, M), dtype=np.int32), hold_error=np.zeros((K, M, 3)),
                              let_go_unseen=np.full((K, M), -np.inf), hidden_at=np.zeros((K, M, 3)),
                              hidden_t=np.full((K, M), -np.inf), hidden_n=np.zeros((K, M), dtype=np.int32),
-                             push_decided=np.full((K, M), -np.inf), holds=empty_holds((K, M)))
+                             push_decided=np.full((K, M), -np.inf), holds=empty_holds((K, M)),
+                             jitter=np.zeros((K, M, 3)))
 
     # -- the move -------------------------------------------------------------------------------------
     def move(self, state: ParticleState, frame: Frame, detected: np.ndarray, perceived: np.ndarray,
@@ -224,6 +232,9 @@ class SceneModel:
         poses, vel = state.poses.copy(), state.velocities.copy()
         prev_modes = state.modes.copy()
         predicted = poses.copy()  # before teleports: what each particle expected
+        if cfg.moving_teleports:  # ... at frame.t, carried on at its velocity, without the last
+            predicted[..., :3] += vel[..., :3] * dt - state.jitter  # teleport's noise (the paper: where it was)
+        jitter = np.zeros((self.K, self.M, 3))
         # teleports and first sightings
         newly_known = perceived & ~self.known
         tele = perceived & (~mem.perceived_prev | mem.jumped() | newly_known)
@@ -235,8 +246,25 @@ class SceneModel:
             else tele & False
         mem.perc_vel[tele] = 0.0
         mem.perc_vel[moving, :3] = tick_vel[moving]
+        spinning = moving
+        if cfg.moving_teleports:  # one that rolled off an edge keeps its velocity along and its spin
+            before = mem.previous_tick_velocity()
+            rolled_off = (np.linalg.norm(before[:, :2], axis=1) > MOVING_MAX_VERTICAL_SPEED) & (
+                np.abs(before[:, 2]) < MOVING_MAX_VERTICAL_SPEED)
+            falling = tele & mem.perceived_prev & ~newly_known & detected & ~along & rolled_off
+            mem.perc_vel[falling, :2] = tick_vel[falling, :2]
+            spinning = moving | falling
+        # an object teleported in motion starts where it was at this update's start, so that physics
+        # brings it to its detection at frame.t (placed at the detection, the belief would be dt ahead)
+        start = mem.position_at(frame.t - dt) if cfg.moving_teleports else None
         if np.any(tele):
-            self.teleport(poses, vel, np.flatnonzero(tele), newly_known, state.is_in, rng, moving)
+            jitter[:, tele] = self.teleport(poses, vel, np.flatnonzero(tele), newly_known, state.is_in, rng,
+                                            spinning, start, prev_modes == HELD)
+            jitter[..., 2] = 0.0  # a support undoes the vertical noise: only the horizontal persists
+            if cfg.moving_teleports:  # at rest in a particle, nothing in its world set it moving: an agent
+                started = (spinning[None, :] & (prev_modes == FREE) & (np.linalg.norm(  # did; it stays, diverges
+                    state.velocities[..., :2], axis=-1) < MOVING_MAX_VERTICAL_SPEED))  # from its target, is held
+                vel[started] = 0.0
         self.known |= perceived
         modes, release_codes = self.release(prev_modes, perceived, state.supported, rng,
                                             mem.following_hand(frame))
@@ -247,6 +275,12 @@ class SceneModel:
             release_codes[cover] = RELEASE
             poses[cover, :3] = state.hidden_at[cover]
             vel[cover] = 0.0
+        flicked, flick_weight = self.let_go_moving(modes, state.supported, detected & perceived, tick_vel, frame, rng)
+        if np.any(flicked):  # let go in motion: physics takes it on at its velocity
+            modes[flicked] = FREE
+            release_codes[flicked] = PLACE
+        proposal = proposal + flick_weight
+        self.roll_released(vel, (prev_modes == HELD) & (modes == FREE) & ~cover & state.supported)
         # at rest in the particle (on a support, slower than rest_speed) before this update
         resting = state.supported & (np.linalg.norm(state.velocities[..., :3], axis=-1)
                                      < self.config.noise.rest_speed)
@@ -268,21 +302,58 @@ class SceneModel:
         depen = (np.broadcast_to(placed & (cfg.noise.position_std > 0), (self.K, self.M)) | jolted
                  | state.jolted | cover) & (modes == FREE)
         return Move(poses, vel, predicted, prev_modes, modes, release_codes, tele, target, target_vel, check,
-                    depen, vis_query, hold_error, let_go, cameras, cover, proposal, nudged)
+                    depen, vis_query, hold_error, let_go, cameras, cover, proposal, nudged, jitter)
+
+    def let_go_moving(self, modes: np.ndarray, supported: np.ndarray, seen: np.ndarray, tick_vel: np.ndarray,
+                      frame: Frame, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """Let-goes in motion (``ModePriors.let_go_moving``): objects ``seen (M,)`` in this update moving
+        along their support (tick velocity ``(M, 3)`` m/s faster than :data:`MOVING_MAX_VERTICAL_SPEED`
+        horizontally, slower vertically) with no tracked hand within
+        :data:`~estimator.perception_memory.HAND_RADIUS`, held and ``supported (K, M)`` in a particle,
+        are let go there with probability ``q = let_go_moving``. Returns the let-goes ``(K, M)`` and
+        their importance weights ``(K,)``: ``-log q`` per let-go and ``-log(1 - q)`` per candidate
+        kept, so that the switch's prior (``place``, charged by the mode-switch term) is what weighs.
+        One uniform draw per entry when there is a candidate."""
+        q = self.config.priors.let_go_moving
+        none = np.zeros((self.K, self.M), dtype=bool), np.zeros(self.K)
+        if q <= 0:
+            return none
+        along = (np.linalg.norm(tick_vel[:, :2], axis=1) > MOVING_MAX_VERTICAL_SPEED) & (
+            np.abs(tick_vel[:, 2]) < MOVING_MAX_VERTICAL_SPEED)
+        near = self._out_of_reach(frame, seen)
+        cand_m = seen & self.dynamic & along & (np.ones(self.M, bool) if near is None else near)
+        if not np.any(cand_m):
+            return none
+        cand = (modes == HELD) & supported & cand_m[None, :]
+        let = cand & (rng.random((self.K, self.M)) < q)
+        kept = cand & ~let
+        with np.errstate(divide="ignore"):
+            logw = -math.log(q) * let.sum(axis=1) - (math.log1p(-q) if q < 1 else 0.0) * kept.sum(axis=1)
+        return let, logw
 
     def teleport(self, poses: np.ndarray, vel: np.ndarray, idx: np.ndarray, newly_known: np.ndarray,
-                 is_in: np.ndarray, rng: np.random.Generator, moving: np.ndarray | None = None) -> None:
+                 is_in: np.ndarray, rng: np.random.Generator, moving: np.ndarray | None = None,
+                 start: np.ndarray | None = None, held: np.ndarray | None = None) -> np.ndarray:
         """Alg. 2, in place: put objects ``idx`` at their perceived pose (plus perception noise per
         particle) with the perceived velocity; the contents of each (``is_in (K, M, M)`` at the last
         update, per particle; not for ``newly_known (M,)`` objects) are carried rigidly, rotation
         included, and given the container's velocity. Objects ``moving (M,)`` bool keep each
         particle's angular velocity (a rolling ball keeps rolling); the others are set at rest but
-        for the perceived linear velocity."""
+        for the perceived linear velocity. ``start (M, 3)`` m: the perceived positions carried back
+        to the update's start (:meth:`~estimator.perception_memory.PerceptionMemory.position_at`),
+        used instead of the last detections when given. ``held (K, M)`` bool: objects the particles
+        hold, placed without noise (they go to their target, and a noisy start would only give them
+        a spurious velocity). Returns the position noise ``(K, len(idx), 3)`` m each particle's object
+        got."""
         nz, mem, K = self.config.noise, self.memory, self.K
         new = poses[:, idx].copy()
-        new[..., :3] = mem.last_pose[idx, :3]
+        new[..., :3] = (mem.last_pose[:, :3] if start is None else start)[idx]
+        noise = np.zeros((K, len(idx), 3))
         if nz.position_std > 0:
-            new[..., :3] += rng.normal(0.0, nz.position_std, new[..., :3].shape)
+            noise = rng.normal(0.0, nz.position_std, new[..., :3].shape)
+            if held is not None:
+                noise[held[:, idx]] = 0.0
+            new[..., :3] += noise
         has_q = mem.last_has_orientation[idx]
         new[:, has_q, 3:] = mem.last_pose[idx[has_q], 3:]
         if nz.orientation_std > 0 and np.any(has_q):
@@ -304,6 +375,29 @@ class SceneModel:
         if moving is not None:
             keep = moving[idx]
             vel[:, idx[keep], 3:] = spin[:, keep]
+            self.roll(vel, idx[keep])
+        return noise
+
+    def roll_released(self, vel: np.ndarray, released: np.ndarray) -> None:
+        """In place on ``vel (K, M, 6)``: balls let go now on a support (``released (K, M)``) roll at
+        the velocity the hand gave them (:meth:`roll`; held, they did not spin). One dropped from the
+        air is left alone: its small horizontal velocity is mostly noise, which rolling would keep."""
+        for m in np.flatnonzero(released.any(axis=0)):
+            self.roll(vel, np.array([m]), released[:, m])
+
+    def roll(self, vel: np.ndarray, idx: np.ndarray, rows: np.ndarray | None = None) -> None:
+        """In place on ``vel (K, M, 6)``: the spheres among objects ``idx`` (in the particles ``rows
+        (K,)`` bool, default all) spin as they roll without slipping at their horizontal velocity,
+        ``w = z x v / r``: a ball given a velocity with another particle's spin, or none (just let go
+        from a hand), would otherwise slide and slow down for a while."""
+        idx = np.asarray(idx, dtype=int)
+        idx = idx[np.isfinite(self.ball_radius[idx])]
+        if len(idx) == 0:
+            return
+        rows = np.ones(len(vel), dtype=bool) if rows is None else rows
+        v = vel[:, idx, :3]
+        w = np.stack([-v[..., 1], v[..., 0], np.zeros_like(v[..., 0])], axis=-1) / self.ball_radius[idx][None, :, None]
+        vel[:, idx, 3:] = np.where(rows[:, None, None], w, vel[:, idx, 3:])
 
     def fuse_resting(self, poses: np.ndarray, log_weights: np.ndarray, modes: np.ndarray, resting: np.ndarray,
                      seen: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -401,7 +495,12 @@ class SceneModel:
             out.poses[..., 2], self._seen_z(t, detected),
             np.where((onset >= t - cfg.event_window) & (onset <= t), onset, t), t, rule, let_go_t=t - hr.place_dwell,
             release_t=release_t)
-        return Settled(out.poses, out.velocities, ev.modes, on_top, is_in, supported, ev.codes, vel, ev.holds,
+        velocities = out.velocities
+        rolled = (after_physics == HELD) & (ev.modes == FREE) & supported
+        if np.any(rolled):
+            velocities = velocities.copy()
+            self.roll_released(velocities, rolled)
+        return Settled(out.poses, velocities, ev.modes, on_top, is_in, supported, ev.codes, vel, ev.holds,
                        ev.times)
 
     def _seen_z(self, t: float, detected: np.ndarray) -> np.ndarray:
@@ -426,7 +525,18 @@ class SceneModel:
                         unseen_in_view=unseen_in_view,
                         fell_unseen=(settled.modes == FREE)
                         & (frame.t - move.let_go_unseen < self.config.reasoner.t_perceived - 1e-9),
-                        proposal_log_weight=move.proposal_log_weight, fused=move.fused)
+                        proposal_log_weight=move.proposal_log_weight, fused=move.fused,
+                        out_of_reach=self._out_of_reach(frame, detected))
+
+    def _out_of_reach(self, frame: Frame, detected: np.ndarray) -> np.ndarray | None:
+        """Objects ``(M,)`` detected since the last update whose latest detection lies farther than
+        :data:`~estimator.perception_memory.HAND_RADIUS` from every hand tracked in ``frame``; None
+        when no hand is tracked in it or hands are not followed."""
+        if not (frame.hands and self.config.follow_hands):
+            return None
+        hands = np.array([np.asarray(h, float) for h in frame.hands.values()])  # (H, 3)
+        d = np.linalg.norm(self.memory.last_pose[:, None, :3] - hands[None], axis=-1).min(axis=1)
+        return detected & self.dynamic & (d > HAND_RADIUS)
 
     def log_weight(self, previous: np.ndarray, ev: Evidence) -> np.ndarray:
         """New log-weights ``(K,)``: ``previous (K,)`` plus every term of :attr:`terms` (one particle

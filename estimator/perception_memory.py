@@ -188,6 +188,13 @@ class PerceptionMemory:
         """Dynamic objects ``(M,)`` seen within ``t_perceived`` of ``t``."""
         return ~self.static & (t - self.last_seen <= self.reasoner.t_perceived + 1e-9)
 
+    def position_at(self, t: float) -> np.ndarray:
+        """Perceived positions ``(M, 3)`` (m) carried from each object's last detection to time ``t``
+        (s) at its perceived velocity (``perc_vel``; zero for an object teleported at rest): where
+        an object seen moving was at the start of an update whose detections it is teleported to."""
+        lag = np.where(np.isfinite(self.last_seen), t - np.where(np.isfinite(self.last_seen), self.last_seen, 0.0), 0.0)
+        return self.last_pose[:, :3] + self.perc_vel[:, :3] * lag[:, None]
+
     def jumped(self) -> np.ndarray:
         """Objects ``(M,)`` whose perceived position moved by more than ``d_perc_prev`` since the
         previous reasoning step."""
@@ -216,6 +223,11 @@ class PerceptionMemory:
         vel = np.zeros((self.M, 3))
         vel[ok] = (self.last_pose[ok, :3] - self.pose_at_tick[ok, :3]) / gap[ok, None]
         return vel
+
+    def previous_tick_velocity(self) -> np.ndarray:
+        """The tick velocity ``(M, 3)`` (m/s) of the previous reasoning step (0 for objects not
+        detected then)."""
+        return self._prev_tick_vel.copy()
 
     def vertical_acceleration(self, vel: np.ndarray, dt: float) -> np.ndarray:
         """Vertical acceleration ``(M,)`` (m/s^2) from the tick velocity ``vel (M, 3)`` of the previous

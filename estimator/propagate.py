@@ -181,10 +181,11 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     :data:`A_MAX`, it could have crossed ``d_sim_perc``, and after the last step: exact for objects
     moving freely or resting, late by a few steps only when something hits an object hard.
 
-    With ``moving=True`` a tested object's target moves on at its ``target_vel`` (linear part) from
-    the start of the update: an object placed at its detection with its perceived velocity is
-    compared with that detection carried on, not with where it was (objects whose target velocity
-    is zero are tested against their fixed target, as always).
+    With ``moving=True`` a tested object's target moves at its ``target_vel`` (linear part) through
+    the update and reaches ``target`` at its end: an object started where its detection was at the
+    update's start, with its perceived velocity, is compared with that detection carried along, not
+    with a fixed point (objects whose target velocity is zero are tested against their fixed target,
+    as always); one that diverges and becomes held follows the moving target.
 
     With :attr:`PhysicsSettings.sleeping`, what an update moves (loads, held objects, pushes out of
     penetration) is woken together with everything that touched it, and free objects at rest at both
@@ -227,8 +228,9 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     settled_l = settled.tolist()
     # watched objects and the first step at which each one needs testing
     checked = batch.check & (batch.modes == FREE) & dyn_mask
-    target_com = w0.com_frame(batch.target)[0][..., :3] + origins
     tvel = np.where(checked[..., None], batch.target_vel[..., :3], 0.0) if moving else np.zeros((K, M, 3))
+    # where each target is at the update's start: a moving target reaches its pose at the end
+    target_com = w0.com_frame(batch.target)[0][..., :3] + origins - tvel * (n_steps * dt)
     due = np.ones((K, M), dtype=np.int64)
     if lazy:
         d0 = np.linalg.norm(com_p[..., :3] - target_com, axis=-1)
@@ -262,7 +264,7 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
                 depenetrate(w, [i for i in dyn if depen_l[k][i]])
             if rows and True in settled_l[k]:  # ...unless something moved is (or was) near it
                 wake(w, [i for i in near(w, rows, SETTLED_REACH) if settled_l[k][i]])
-            held = HeldObjects(w, batch.target[k], batch.target_vel[k], batch.contents[k], n_steps)
+            held = HeldObjects(w, batch.target[k], batch.target_vel[k], batch.contents[k], n_steps, moving)
             for h in glides.get(k, ()):
                 held.glide(*h)
             helds.append(held)
@@ -294,7 +296,7 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
             late = np.flatnonzero(d_end[k] > d_sim_perc).tolist()
             modes_out[k, late] = HELD
             w = pws[k].world
-            HeldObjects(w, batch.target[k], batch.target_vel[k], batch.contents[k], n_steps).jump(late)
+            HeldObjects(w, batch.target[k], batch.target_vel[k], batch.contents[k], n_steps, moving).jump(late)
             p, v, b = _assemble(w0, dyn, [w.read_raw(dyn)], origins[k:k + 1])
             poses[k], vel[k], aabbs[k] = p[0], v[0], b[0]
     for k, i, d in switched_at:
@@ -440,7 +442,7 @@ def _simulate(client: int, dt: float, helds: list["HeldObjects"], watch: list[li
                 item[5] = s + 1
         if switched:
             for j in sorted({item[7] for item in switched}):
-                helds[j].jump([item[0] for item in switched if item[7] == j])
+                helds[j].jump([item[0] for item in switched if item[7] == j], s)
                 if helds[j] not in moving:
                     moving.append(helds[j])
             out += [(item[7], item[0], item[6]) for item in switched]

@@ -36,6 +36,10 @@ class ParticleState:
     * ``hidden_at (K, M, 3)`` m, ``hidden_t (K, M)`` s, ``hidden_n (K, M)`` int32: a uniform sample of
       where (and when) a held object was while its tracked hand kept it out of the camera's view, over
       the ``hidden_n`` updates it was (:func:`estimator.holding.hidden_places`).
+    * ``jitter (K, M, 3)`` m: the horizontal perception noise the last update's teleport added to
+      each free object's position (zero for objects it did not teleport, held ones, and vertically:
+      a support undoes it): what the particle's next prediction of a detection leaves out, so that it
+      is scored on its physics, not on that draw.
     """
 
     poses: np.ndarray
@@ -57,6 +61,7 @@ class ParticleState:
     hidden_n: np.ndarray
     push_decided: np.ndarray
     holds: np.ndarray
+    jitter: np.ndarray
 
     def take(self, ancestors: np.ndarray) -> "ParticleState":
         """The particles ``ancestors (K,)`` (indices, repeats allowed), copied, equally weighted."""

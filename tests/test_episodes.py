@@ -175,3 +175,13 @@ def test_a_release_before_physics_takes_the_time_it_is_given():
                        2.0, RULE, release_t=np.array([1.4, np.nan]))
     assert ev.codes.tolist() == [RELEASE, RELEASE]
     assert ev.times[0] == 1.4 and np.isnan(ev.times[1])  # NaN: at the update
+
+
+def test_held_and_let_fall_in_one_update_was_never_held():
+    """A free object that physics switches to HELD (it diverged) and the Release rule lets fall in
+    the same update rolled off an edge: no Pick, no Release. A held one let fall is a Release."""
+    h = empty_holds((2,))
+    h = step(h, [F, F], [F, F], [F, F], 0.1, [0.70, 0.70]).holds
+    h = step(h, [F, F], [F, H], [F, H], 1.0, [0.70, 0.70], pick_t=[1.0, 0.9]).holds  # object 1 picked
+    ev = step(h, [F, H], [H, H], [F, F], 1.1, [0.60, 0.75], supported=[False, False], resting=[False, False])
+    assert ev.codes.tolist() == [NO_EVENT, RELEASE] and ev.modes.tolist() == [F, F]

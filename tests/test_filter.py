@@ -359,12 +359,12 @@ def test_held_object_lost_splits_into_released_and_held_hypotheses():
 def _flicked_ball(x_cut=-0.25):
     """A ball at rest on the table flicked along x at 0.9 m/s at t = 0.5 s (rolling without slipping,
     a little rolling friction), simulated for 3 s; detected at 30 Hz only while x < ``x_cut`` (the
-    camera sees the first part of its path). Returns the scene, the frames, the true final position
-    and the time and position of the last detection."""
+    camera sees the first part of its path). Returns the scene, the frames, the true final position,
+    the time and position of the last detection, and the true position ``(3,)`` at each frame's time."""
     r, v = 0.03, 0.9
     scene = table_scene({"id": "ball", "sphere": {"radius": r}, "mass": 0.05, "rolling_friction": 0.002,
                          "pose": {"position": [-0.5, 0.0, TABLE_TOP + r]}})
-    frs, seen = [], []
+    frs, seen, truth = [], [], {}
     with World(scene) as w:
         n = int(round(1 / HZ / w.settings.time_step))
         for f in range(int(3.0 * HZ)):
@@ -372,17 +372,18 @@ def _flicked_ball(x_cut=-0.25):
             if f == int(0.5 * HZ):
                 w.set_velocities(np.array([[v, 0.0, 0.0, 0.0, v / r, 0.0]]), [1])
             pose = w.get_poses([1])[0]
+            truth[round(t, 6)] = pose[:3].copy()
             visible = pose[0] < x_cut
             frs.append(Frame(t, {"ball": det(pose[:3], pose[3:])} if visible else {}))
             if visible:
                 seen.append((t, pose[:3].copy()))
             w.step(n)
         final = w.get_poses([1])[0, :3]
-    return scene, frs, final, seen[-1]
+    return scene, frs, final, seen[-1], truth
 
 
 def test_a_ball_rolling_out_of_view_goes_on_as_physics_says_and_paper_mode_pins_it():
-    scene, frs, final, (t_last, p_last) = _flicked_ball()
+    scene, frs, final, (t_last, p_last), truth = _flicked_ball()
     assert final[0] - p_last[0] > 0.3  # it rolled on well beyond where it was last seen
     # its rolling friction known (the default prior spreads it over a factor of four, and the
     # stopping point with it): the test is of momentum carried out of view
@@ -398,7 +399,10 @@ def test_a_ball_rolling_out_of_view_goes_on_as_physics_says_and_paper_mode_pins_
     # and it was moving on while it still counted as perceived (the stale detection does not pin it)
     aged = [b for b in beliefs if t_last + 0.2 <= b.t <= t_last + 0.7]
     assert aged and all(b.objects["ball"].perceived for b in aged)
-    assert all(b.objects["ball"].position[0] - p_last[0] > 0.15 for b in aged)
+    for b in aged:  # ... within 3 cm of where it is (and 10 cm or more beyond where it was seen)
+        true_now = truth[round(b.t, 6)]
+        assert true_now[0] - p_last[0] > 0.1
+        assert np.linalg.norm(b.objects["ball"].position - true_now) < 0.03
     # paper mode keeps Algorithm 1's rule: perceived within 0.7 s, teleported at rest at its
     # detections, so the ball stops where it was last seen
     with SceneEstimator(scene, EstimatorConfig.paper()) as est:
@@ -407,6 +411,21 @@ def test_a_ball_rolling_out_of_view_goes_on_as_physics_says_and_paper_mode_pins_
     assert pinned and all(b.objects["ball"].perceived for b in pinned)
     for b in pinned:
         assert np.allclose(b.objects["ball"].position, p_last, atol=0.005)
+
+
+def test_a_ball_rolling_in_view_is_estimated_where_it_is_now_not_an_update_ahead():
+    """The belief at t is the scene at t: a ball tracked rolling at 0.9 m/s is within 2 cm of its
+    detection at t in every update (teleported to its detection and simulated on, it was 9 cm,
+    one 0.1 s update, ahead), and is not taken for held while it rolls freely."""
+    scene, frs, _final, _last, _truth = _flicked_ball(x_cut=0.4)
+    cfg = EstimatorConfig(particles=16, noise=NoiseConfig(rolling_friction_scale=None))
+    with SceneEstimator(scene, cfg, np.random.default_rng(5)) as est:
+        beliefs = [(f, est.update(f)) for f in frs]
+    rolling = [(f, b) for f, b in beliefs if b is not None and 0.8 <= f.t <= 1.4 and "ball" in f.objects]
+    assert len(rolling) >= 5
+    for f, b in rolling:
+        assert np.linalg.norm(b.objects["ball"].position - f.objects["ball"].position) < 0.02
+    assert np.mean([b.objects["ball"].p_held for _, b in rolling]) < 0.5
 
 
 # ---------------------------------------------------------------------------------------------------

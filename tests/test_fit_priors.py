@@ -6,7 +6,7 @@ import pytest
 from actions.modes import ModePriors
 from estimator.config import ReasonerConfig
 from experiments.cli.fit import seed_range as _seed_range
-from experiments.evaluation.fit_priors import Counts, Spread, count_losses
+from experiments.evaluation.fit_priors import Counts, Spread, count_losses, count_out_of_reach
 
 
 def _stream(hand_path, seen_until, held_until, t_end=2.0, dt=0.05):
@@ -54,3 +54,15 @@ def test_seed_range_is_checked():
     assert list(_seed_range("100-102")) == [100, 101, 102] and list(_seed_range("7")) == [7]
     with pytest.raises(ValueError, match="--seeds"):
         _seed_range("a-b")
+
+
+def test_held_objects_seen_out_of_reach_of_the_tracked_hands_are_counted():
+    obs, truth = _stream(lambda t: [0.3 * t, 0.0, 1.0], seen_until=0.5, held_until=0.3)
+    reach = Counts()
+    count_out_of_reach(obs, truth, reach)
+    assert (reach.hits, reach.n) == (0, 6)  # held and seen at 0, 0.05, ..., 0.25 s, 8 cm from the hand
+    far = [dict(o, hands={"human/right": [5.0, 0.0, 1.0]}) for o in obs]
+    count_out_of_reach(far, truth, reach)
+    assert (reach.hits, reach.n) == (6, 12)
+    count_out_of_reach([dict(o, hands={}) for o in obs], truth, reach)  # no hand tracked: not counted
+    assert reach.n == 12

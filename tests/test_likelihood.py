@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from actions.modes import FREE, HELD, ModePriors
-from estimator.likelihood import (DetectionTerm, held_unseen_in_view, hidden_by_person, Evidence, ModeSwitchTerm, NegativeEvidenceTerm, add_terms,
+from estimator.likelihood import (DetectionTerm, HandReachTerm, hand_reach_log_likelihood, held_unseen_in_view, hidden_by_person, Evidence, ModeSwitchTerm, NegativeEvidenceTerm, add_terms,
                                   detection_log_likelihood, exploded_log_likelihood, mode_switch_log_prior,
                                   negative_evidence_log_likelihood, orientation_log_likelihood,
                                   position_log_likelihood)
@@ -198,3 +198,18 @@ def test_terms_are_added_in_order_to_the_previous_log_weights():
     prev = np.array([0.0, -1.0])
     add_terms(prev, terms, ev)
     assert list(prev) == [0.0, -1.0]  # not modified in place
+
+
+def test_hand_reach_charges_each_held_object_seen_out_of_reach_and_nothing_else():
+    modes = np.array([[HELD, HELD, FREE], [FREE, HELD, HELD], [FREE, FREE, FREE]], np.int8)
+    far = np.array([True, False, True])  # objects 0 and 2 detected out of reach of every tracked hand
+    ll = hand_reach_log_likelihood(modes, far, 0.01)
+    assert ll == pytest.approx([math.log(0.01), math.log(0.01), 0.0])
+    two = hand_reach_log_likelihood(np.array([[HELD, FREE, HELD]], np.int8), far, 0.01)
+    assert two == pytest.approx([2 * math.log(0.01)])
+    assert hand_reach_log_likelihood(modes, far, 0.0)[0] == -np.inf  # impossible: zero weight
+    assert np.all(hand_reach_log_likelihood(modes, np.zeros(3, bool), 0.01) == 0)
+    ev = replace(_evidence(), modes=np.array([[HELD, FREE], [FREE, FREE]], np.int8))
+    assert np.all(HandReachTerm(0.01)(ev) == 0)  # no hand tracked: out_of_reach is None
+    ev = replace(ev, out_of_reach=np.array([True, False]))
+    assert HandReachTerm(0.01)(ev) == pytest.approx([math.log(0.01), 0.0])

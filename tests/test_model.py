@@ -8,7 +8,7 @@ import pytest
 from actions.modes import FREE, HELD, PLACE, RELEASE
 from actions.push import LET_GO_T
 from estimator.config import EstimatorConfig, NoiseConfig
-from estimator.likelihood import Evidence
+from estimator.likelihood import Evidence, mode_switch_log_prior
 from estimator.model import SceneModel, initial_poses
 from estimator.params import param_bounds
 from estimator.observations import Detection, Frame
@@ -133,8 +133,10 @@ def test_held_targets_follow_the_tracked_hand_or_drift():
         assert np.all(target[2, CUP] == st.poses[2, CUP]) and np.all(target_vel == 0)
 
 
-@pytest.mark.parametrize("moving, teleported, velocity", [(False, False, 1.0), (True, True, 1.0), (True, False, 0.0)])
-def test_held_target_of_a_perceived_object_is_its_perception_without_drift(moving, teleported, velocity):
+@pytest.mark.parametrize("moving, detected, teleported, z, velocity",
+                         [(False, False, False, 0.4, 1.0), (True, True, True, 0.4, 1.0), (True, True, False, 0.4, 0.0),
+                          (True, False, False, 0.7, 1.0)])
+def test_held_target_of_a_perceived_object_is_its_perception_without_drift(moving, detected, teleported, z, velocity):
     model = make(EstimatorConfig(particles=2, noise=NoiseConfig(held_drift_std=0.05), follow_hands=False,
                                  moving_teleports=moving))
     st = model.initial_state(np.random.default_rng(0))
@@ -143,13 +145,15 @@ def test_held_target_of_a_perceived_object_is_its_perception_without_drift(movin
     modes = st.modes.copy()
     modes[:, CUP] = HELD
     perceived = model.memory.perceived(0.4)
-    tele = np.zeros(5, bool)
-    tele[CUP] = teleported
-    target, target_vel, _ = model.held_targets(Frame(0.4), st.poses, modes, np.zeros(5, bool), perceived, 0.3,
+    tele, det = np.zeros(5, bool), np.zeros(5, bool)
+    tele[CUP], det[CUP] = teleported, detected
+    target, target_vel, _ = model.held_targets(Frame(0.4), st.poses, modes, det, perceived, 0.3,
                                                np.random.default_rng(0), st.hold_error, tele)
-    assert np.all(target[:, CUP, :3] == [0.3, 0.3, 0.4])
+    # at the detection; with moving teleports, one not detected in this update (last seen 0.3 s ago
+    # moving up at 1 m/s) is where that detection carried on puts it now, and goes on
+    assert np.allclose(target[:, CUP, :3], [0.3, 0.3, z])
     # the finite difference (m/s); with moving teleports only an object placed at its detection now
-    # has one (the divergence test carries its target on at it)
+    # has one (the divergence test carries its target on at it), or one carried on
     assert np.allclose(target_vel[:, CUP, :3], [0.0, 0.0, velocity])
 
 
@@ -157,10 +161,11 @@ def test_held_target_of_a_perceived_object_is_its_perception_without_drift(movin
 def test_an_object_teleported_while_tracked_in_motion_keeps_moving(moving):
     model = make(EstimatorConfig(particles=3, noise=NoiseConfig(position_std=0.0), moving_teleports=moving))
     st = model.initial_state(np.random.default_rng(0))
-    st.velocities[:, BALL, 3:] = [[0.0, 30.0, 0.0]] * 3  # each particle's ball spins (rolls along x)
     mem = model.memory
     t_ticks = [0.0, 0.1, 0.2]
     for j, t in enumerate(t_ticks):  # the ball rolls along x at 0.9 m/s, seen at 30 Hz
+        # in particles 0 and 1 it rolls along x at 0.3 m/s; in particle 2 it rests
+        st.velocities[:2, BALL] = [0.3, 0.0, 0.0, 0.0, 10.0, 0.0]
         for f in range(3):
             tf = t + f / 30
             mem.record(Frame(tf, {"ball": Detection(np.array([0.08 + 0.9 * tf, 0.0, 0.14]))}))
@@ -171,13 +176,43 @@ def test_an_object_teleported_while_tracked_in_motion_keeps_moving(moving):
         mv = model.move(st, frame, detected, perceived, 0.1, np.random.default_rng(j))
         mem.end_tick(perceived, detected, mem.tick_velocity())
     # at the last tick: tracked since the previous one and jumped 9 cm: teleported in motion
-    assert mv.teleported[BALL] and np.all(mv.poses[:, BALL, :3] == [0.08 + 0.9 * (0.2 + 2 / 30), 0.0, 0.14])
-    if moving:
-        assert np.allclose(mv.velocities[:, BALL, :3], [0.9, 0.0, 0.0])  # over the reasoning period
-        assert np.all(mv.velocities[:, BALL, 3:] == [0.0, 30.0, 0.0])  # its particle's spin kept
+    seen = [0.08 + 0.9 * (0.2 + 2 / 30), 0.0, 0.14]
+    assert mv.teleported[BALL]
+    if moving:  # started where it was at the update's start (0.1 s before), so physics brings it there
+        assert np.allclose(mv.poses[:, BALL, :3], [seen[0] - 0.09, 0.0, 0.14])
+        # where it rolled: the velocity over the reasoning period, spinning as it rolls (w = z x v / r)
+        assert np.allclose(mv.velocities[:2, BALL], [0.9, 0.0, 0.0, 0.0, 0.9 / 0.03, 0.0])
+        # where it rested, nothing in the particle's world set it moving: an agent did; it stays
+        # (and physics will find it diverging from its moving target: held)
+        assert np.all(mv.velocities[2, BALL] == 0.0)
         assert np.allclose(mv.target_vel[:, BALL, :3], [0.9, 0.0, 0.0])
+        assert np.allclose(mv.target[:, BALL, :3], seen)  # the target reaches the detection at the end
     else:  # Algorithm 2 as the paper: at rest at the detection
+        assert np.all(mv.poses[:, BALL, :3] == seen)
         assert np.all(mv.velocities[:, BALL] == 0.0) and np.all(mv.target_vel[:, BALL] == 0.0)
+
+
+def test_a_teleported_object_is_scored_on_its_physics_not_on_its_teleport_noise():
+    """The next update's prediction of a teleported object is where the particle has it, carried on
+    at its velocity, minus the noise its teleport drew: two particles that drew different noise but
+    move alike predict the same detection."""
+    model = make(EstimatorConfig(particles=2, noise=NoiseConfig(position_std=0.01)))
+    st = model.initial_state(np.random.default_rng(0))
+    mem = model.memory
+    detected = np.zeros(5, bool)
+    detected[BALL] = True
+    mem.record(Frame(0.0, {"ball": Detection(np.array([0.08, 0.0, 0.14]))}))
+    perceived = mem.perceived(0.0)
+    mv = model.move(st, Frame(0.0), detected, perceived, 0.0, np.random.default_rng(1))
+    assert mv.teleported[BALL] and np.any(mv.jitter[:, BALL] != 0) and np.all(mv.jitter[:, CUP] == 0)
+    assert np.allclose(mv.poses[:, BALL, :2] - mv.jitter[:, BALL, :2], [0.08, 0.0])
+    assert np.all(mv.jitter[..., 2] == 0)  # horizontal only: a support undoes the vertical noise
+    mem.end_tick(perceived, detected, mem.tick_velocity())
+    st.poses, st.jitter = mv.poses.copy(), mv.jitter.copy()
+    st.velocities[:, BALL, :3] = [0.5, 0.0, 0.0]
+    mv2 = model.move(st, Frame(0.1), np.zeros(5, bool), mem.perceived(0.1), 0.1, np.random.default_rng(2))
+    assert np.allclose(mv2.predicted[:, BALL, :2], [0.08 + 0.05, 0.0])
+    assert np.all(mv2.jitter == 0)  # nothing teleported this time
 
 
 def test_process_noise_touches_only_unperceived_free_known_dynamic_objects():
@@ -409,3 +444,59 @@ def test_round_objects_rolling_friction_is_scaled_log_uniformly_and_boxes_keep_t
     fixed = EstimatorConfig(particles=50, noise=NoiseConfig(rolling_friction_range=(0.0, 0.001)))
     st = SceneModel(sc, fixed, memory, base).initial_state(np.random.default_rng(0))
     assert np.all(st.params[:, [CRATE, BALL], 1] <= 0.001)  # an absolute range replaces the scale
+
+
+def test_let_go_in_motion_is_proposed_at_its_rate_and_weighed_back_to_the_prior():
+    K = 4000
+    model = make(EstimatorConfig(particles=K, priors=replace(EstimatorConfig().priors, let_go_moving=0.2)))
+    modes = np.zeros((K, 5), np.int8)
+    modes[:, BALL] = HELD
+    supported = np.ones((K, 5), bool)
+    seen = np.zeros(5, bool)
+    seen[BALL] = True
+    rolling = np.zeros((5, 3))
+    rolling[BALL] = [0.5, 0.0, 0.0]
+    model.memory.last_pose[BALL, :3] = [0.1, 0.0, 0.14]
+    let, logw = model.let_go_moving(modes, supported, seen, rolling, Frame(0.0), np.random.default_rng(3))
+    assert not let[:, [TABLE, CRATE, CUP, MYSTERY]].any()
+    n = int(let[:, BALL].sum())
+    assert abs(n - 0.2 * K) < 3 * math.sqrt(K * 0.2 * 0.8)  # binomial band
+    assert logw == pytest.approx(np.where(let[:, BALL], -math.log(0.2), -math.log(0.8)))
+    # with the switch's prior (place 0.2, charged by the mode-switch term) the weights are the prior
+    # over the proposal: here equal, so every particle weighs the same
+    new = modes.copy()
+    new[let] = FREE
+    prior = mode_switch_log_prior(model.config.priors, modes, new, seen)
+    assert np.allclose(logw + prior, 0.0)
+    # at another rate they are importance weights: their mean is 1 within its 3-sigma band
+    fast = make(EstimatorConfig(particles=K, priors=replace(EstimatorConfig().priors, let_go_moving=0.5)))
+    fast.memory.last_pose[BALL, :3] = [0.1, 0.0, 0.14]
+    let5, logw5 = fast.let_go_moving(modes, supported, seen, rolling, Frame(0.0), np.random.default_rng(4))
+    new5 = modes.copy()
+    new5[let5] = FREE
+    w = np.exp(logw5 + mode_switch_log_prior(fast.config.priors, modes, new5, seen))
+    assert np.mean(w) == pytest.approx(1.0, abs=3 * np.std(w) / math.sqrt(K))
+    hand_near = Frame(0.0, {}, {"right": np.array([0.2, 0.0, 0.2])})
+    assert not model.let_go_moving(modes, supported, seen, rolling, hand_near, np.random.default_rng(3))[0].any()
+    hand_far = Frame(0.0, {}, {"right": np.array([1.0, 0.0, 0.2])})
+    assert model.let_go_moving(modes, supported, seen, rolling, hand_far, np.random.default_rng(3))[0].any()
+    falling = rolling.copy()
+    falling[BALL, 2] = -1.0
+    assert not model.let_go_moving(modes, supported, seen, falling, Frame(0.0), np.random.default_rng(3))[0].any()
+    slow = rolling * 0.2
+    assert not model.let_go_moving(modes, supported, seen, slow, Frame(0.0), np.random.default_rng(3))[0].any()
+    paper = make(EstimatorConfig.paper())
+    let1, w1 = paper.let_go_moving(modes[:1], supported[:1], seen, rolling, Frame(0.0), np.random.default_rng(3))
+    assert not let1.any() and np.all(w1 == 0)
+
+
+def test_a_ball_given_a_velocity_spins_as_it_rolls_and_other_shapes_keep_their_spin():
+    model = make(EstimatorConfig(particles=2))
+    vel = np.zeros((2, 5, 6))
+    vel[:, BALL, :3] = [0.3, -0.6, 0.0]
+    vel[:, CUP] = [0.3, 0.0, 0.0, 1.0, 2.0, 3.0]
+    model.roll(vel, np.array([BALL, CUP]), np.array([True, False]))
+    assert np.allclose(vel[0, BALL, 3:], np.cross([0, 0, 1], [0.3, -0.6, 0.0]) / 0.03)
+    contact = vel[0, BALL, :3] + np.cross(vel[0, BALL, 3:], [0, 0, -0.03])
+    assert np.allclose(contact, 0.0)  # rolling without slipping: the contact point is at rest
+    assert np.all(vel[1, BALL, 3:] == 0) and np.all(vel[:, CUP, 3:] == [1.0, 2.0, 3.0])

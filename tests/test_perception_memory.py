@@ -186,3 +186,12 @@ def test_shifted_means_moved_along_the_support_not_a_spike():
     # dragged 3 cm along the table: shifted
     mem.record(Frame(t + 2 / 30, {"cup": det([0.33, 0.3, 0.14])}))
     assert mem.shifted(0.02)[CUP] and not mem.shifted(0.04)[CUP] and not mem.shifted(0.02)[BALL]
+
+
+def test_position_at_carries_the_last_detection_on_at_the_perceived_velocity():
+    mem = memory()
+    mem.record(Frame(0.0, {"cup": det([0.3, 0.3, 0.14])}))
+    mem.record(Frame(0.1, {"cup": det([0.4, 0.3, 0.14])}))  # 1 m/s along x
+    p = mem.position_at(0.0)
+    assert p[CUP] == pytest.approx([0.3, 0.3, 0.14]) and mem.position_at(0.3)[CUP] == pytest.approx([0.6, 0.3, 0.14])
+    assert np.all(p[BALL] == mem.last_pose[BALL, :3])  # never seen: where it is

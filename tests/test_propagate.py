@@ -48,19 +48,29 @@ def test_divergence_switches_a_free_object_to_held(lazy):
 
 @pytest.mark.parametrize("lazy", [False, True])
 def test_a_rolling_ball_tested_against_its_detection_carried_on_stays_free(lazy):
-    # the ball, placed at its detection rolling at 0.9 m/s along x, covers 7 cm in 19 steps
+    # the ball, started where its detection was at the update's start, rolling at 0.9 m/s along x,
+    # covers 7 cm in 19 steps and ends at its detection (the target)
     with World(SCENE) as w:
         pw = ParticleWorld(w)
         vel = np.zeros((3, 6))
         vel[2] = [0.9, 0.0, 0.0, 0.0, 0.9 / 0.03, 0.0]
-        step = inputs(w, velocities=vel, check=np.array([False, False, True]), target_vel=vel.copy())
+        target = w.get_poses()
+        target[2, 0] += 0.9 * 19 / 240
+        step = inputs(w, velocities=vel, check=np.array([False, False, True]), target=target, target_vel=vel.copy())
         fixed = propagate(pw, step, 19, 0.045, lazy=lazy)
-        assert fixed.modes[2] == HELD  # against the fixed detection: pinned as implausible
+        assert fixed.modes[2] == HELD  # against the fixed detection, 7 cm away at the start: implausible
         assert np.allclose(fixed.poses[2], step.target[2], atol=1e-9)
         moved = propagate(pw, step, 19, 0.045, lazy=lazy, moving=True)
         assert moved.modes[2] == FREE and moved.max_divergence[2] < 0.01  # rolling as the detection goes on
         assert moved.poses[2, 0] - step.poses[2, 0] == pytest.approx(0.9 * 19 / 240, abs=0.01)
         assert moved.velocities[2, 0] == pytest.approx(0.9, abs=0.05)
+        # a detection that runs away at 0.9 m/s from a ball at rest: held from the step it diverges
+        # on, it follows the moving target and ends at it
+        still = inputs(w, check=np.array([False, False, True]), target=target, target_vel=vel.copy())
+        chased = propagate(pw, still, 60, 0.045, lazy=lazy, moving=True)
+        assert chased.modes[2] == HELD
+        assert np.allclose(chased.poses[2, :3], target[2, :3], atol=1e-6)
+        assert chased.velocities[2, 0] == pytest.approx(0.9, abs=1e-6)
 
 
 def test_held_object_glides_to_its_target_and_runaway_is_flagged():

@@ -16,7 +16,7 @@ def state(K=3, M=2):
                          hold_error=rng.normal(size=(K, M, 3)), let_go_unseen=rng.normal(size=(K, M)),
                          hidden_at=rng.normal(size=(K, M, 3)), hidden_t=rng.normal(size=(K, M)),
                          hidden_n=rng.integers(0, 5, (K, M)).astype(np.int32),
-                         push_decided=rng.normal(size=(K, M)), holds=rng.normal(size=(K, M, 5)))
+                         push_decided=rng.normal(size=(K, M)), holds=rng.normal(size=(K, M, 5)), jitter=rng.normal(size=(K, M, 3)))
 
 
 def test_take_follows_the_ancestors_and_equalises_the_weights():

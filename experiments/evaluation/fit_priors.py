@@ -14,12 +14,15 @@ What is fitted (see :class:`actions.modes.ModePriors` and :class:`estimator.conf
 * ``held_offset_std``: over the frames where an object is held in truth and not detected, after a
   detection with a tracked hand within that radius, the root-mean-square per axis of the true
   position minus (the tracked hand + the object's offset to it at that detection).
+* ``held_out_of_reach``: over the frames with a tracked hand where an object is held in truth and
+  detected, the fraction where its detection lies farther than
+  :data:`~estimator.perception_memory.HAND_RADIUS` from every tracked hand; Laplace's rule.
 * ``hand_occlusion``: over the frames where an object is held in truth and the scene alone (the
   estimator's worlds: no hand, no person) would show it to the camera, the fraction where the truth
   (with the hand and the person) does not; again with Laplace's rule.
 
 Only scenarios whose perception tracks hands count. Pure counting over simulated streams, seeded by
-the scenario's seed; the result is a dictionary of the three values and their counts.
+the scenario's seed; the result is a dictionary of the fitted values and their counts.
 """
 from __future__ import annotations
 
@@ -127,6 +130,22 @@ def _add_spread(obs, truth, t_true, hands, oid: str, a: int, b: int, spread: Spr
         spread.n += 1
 
 
+def count_out_of_reach(obs: list[dict], truth: list[dict], out_of_reach: Counts) -> None:
+    """Add the frames of one run (``obs``, ``truth``: the simulator's lines) with a tracked hand in
+    which an object held in truth is detected: a hit when no tracked hand is within
+    :data:`~estimator.perception_memory.HAND_RADIUS` of the detection."""
+    t_true = np.array([r["t"] for r in truth])
+    for o in obs:
+        if not o.get("hands") or not o["objects"]:
+            continue
+        row = truth[int(np.argmin(np.abs(t_true - o["t"])))]["objects"]
+        hands = np.array([np.asarray(h, float) for h in o["hands"].values()])
+        for oid, det in o["objects"].items():
+            if row.get(oid, {}).get("held"):
+                d = np.linalg.norm(hands - np.asarray(det["position"], float), axis=1).min()
+                out_of_reach.add(bool(d > HAND_RADIUS))
+
+
 def count_hand_occlusion(result, threshold: float, occluded: Counts) -> None:
     """Add the frames of one run where a truly held object would be in view of the scene alone."""
     scene = result.scene
@@ -152,21 +171,24 @@ def fit_priors(scenarios: list[str] | None = None, seeds=FIT_SEEDS, config: Esti
     """Fit on ``scenarios`` (default: every built-in one with tracked hands) x ``seeds``.
 
     Returns ``{"release_on_loss_carried": p, "release_on_loss_still": p, "release_hidden": p,
-    "hand_occlusion": p, "held_offset_std": m,
+    "held_out_of_reach": p, "hand_occlusion": p, "held_offset_std": m,
     "counts": {name: [hits, n]}, "scenarios": [...], "seeds": [...]}``."""
     cfg = config or EstimatorConfig()
     names = [n for n in (scenarios or list_scenarios()) if load_scenario(n).perception.hands_tracked]
     carried, still, hidden, occluded, spread = Counts(), Counts(), Counts(), Counts(), Spread()
+    reach = Counts()
     for name in names:
         for seed in seeds:
             result = simulate(name, int(seed))
             count_losses(result.observations, result.truth, cfg.reasoner, cfg.priors, carried, still, spread, hidden)
             count_hand_occlusion(result, cfg.visibility_threshold, occluded)
+            count_out_of_reach(result.observations, result.truth, reach)
     return {"release_on_loss_carried": round(carried.p, 3), "release_on_loss_still": round(still.p, 3),
-            "release_hidden": round(hidden.p, 3),
+            "release_hidden": round(hidden.p, 3), "held_out_of_reach": float(f"{reach.p:.2g}"),
             "hand_occlusion": round(occluded.p, 3), "held_offset_std": round(spread.std, 4),
             "counts": {"held_offset_std": [round(spread.ss, 6), spread.n],
                        "release_on_loss_carried": [carried.hits, carried.n],
                        "release_on_loss_still": [still.hits, still.n], "release_hidden": [hidden.hits, hidden.n],
+                       "held_out_of_reach": [reach.hits, reach.n],
                        "hand_occlusion": [occluded.hits, occluded.n]},
             "scenarios": names, "seeds": [int(s) for s in seeds]}
