@@ -247,7 +247,7 @@ class EstimatorConfig:
       seen within ``t_perceived`` (off in paper mode).
     * ``moving_teleports``: an object teleported to a detection while it was tracked at the previous
       update (not a first sighting, nor a re-sighting after a loss) and moving along its support
-      (vertical speed under 0.2 m/s, ``model.MOVING_MAX_VERTICAL_SPEED``: not falling) keeps moving: it gets its
+      (vertical speed under 0.2 m/s, ``motion.MOVING_MAX_VERTICAL_SPEED``: not falling) keeps moving: it gets its
       perceived velocity over the reasoning period (and keeps its particle's spin), and its divergence
       test compares it with its detection carried on at that velocity through the update (Algorithm 2
       teleports at rest and Algorithm 1 tests against the fixed detection: off in paper mode, where a

@@ -35,7 +35,8 @@ from .belief import Belief, compute_belief
 from .config import EstimatorConfig
 from .holding import hidden_places
 from .likelihood import held_unseen_in_view
-from .model import Move, SceneModel, Settled, initial_poses
+from .model import SceneModel, initial_poses
+from .step import Move, Settled
 from .observations import Frame
 from .perception_memory import PerceptionMemory
 from .person import person_probabilities

@@ -18,9 +18,6 @@ and the worlds and calls, at each update:
 """
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
-
 import numpy as np
 
 from actions.episodes import EpisodeRule, carried, update_events
@@ -28,7 +25,6 @@ from actions.events import N_ACTIONS
 from actions.modes import FREE, HELD, PLACE, RELEASE
 from actions.push import empty_holds
 from physics.scene import Scene
-from physics.transforms import carry_pose, quat_from_rotvec, quat_multiply
 
 from .config import EstimatorConfig
 from .fusion import ensemble_kalman_step
@@ -37,6 +33,7 @@ from .noise import process_noise, regularisation_kernels
 from .likelihood import (DetectionTerm, Evidence, HandReachTerm, LogWeightTerm, ModeSwitchTerm, NegativeEvidenceTerm, ProposalTerm,
                          add_terms,
                          exploded_log_likelihood)
+from .motion import MOVING_MAX_VERTICAL_SPEED, let_go_moving, out_of_reach, place, roll_released, teleport_kinds
 from .observations import Frame
 from .params import param_bounds, shrink_params
 from .perception_memory import HAND_RADIUS, PerceptionMemory
@@ -44,6 +41,7 @@ from .pool import BatchInput, BatchOutput
 from .relations import relations_and_support
 from .resampling import normalise_log_weights
 from .state import ParticleState
+from .step import Move, Settled
 
 
 def initial_poses(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
@@ -75,77 +73,6 @@ get no events of their own (:meth:`SceneModel.settle`)."""
 FUSION_SETTLED = 1.5e-3
 """A resting object whose particles' weighted mean is within this (m, horizontally) of the average of
 its detections while still takes no Kalman step: it has converged (:meth:`SceneModel.fuse_resting`)."""
-
-MOVING_MAX_VERTICAL_SPEED = 0.2
-"""With ``moving_teleports``, only objects perceived moving along their support (vertical speed below
-this, m/s) keep their velocity when teleported: a falling object's finite-difference velocity (over
-a bounce, into a container) throws its particles off, and the paper's teleport at rest serves it well.
-A falling object that was moving along its support at the previous update, horizontally faster than
-this, rolled off an edge: it keeps its horizontal velocity and its particle's spin (a dropped
-object's horizontal finite difference is mostly noise)."""
-
-
-@dataclass(frozen=True)
-class Move:
-    """A particle's motion before physics in one update (K particles, M objects).
-
-    ``poses (K, M, 7)`` / ``velocities (K, M, 6)``: the state handed to physics;
-    ``predicted (K, M, 7)``: the poses before the teleports (what each particle expected);
-    ``previous_modes`` / ``modes`` ``(K, M)`` int8: at the last update and after the releases;
-    ``release_codes (K, M)`` int8: event codes of those releases; ``teleported (M,)`` bool;
-    ``target (K, M, 7)`` / ``target_vel (K, M, 6)``: where held objects go and perceived objects
-    are checked against; ``check (K, M)``: free objects to test for divergence; ``depenetrate (K, M)``:
-    objects displaced without physics; ``vis_query (M,)``: objects whose visibility is wanted;
-    ``hold_error (K, M, 3)``, ``let_go_unseen (K, M)``: see :class:`~estimator.state.ParticleState`;
-    ``cameras``: the cameras that took the frames of the update (None: the scene's camera);
-    ``behind_cover (K, M)`` bool: objects let go now where their hand hid them earlier, at
-    ``state.hidden_t`` (:func:`~estimator.holding.release_behind_cover`), and ``proposal_log_weight
-    (K,)`` the weight factor of that move; ``fused (K, M)`` bool: objects at rest moved towards
-    their detection (:meth:`SceneModel.fuse_resting`; scored where the particle expected them);
-    ``jitter (K, M, 3)``: the teleports' position noise (see :class:`~estimator.state.ParticleState`).
-    """
-
-    poses: np.ndarray
-    velocities: np.ndarray
-    predicted: np.ndarray
-    previous_modes: np.ndarray
-    modes: np.ndarray
-    release_codes: np.ndarray
-    teleported: np.ndarray
-    target: np.ndarray
-    target_vel: np.ndarray
-    check: np.ndarray
-    depenetrate: np.ndarray
-    vis_query: np.ndarray
-    hold_error: np.ndarray
-    let_go_unseen: np.ndarray
-    cameras: tuple | None = None
-    behind_cover: np.ndarray | None = None
-    proposal_log_weight: np.ndarray | None = None
-    fused: np.ndarray | None = None
-    jitter: np.ndarray | None = None
-
-
-@dataclass(frozen=True)
-class Settled:
-    """The particles after physics and the Place / Release rules: ``poses (K, M, 7)``, ``velocities
-    (K, M, 6)``, ``modes (K, M)``, ``on_top (K, M, M+1)``, ``is_in (K, M, M)``, ``supported (K, M)``,
-    ``codes (K, M)`` (event codes of the whole update), ``tick_vel (M, 3)`` (perceived velocity
-    over the reasoning period, m/s), ``holds (K, M, 6)`` (the hold records after the update,
-    :mod:`actions.push`) and ``times (K, M)`` (s, when each event of ``codes`` happened, if before
-    ``t``: a Pick's when the object started moving, a Push's its Pick's; NaN: at ``t``)."""
-
-    poses: np.ndarray
-    velocities: np.ndarray
-    modes: np.ndarray
-    on_top: np.ndarray
-    is_in: np.ndarray
-    supported: np.ndarray
-    codes: np.ndarray
-    tick_vel: np.ndarray
-    holds: np.ndarray
-    times: np.ndarray
-
 
 class SceneModel:
     """How the particles of ``scene`` move and are weighed (see the module docstring).
@@ -241,19 +168,14 @@ class SceneModel:
         # a finite difference across a jump or a gap is no velocity; one across a reasoning period
         # of continuous tracking is (moving_teleports: an object tracked in motion keeps moving)
         tick_vel = mem.tick_velocity()
-        along = np.abs(tick_vel[:, 2]) < MOVING_MAX_VERTICAL_SPEED  # rolling or sliding, not falling
-        moving = tele & mem.perceived_prev & ~newly_known & detected & along if cfg.moving_teleports \
-            else tele & False
+        moving = falling = np.zeros(self.M, dtype=bool)
+        if cfg.moving_teleports:  # moving along, or rolled off an edge: keeps its velocity and spin
+            moving, falling = teleport_kinds(tele & mem.perceived_prev & ~newly_known & detected, tick_vel,
+                                             mem.previous_tick_velocity())
         mem.perc_vel[tele] = 0.0
         mem.perc_vel[moving, :3] = tick_vel[moving]
-        spinning = moving
-        if cfg.moving_teleports:  # one that rolled off an edge keeps its velocity along and its spin
-            before = mem.previous_tick_velocity()
-            rolled_off = (np.linalg.norm(before[:, :2], axis=1) > MOVING_MAX_VERTICAL_SPEED) & (
-                np.abs(before[:, 2]) < MOVING_MAX_VERTICAL_SPEED)
-            falling = tele & mem.perceived_prev & ~newly_known & detected & ~along & rolled_off
-            mem.perc_vel[falling, :2] = tick_vel[falling, :2]
-            spinning = moving | falling
+        mem.perc_vel[falling, :2] = tick_vel[falling, :2]
+        spinning = moving | falling
         # an object teleported in motion starts where it was at this update's start, so that physics
         # brings it to its detection at frame.t (placed at the detection, the belief would be dt ahead)
         start = mem.position_at(frame.t - dt) if cfg.moving_teleports else None
@@ -263,7 +185,7 @@ class SceneModel:
             jitter[..., 2] = 0.0  # a support undoes the vertical noise: only the horizontal persists
             if cfg.moving_teleports:  # at rest in a particle, nothing in its world set it moving: an agent
                 started = (spinning[None, :] & (prev_modes == FREE) & (np.linalg.norm(  # did; it stays, diverges
-                    state.velocities[..., :2], axis=-1) < MOVING_MAX_VERTICAL_SPEED))  # from its target, is held
+                    state.velocities[..., :2], axis=-1) < MOVING_MAX_VERTICAL_SPEED))  # from its target, held
                 vel[started] = 0.0
         self.known |= perceived
         modes, release_codes = self.release(prev_modes, perceived, state.supported, rng,
@@ -280,7 +202,7 @@ class SceneModel:
             modes[flicked] = FREE
             release_codes[flicked] = PLACE
         proposal = proposal + flick_weight
-        self.roll_released(vel, (prev_modes == HELD) & (modes == FREE) & ~cover & state.supported)
+        roll_released(vel, (prev_modes == HELD) & (modes == FREE) & ~cover & state.supported, self.ball_radius)
         # at rest in the particle (on a support, slower than rest_speed) before this update
         resting = state.supported & (np.linalg.norm(state.velocities[..., :3], axis=-1)
                                      < self.config.noise.rest_speed)
@@ -306,98 +228,24 @@ class SceneModel:
 
     def let_go_moving(self, modes: np.ndarray, supported: np.ndarray, seen: np.ndarray, tick_vel: np.ndarray,
                       frame: Frame, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        """Let-goes in motion (``ModePriors.let_go_moving``): objects ``seen (M,)`` in this update moving
-        along their support (tick velocity ``(M, 3)`` m/s faster than :data:`MOVING_MAX_VERTICAL_SPEED`
-        horizontally, slower vertically) with no tracked hand within
-        :data:`~estimator.perception_memory.HAND_RADIUS`, held and ``supported (K, M)`` in a particle,
-        are let go there with probability ``q = let_go_moving``. Returns the let-goes ``(K, M)`` and
-        their importance weights ``(K,)``: ``-log q`` per let-go and ``-log(1 - q)`` per candidate
-        kept, so that the switch's prior (``place``, charged by the mode-switch term) is what weighs.
-        One uniform draw per entry when there is a candidate."""
-        q = self.config.priors.let_go_moving
-        none = np.zeros((self.K, self.M), dtype=bool), np.zeros(self.K)
-        if q <= 0:
-            return none
-        along = (np.linalg.norm(tick_vel[:, :2], axis=1) > MOVING_MAX_VERTICAL_SPEED) & (
-            np.abs(tick_vel[:, 2]) < MOVING_MAX_VERTICAL_SPEED)
-        near = self._out_of_reach(frame, seen)
-        cand_m = seen & self.dynamic & along & (np.ones(self.M, bool) if near is None else near)
-        if not np.any(cand_m):
-            return none
-        cand = (modes == HELD) & supported & cand_m[None, :]
-        let = cand & (rng.random((self.K, self.M)) < q)
-        kept = cand & ~let
-        with np.errstate(divide="ignore"):
-            logw = -math.log(q) * let.sum(axis=1) - (math.log1p(-q) if q < 1 else 0.0) * kept.sum(axis=1)
-        return let, logw
+        """Let-goes in motion (:func:`~estimator.motion.let_go_moving`, at ``ModePriors.let_go_moving``)
+        of the dynamic objects ``seen (M,)`` in this update with no hand tracked in ``frame`` within
+        :data:`~estimator.perception_memory.HAND_RADIUS`."""
+        far = self._out_of_reach(frame, seen)
+        cand = seen & self.dynamic & (np.ones(self.M, bool) if far is None else far)
+        return let_go_moving(modes, supported, cand, tick_vel, self.config.priors.let_go_moving, rng)
 
     def teleport(self, poses: np.ndarray, vel: np.ndarray, idx: np.ndarray, newly_known: np.ndarray,
-                 is_in: np.ndarray, rng: np.random.Generator, moving: np.ndarray | None = None,
+                 is_in: np.ndarray, rng: np.random.Generator, spinning: np.ndarray | None = None,
                  start: np.ndarray | None = None, held: np.ndarray | None = None) -> np.ndarray:
-        """Alg. 2, in place: put objects ``idx`` at their perceived pose (plus perception noise per
-        particle) with the perceived velocity; the contents of each (``is_in (K, M, M)`` at the last
-        update, per particle; not for ``newly_known (M,)`` objects) are carried rigidly, rotation
-        included, and given the container's velocity. Objects ``moving (M,)`` bool keep each
-        particle's angular velocity (a rolling ball keeps rolling); the others are set at rest but
-        for the perceived linear velocity. ``start (M, 3)`` m: the perceived positions carried back
-        to the update's start (:meth:`~estimator.perception_memory.PerceptionMemory.position_at`),
-        used instead of the last detections when given. ``held (K, M)`` bool: objects the particles
-        hold, placed without noise (they go to their target, and a noisy start would only give them
-        a spurious velocity). Returns the position noise ``(K, len(idx), 3)`` m each particle's object
-        got."""
-        nz, mem, K = self.config.noise, self.memory, self.K
-        new = poses[:, idx].copy()
-        new[..., :3] = (mem.last_pose[:, :3] if start is None else start)[idx]
-        noise = np.zeros((K, len(idx), 3))
-        if nz.position_std > 0:
-            noise = rng.normal(0.0, nz.position_std, new[..., :3].shape)
-            if held is not None:
-                noise[held[:, idx]] = 0.0
-            new[..., :3] += noise
-        has_q = mem.last_has_orientation[idx]
-        new[:, has_q, 3:] = mem.last_pose[idx[has_q], 3:]
-        if nz.orientation_std > 0 and np.any(has_q):
-            dq = quat_from_rotvec(rng.normal(0.0, nz.orientation_std / 4, (K, int(has_q.sum()), 3)))
-            new[:, has_q, 3:] = quat_multiply(dq, new[:, has_q, 3:])
-        moved = set(int(i) for i in idx)
-        for j, b in enumerate(idx):
-            if newly_known[b]:
-                continue
-            for k in range(K):
-                children = [a for a in np.flatnonzero(is_in[k, :, b]) if a not in moved]
-                if children:
-                    poses[k, children] = carry_pose(poses[k, children], poses[k, b], new[k, j])
-                    vel[k, children, :3] = mem.perc_vel[b, :3]
-        poses[:, idx] = new
-        spin = vel[:, idx, 3:].copy()
-        vel[:, idx] = 0.0
-        vel[:, idx, :3] = mem.perc_vel[idx, :3]
-        if moving is not None:
-            keep = moving[idx]
-            vel[:, idx[keep], 3:] = spin[:, keep]
-            self.roll(vel, idx[keep])
-        return noise
-
-    def roll_released(self, vel: np.ndarray, released: np.ndarray) -> None:
-        """In place on ``vel (K, M, 6)``: balls let go now on a support (``released (K, M)``) roll at
-        the velocity the hand gave them (:meth:`roll`; held, they did not spin). One dropped from the
-        air is left alone: its small horizontal velocity is mostly noise, which rolling would keep."""
-        for m in np.flatnonzero(released.any(axis=0)):
-            self.roll(vel, np.array([m]), released[:, m])
-
-    def roll(self, vel: np.ndarray, idx: np.ndarray, rows: np.ndarray | None = None) -> None:
-        """In place on ``vel (K, M, 6)``: the spheres among objects ``idx`` (in the particles ``rows
-        (K,)`` bool, default all) spin as they roll without slipping at their horizontal velocity,
-        ``w = z x v / r``: a ball given a velocity with another particle's spin, or none (just let go
-        from a hand), would otherwise slide and slow down for a while."""
-        idx = np.asarray(idx, dtype=int)
-        idx = idx[np.isfinite(self.ball_radius[idx])]
-        if len(idx) == 0:
-            return
-        rows = np.ones(len(vel), dtype=bool) if rows is None else rows
-        v = vel[:, idx, :3]
-        w = np.stack([-v[..., 1], v[..., 0], np.zeros_like(v[..., 0])], axis=-1) / self.ball_radius[idx][None, :, None]
-        vel[:, idx, 3:] = np.where(rows[:, None, None], w, vel[:, idx, 3:])
+        """Alg. 2 (:func:`~estimator.motion.place`), in place: objects ``idx`` at their last detection,
+        or at ``start (M, 3)`` m (the detections carried back to the update's start,
+        :meth:`~estimator.perception_memory.PerceptionMemory.position_at`), with the memory's
+        perceived velocities. Returns the position noise ``(K, len(idx), 3)`` m."""
+        mem = self.memory
+        positions = mem.last_pose[:, :3] if start is None else start
+        return place(poses, vel, idx, newly_known, is_in, positions, mem.last_pose[:, 3:], mem.last_has_orientation,
+                     mem.perc_vel, self.config.noise, rng, spinning, held, self.ball_radius)
 
     def fuse_resting(self, poses: np.ndarray, log_weights: np.ndarray, modes: np.ndarray, resting: np.ndarray,
                      seen: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -499,7 +347,7 @@ class SceneModel:
         rolled = (after_physics == HELD) & (ev.modes == FREE) & supported
         if np.any(rolled):
             velocities = velocities.copy()
-            self.roll_released(velocities, rolled)
+            roll_released(velocities, rolled, self.ball_radius)
         return Settled(out.poses, velocities, ev.modes, on_top, is_in, supported, ev.codes, vel, ev.holds,
                        ev.times)
 
@@ -529,14 +377,12 @@ class SceneModel:
                         out_of_reach=self._out_of_reach(frame, detected))
 
     def _out_of_reach(self, frame: Frame, detected: np.ndarray) -> np.ndarray | None:
-        """Objects ``(M,)`` detected since the last update whose latest detection lies farther than
-        :data:`~estimator.perception_memory.HAND_RADIUS` from every hand tracked in ``frame``; None
-        when no hand is tracked in it or hands are not followed."""
-        if not (frame.hands and self.config.follow_hands):
+        """Dynamic objects ``(M,)`` detected since the last update whose latest detection lies farther
+        than :data:`~estimator.perception_memory.HAND_RADIUS` from every hand tracked in ``frame``;
+        None when no hand is tracked in it or hands are not followed."""
+        if not self.config.follow_hands:
             return None
-        hands = np.array([np.asarray(h, float) for h in frame.hands.values()])  # (H, 3)
-        d = np.linalg.norm(self.memory.last_pose[:, None, :3] - hands[None], axis=-1).min(axis=1)
-        return detected & self.dynamic & (d > HAND_RADIUS)
+        return out_of_reach(self.memory.last_pose[:, :3], frame.hands, detected & self.dynamic, HAND_RADIUS)
 
     def log_weight(self, previous: np.ndarray, ev: Evidence) -> np.ndarray:
         """New log-weights ``(K,)``: ``previous (K,)`` plus every term of :attr:`terms` (one particle

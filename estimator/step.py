@@ -1,0 +1,72 @@
+"""What one update of the scene model hands on: the particles' motion before physics (:class:`Move`)
+and their state after physics and the Place / Release rules (:class:`Settled`). K particles, M
+objects; positions in metres, quaternions ``(x, y, z, w)``, times in seconds."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Move:
+    """A particle's motion before physics in one update (K particles, M objects).
+
+    ``poses (K, M, 7)`` / ``velocities (K, M, 6)``: the state handed to physics;
+    ``predicted (K, M, 7)``: the poses before the teleports (what each particle expected; with
+    moving teleports carried on over the update at its velocity, without the last teleport's noise);
+    ``previous_modes`` / ``modes`` ``(K, M)`` int8: at the last update and after the releases;
+    ``release_codes (K, M)`` int8: event codes of those releases; ``teleported (M,)`` bool;
+    ``target (K, M, 7)`` / ``target_vel (K, M, 6)``: where held objects go and perceived objects
+    are checked against; ``check (K, M)``: free objects to test for divergence; ``depenetrate (K, M)``:
+    objects displaced without physics; ``vis_query (M,)``: objects whose visibility is wanted;
+    ``hold_error (K, M, 3)``, ``let_go_unseen (K, M)``: see :class:`~estimator.state.ParticleState`;
+    ``cameras``: the cameras that took the frames of the update (None: the scene's camera);
+    ``behind_cover (K, M)`` bool: objects let go now where their hand hid them earlier, at
+    ``state.hidden_t`` (:func:`~estimator.holding.release_behind_cover`), and ``proposal_log_weight
+    (K,)`` the weight factor of that move and of the let-goes in motion
+    (:func:`~estimator.motion.let_go_moving`); ``fused (K, M)`` bool: objects at rest moved towards
+    their detection (:meth:`~estimator.model.SceneModel.fuse_resting`; scored where the particle expected them);
+    ``jitter (K, M, 3)``: the teleports' position noise (see :class:`~estimator.state.ParticleState`).
+    """
+
+    poses: np.ndarray
+    velocities: np.ndarray
+    predicted: np.ndarray
+    previous_modes: np.ndarray
+    modes: np.ndarray
+    release_codes: np.ndarray
+    teleported: np.ndarray
+    target: np.ndarray
+    target_vel: np.ndarray
+    check: np.ndarray
+    depenetrate: np.ndarray
+    vis_query: np.ndarray
+    hold_error: np.ndarray
+    let_go_unseen: np.ndarray
+    cameras: tuple | None = None
+    behind_cover: np.ndarray | None = None
+    proposal_log_weight: np.ndarray | None = None
+    fused: np.ndarray | None = None
+    jitter: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Settled:
+    """The particles after physics and the Place / Release rules: ``poses (K, M, 7)``, ``velocities
+    (K, M, 6)``, ``modes (K, M)``, ``on_top (K, M, M+1)``, ``is_in (K, M, M)``, ``supported (K, M)``,
+    ``codes (K, M)`` (event codes of the whole update), ``tick_vel (M, 3)`` (perceived velocity
+    over the reasoning period, m/s), ``holds (K, M, 6)`` (the hold records after the update,
+    :mod:`actions.push`) and ``times (K, M)`` (s, when each event of ``codes`` happened, if before
+    ``t``: a Pick's when the object started moving, a Push's its Pick's; NaN: at ``t``)."""
+
+    poses: np.ndarray
+    velocities: np.ndarray
+    modes: np.ndarray
+    on_top: np.ndarray
+    is_in: np.ndarray
+    supported: np.ndarray
+    codes: np.ndarray
+    tick_vel: np.ndarray
+    holds: np.ndarray
+    times: np.ndarray

@@ -1,0 +1,103 @@
+"""estimator.motion alone, on hand-built arrays: teleport kinds, placing, rolling spin, reach, let-goes."""
+import math
+
+import numpy as np
+import pytest
+
+from actions.modes import FREE, HELD, ModePriors
+from estimator.config import NoiseConfig
+from estimator.likelihood import mode_switch_log_prior
+from estimator.motion import let_go_moving, out_of_reach, place, roll_released, rolling_spin, teleport_kinds
+
+
+def test_teleport_kinds_split_rolling_along_from_rolling_off_an_edge():
+    tracked = np.array([True, True, True, True, False])
+    now = np.array([[0.9, 0, 0], [0.9, 0, -0.8], [0.05, 0, -0.9], [0.0, 0, 0.0], [0.9, 0, 0]])
+    before = np.array([[0.9, 0, 0], [0.9, 0, 0], [0.05, 0, -0.5], [0.0, 0, 0.0], [0.9, 0, 0]])
+    moving, falling = teleport_kinds(tracked, now, before)
+    assert moving.tolist() == [True, False, False, True, False]   # level now (at rest counts: zero velocity)
+    assert falling.tolist() == [False, True, False, False, False]  # falling now, rolling along before
+
+
+def test_place_puts_objects_at_the_given_positions_with_noise_except_where_held():
+    K, M = 3000, 2
+    poses = np.zeros((K, M, 7))
+    poses[..., 6] = 1.0
+    vel = np.zeros((K, M, 6))
+    vel[:, 0, 3:] = [1.0, 2.0, 3.0]  # each particle's spin before
+    held = np.zeros((K, M), bool)
+    held[:10, 0] = True
+    positions = np.array([[0.1, 0.2, 0.3], [0.0, 0.0, 0.0]])
+    quat = np.tile([0.0, 0.0, 0.0, 1.0], (M, 1))
+    perc_vel = np.array([[0.5, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    drawn = place(poses, vel, np.array([0]), np.zeros(M, bool), np.zeros((K, M, M), bool), positions, quat,
+                  np.zeros(M, bool), perc_vel, NoiseConfig(position_std=0.01), np.random.default_rng(0),
+                  spinning=np.array([True, False]), held=held, ball_radius=np.array([np.nan, np.nan]))
+    assert drawn.shape == (K, 1, 3) and np.all(drawn[:10] == 0)
+    assert np.allclose(poses[:, 0, :3] - drawn[:, 0], positions[0])
+    sd = drawn[10:, 0].std(axis=0)  # 1 cm per axis within its 3-sigma band (chi-square, n large)
+    assert np.all(np.abs(sd - 0.01) < 3 * 0.01 / math.sqrt(2 * (K - 10)))
+    assert np.allclose(vel[:, 0, :3], [0.5, 0.0, 0.0]) and np.all(vel[:, 0, 3:] == [1.0, 2.0, 3.0])  # spin kept
+    assert np.all(poses[:, 1] == [0, 0, 0, 0, 0, 0, 1])  # not teleported
+
+
+def test_a_ball_given_a_velocity_spins_as_it_rolls_and_other_shapes_keep_their_spin():
+    radius = np.array([0.03, np.nan])
+    vel = np.zeros((2, 2, 6))
+    vel[:, 0, :3] = [0.3, -0.6, 0.0]
+    vel[:, 1] = [0.3, 0.0, 0.0, 1.0, 2.0, 3.0]
+    rolling_spin(vel, np.array([0, 1]), radius, np.array([True, False]))
+    assert np.allclose(vel[0, 0, 3:], np.cross([0, 0, 1], [0.3, -0.6, 0.0]) / 0.03)
+    contact = vel[0, 0, :3] + np.cross(vel[0, 0, 3:], [0, 0, -0.03])
+    assert np.allclose(contact, 0.0)  # rolling without slipping: the contact point is at rest
+    assert np.all(vel[1, 0, 3:] == 0) and np.all(vel[:, 1, 3:] == [1.0, 2.0, 3.0])
+    released = np.array([[False, True], [True, True]])
+    roll_released(vel, released, radius)
+    assert np.allclose(vel[1, 0, 3:], vel[0, 0, 3:]) and np.all(vel[:, 1, 3:] == [1.0, 2.0, 3.0])
+
+
+def test_out_of_reach_of_every_tracked_hand():
+    pos = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    hands = {"left": np.array([0.1, 0.0, 0.0]), "right": np.array([2.2, 0.0, 0.0])}
+    assert out_of_reach(pos, hands, np.array([True, True, True]), 0.3).tolist() == [False, True, False]
+    assert out_of_reach(pos, hands, np.array([True, False, True]), 0.3).tolist() == [False, False, False]
+    assert out_of_reach(pos, {}, np.ones(3, bool), 0.3) is None
+
+
+def _held_ball(K):
+    modes = np.zeros((K, 2), np.int8)
+    modes[:, 1] = HELD
+    rolling = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0]])
+    return modes, np.ones((K, 2), bool), np.array([False, True]), rolling
+
+
+def test_let_go_in_motion_is_proposed_at_its_rate_and_weighed_back_to_the_prior():
+    K = 4000
+    modes, supported, cand, rolling = _held_ball(K)
+    let, logw = let_go_moving(modes, supported, cand, rolling, 0.2, np.random.default_rng(3))
+    assert not let[:, 0].any()
+    n = int(let[:, 1].sum())
+    assert abs(n - 0.2 * K) < 3 * math.sqrt(K * 0.2 * 0.8)  # binomial band
+    assert logw == pytest.approx(np.where(let[:, 1], -math.log(0.2), -math.log(0.8)))
+    # with the switch's prior (place 0.2, the mode-switch term's) every particle weighs the same
+    new = modes.copy()
+    new[let] = FREE
+    priors = ModePriors()
+    assert np.allclose(logw + mode_switch_log_prior(priors, modes, new, cand), 0.0)
+    # at another rate they are importance weights: their mean is 1 within its 3-sigma band
+    let5, logw5 = let_go_moving(modes, supported, cand, rolling, 0.5, np.random.default_rng(4))
+    new5 = modes.copy()
+    new5[let5] = FREE
+    w = np.exp(logw5 + mode_switch_log_prior(priors, modes, new5, cand))
+    assert np.mean(w) == pytest.approx(1.0, abs=3 * np.std(w) / math.sqrt(K))
+
+
+@pytest.mark.parametrize("velocity", [[0.5, 0.0, -1.0], [0.1, 0.0, 0.0]])
+def test_no_let_go_in_motion_when_falling_or_slow_or_never_tried(velocity):
+    modes, supported, cand, rolling = _held_ball(50)
+    rolling[1] = velocity
+    let, logw = let_go_moving(modes, supported, cand, rolling, 0.2, np.random.default_rng(3))
+    assert not let.any() and np.all(logw == 0)
+    modes, supported, cand, rolling = _held_ball(50)
+    let, logw = let_go_moving(modes, supported, cand, rolling, 0.0, np.random.default_rng(3))
+    assert not let.any() and np.all(logw == 0)
