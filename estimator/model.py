@@ -33,7 +33,8 @@ from .noise import process_noise, regularisation_kernels
 from .likelihood import (DetectionTerm, Evidence, HandReachTerm, LogWeightTerm, ModeSwitchTerm, NegativeEvidenceTerm, ProposalTerm,
                          add_terms,
                          exploded_log_likelihood)
-from .motion import MOVING_MAX_VERTICAL_SPEED, let_go_moving, out_of_reach, place, roll_released, teleport_kinds
+from .motion import (MOVING_MAX_VERTICAL_SPEED, let_go_moving, out_of_reach, place, roll_released, rolled_along,
+                     teleport_kinds)
 from .observations import Frame
 from .params import param_bounds, shrink_params
 from .perception_memory import HAND_RADIUS, PerceptionMemory
@@ -202,7 +203,8 @@ class SceneModel:
             modes[flicked] = FREE
             release_codes[flicked] = PLACE
         proposal = proposal + flick_weight
-        roll_released(vel, (prev_modes == HELD) & (modes == FREE) & ~cover & state.supported, self.ball_radius)
+        rolling = state.supported | rolled_along(mem.previous_tick_velocity())[None, :]
+        roll_released(vel, (prev_modes == HELD) & (modes == FREE) & ~cover & rolling, self.ball_radius)
         # at rest in the particle (on a support, slower than rest_speed) before this update
         resting = state.supported & (np.linalg.norm(state.velocities[..., :3], axis=-1)
                                      < self.config.noise.rest_speed)
@@ -344,7 +346,8 @@ class SceneModel:
             np.where((onset >= t - cfg.event_window) & (onset <= t), onset, t), t, rule, let_go_t=t - hr.place_dwell,
             release_t=release_t)
         velocities = out.velocities
-        rolled = (after_physics == HELD) & (ev.modes == FREE) & supported
+        rolled = (after_physics == HELD) & (ev.modes == FREE) & (supported | rolled_along(
+            mem.previous_tick_velocity())[None, :])
         if np.any(rolled):
             velocities = velocities.copy()
             roll_released(velocities, rolled, self.ball_radius)

@@ -32,9 +32,9 @@ object's horizontal finite difference is mostly noise). Also the speed along a s
 held object counts as moving for :func:`let_go_moving`."""
 
 
-def _along(vel: np.ndarray) -> np.ndarray:
-    """``(M,)``: velocities ``(M, 3)`` horizontally faster, vertically slower than
-    :data:`MOVING_MAX_VERTICAL_SPEED`."""
+def rolled_along(vel: np.ndarray) -> np.ndarray:
+    """``(M,)``: velocities ``(M, 3)`` (m/s) horizontally faster, vertically slower than
+    :data:`MOVING_MAX_VERTICAL_SPEED`: moving along a support."""
     return (np.linalg.norm(vel[:, :2], axis=1) > MOVING_MAX_VERTICAL_SPEED) & (
         np.abs(vel[:, 2]) < MOVING_MAX_VERTICAL_SPEED)
 
@@ -46,7 +46,7 @@ def teleport_kinds(tracked: np.ndarray, tick_vel: np.ndarray,
     :data:`MOVING_MAX_VERTICAL_SPEED`) and those ``falling`` off an edge (falling now, moving along at
     the previous update): ``tick_vel``, ``previous_tick_vel`` ``(M, 3)`` m/s. Returns both ``(M,)``."""
     level = np.abs(tick_vel[:, 2]) < MOVING_MAX_VERTICAL_SPEED
-    return tracked & level, tracked & ~level & _along(previous_tick_vel)
+    return tracked & level, tracked & ~level & rolled_along(previous_tick_vel)
 
 
 def place(poses: np.ndarray, vel: np.ndarray, idx: np.ndarray, newly_known: np.ndarray, is_in: np.ndarray,
@@ -115,10 +115,10 @@ def rolling_spin(vel: np.ndarray, idx: np.ndarray, ball_radius: np.ndarray, rows
 
 
 def roll_released(vel: np.ndarray, released: np.ndarray, ball_radius: np.ndarray) -> None:
-    """In place on ``vel (K, M, 6)``: balls let go now on a support (``released (K, M)``) roll at the
-    velocity the hand gave them (:func:`rolling_spin`; held, they did not spin). Pass only those on a
-    support: one dropped from the air has a small horizontal velocity that is mostly noise, which
-    rolling would keep."""
+    """In place on ``vel (K, M, 6)``: balls let go now (``released (K, M)``) roll at the velocity
+    the hand gave them (:func:`rolling_spin`; held, they did not spin). Pass only those on a support
+    or seen rolling along one just before (off an edge): one dropped from the air has a small
+    horizontal velocity that is mostly noise, which rolling would keep."""
     for m in np.flatnonzero(released.any(axis=0)):
         rolling_spin(vel, np.array([m]), ball_radius, released[:, m])
 
@@ -143,7 +143,7 @@ def let_go_moving(modes: np.ndarray, supported: np.ndarray, candidates: np.ndarr
     charged by the mode-switch term) is what weighs. One uniform draw per entry when there is a
     candidate; none, and nothing let go, when ``q`` is 0."""
     K, M = modes.shape
-    cand_m = np.asarray(candidates, dtype=bool) & _along(tick_vel)
+    cand_m = np.asarray(candidates, dtype=bool) & rolled_along(tick_vel)
     if q <= 0 or not np.any(cand_m):
         return np.zeros((K, M), dtype=bool), np.zeros(K)
     cand = (modes == HELD) & supported & cand_m[None, :]

@@ -7,7 +7,12 @@ import pytest
 from actions.modes import FREE, HELD, ModePriors
 from estimator.config import NoiseConfig
 from estimator.likelihood import mode_switch_log_prior
-from estimator.motion import let_go_moving, out_of_reach, place, roll_released, rolling_spin, teleport_kinds
+from estimator.motion import let_go_moving, out_of_reach, place, roll_released, rolled_along, rolling_spin, teleport_kinds
+
+
+def test_rolled_along_means_faster_than_the_threshold_horizontally_and_slower_vertically():
+    vel = np.array([[0.5, 0.0, 0.0], [0.1, 0.1, 0.0], [0.5, 0.0, -0.5], [0.0, -0.3, 0.1]])
+    assert rolled_along(vel).tolist() == [True, False, False, True]
 
 
 def test_teleport_kinds_split_rolling_along_from_rolling_off_an_edge():
