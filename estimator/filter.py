@@ -312,7 +312,7 @@ class SceneEstimator:
             jolted=np.zeros((self.K, self.M), dtype=bool), unseen_in_view=unseen_in_view,
             hold_error=move.hold_error, let_go_unseen=move.let_go_unseen, hidden_at=hidden[0],
             hidden_t=hidden[1], hidden_n=hidden[2], push_decided=s.push_decided, holds=settled.holds,
-            jitter=move.jitter * ((move.modes == FREE) & (settled.modes == FREE))[..., None])  # held: at the target
+            jitter=move.jitter * (settled.modes == FREE)[..., None])  # held: at the target, no noise
 
     def _resample(self, weights: np.ndarray, hidden: np.ndarray) -> None:
         """Systematic resampling, then the model's regularisation of hidden objects ``hidden (M,)`` and

@@ -201,10 +201,9 @@ def hand_reach_log_likelihood(modes: np.ndarray, out_of_reach: np.ndarray, held_
         held_out_of_reach: probability in [0, 1] (0: such a particle gets zero weight).
     """
     n = np.sum((np.asarray(modes) == HELD) & np.asarray(out_of_reach, dtype=bool)[None, :], axis=1)
-    if not np.any(n):
-        return np.zeros(len(n))
-    with np.errstate(divide="ignore"):
-        return np.where(n > 0, n * math.log(held_out_of_reach) if held_out_of_reach > 0 else -np.inf, 0.0)
+    if held_out_of_reach > 0:
+        return n * math.log(held_out_of_reach)
+    return np.where(n > 0, -np.inf, 0.0)
 
 
 def exploded_log_likelihood(finite: np.ndarray) -> np.ndarray:

@@ -173,6 +173,7 @@ class SceneModel:
         if cfg.moving_teleports:  # moving along, or rolled off an edge: keeps its velocity and spin
             moving, falling = teleport_kinds(tele & mem.perceived_prev & ~newly_known & detected, tick_vel,
                                              mem.previous_tick_velocity())
+        far = self._out_of_reach(frame, detected)
         mem.perc_vel[tele] = 0.0
         mem.perc_vel[moving, :3] = tick_vel[moving]
         mem.perc_vel[falling, :2] = tick_vel[falling, :2]
@@ -198,13 +199,12 @@ class SceneModel:
             release_codes[cover] = RELEASE
             poses[cover, :3] = state.hidden_at[cover]
             vel[cover] = 0.0
-        flicked, flick_weight = self.let_go_moving(modes, state.supported, detected & perceived, tick_vel, frame, rng)
+        flicked, flick_weight = self.let_go_moving(modes, state.supported, detected & perceived, tick_vel, far, rng)
         if np.any(flicked):  # let go in motion: physics takes it on at its velocity
             modes[flicked] = FREE
             release_codes[flicked] = PLACE
         proposal = proposal + flick_weight
-        rolling = state.supported | rolled_along(mem.previous_tick_velocity())[None, :]
-        roll_released(vel, (prev_modes == HELD) & (modes == FREE) & ~cover & rolling, self.ball_radius)
+        self.roll_released(vel, (prev_modes == HELD) & (modes == FREE) & ~cover, state.supported)
         # at rest in the particle (on a support, slower than rest_speed) before this update
         resting = state.supported & (np.linalg.norm(state.velocities[..., :3], axis=-1)
                                      < self.config.noise.rest_speed)
@@ -226,16 +226,23 @@ class SceneModel:
         depen = (np.broadcast_to(placed & (cfg.noise.position_std > 0), (self.K, self.M)) | jolted
                  | state.jolted | cover) & (modes == FREE)
         return Move(poses, vel, predicted, prev_modes, modes, release_codes, tele, target, target_vel, check,
-                    depen, vis_query, hold_error, let_go, cameras, cover, proposal, nudged, jitter)
+                    depen, vis_query, hold_error, let_go, cameras, cover, proposal, nudged, jitter, far)
 
     def let_go_moving(self, modes: np.ndarray, supported: np.ndarray, seen: np.ndarray, tick_vel: np.ndarray,
-                      frame: Frame, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+                      far: np.ndarray | None, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """Let-goes in motion (:func:`~estimator.motion.let_go_moving`, at ``ModePriors.let_go_moving``)
-        of the dynamic objects ``seen (M,)`` in this update with no hand tracked in ``frame`` within
-        :data:`~estimator.perception_memory.HAND_RADIUS`."""
-        far = self._out_of_reach(frame, seen)
+        of the dynamic objects ``seen (M,)`` in this update that are ``far (M,)`` from every tracked
+        hand (:meth:`_out_of_reach`; None: no hand tracked, all of them)."""
         cand = seen & self.dynamic & (np.ones(self.M, bool) if far is None else far)
         return let_go_moving(modes, supported, cand, tick_vel, self.config.priors.let_go_moving, rng)
+
+    def roll_released(self, vel: np.ndarray, released: np.ndarray, supported: np.ndarray) -> None:
+        """In place on ``vel (K, M, 6)``: balls let go now (``released (K, M)``) on a support
+        (``supported (K, M)``) or just after they were seen rolling along one (off an edge) roll at
+        their velocity (:func:`~estimator.motion.roll_released`)."""
+        rolled = released & (supported | rolled_along(self.memory.previous_tick_velocity())[None, :])
+        if np.any(rolled):
+            roll_released(vel, rolled, self.ball_radius)
 
     def teleport(self, poses: np.ndarray, vel: np.ndarray, idx: np.ndarray, newly_known: np.ndarray,
                  is_in: np.ndarray, rng: np.random.Generator, spinning: np.ndarray | None = None,
@@ -346,11 +353,10 @@ class SceneModel:
             np.where((onset >= t - cfg.event_window) & (onset <= t), onset, t), t, rule, let_go_t=t - hr.place_dwell,
             release_t=release_t)
         velocities = out.velocities
-        rolled = (after_physics == HELD) & (ev.modes == FREE) & (supported | rolled_along(
-            mem.previous_tick_velocity())[None, :])
-        if np.any(rolled):
+        released = (after_physics == HELD) & (ev.modes == FREE)
+        if np.any(released):
             velocities = velocities.copy()
-            roll_released(velocities, rolled, self.ball_radius)
+            self.roll_released(velocities, released, supported)
         return Settled(out.poses, velocities, ev.modes, on_top, is_in, supported, ev.codes, vel, ev.holds,
                        ev.times)
 
@@ -377,7 +383,7 @@ class SceneModel:
                         fell_unseen=(settled.modes == FREE)
                         & (frame.t - move.let_go_unseen < self.config.reasoner.t_perceived - 1e-9),
                         proposal_log_weight=move.proposal_log_weight, fused=move.fused,
-                        out_of_reach=self._out_of_reach(frame, detected))
+                        out_of_reach=move.out_of_reach)
 
     def _out_of_reach(self, frame: Frame, detected: np.ndarray) -> np.ndarray | None:
         """Dynamic objects ``(M,)`` detected since the last update whose latest detection lies farther

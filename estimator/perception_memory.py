@@ -192,7 +192,7 @@ class PerceptionMemory:
         """Perceived positions ``(M, 3)`` (m) carried from each object's last detection to time ``t``
         (s) at its perceived velocity (``perc_vel``; zero for an object teleported at rest): where
         an object seen moving was at the start of an update whose detections it is teleported to."""
-        lag = np.where(np.isfinite(self.last_seen), t - np.where(np.isfinite(self.last_seen), self.last_seen, 0.0), 0.0)
+        lag = np.where(np.isfinite(self.last_seen), t - self.last_seen, 0.0)  # never seen: no lag
         return self.last_pose[:, :3] + self.perc_vel[:, :3] * lag[:, None]
 
     def jumped(self) -> np.ndarray:

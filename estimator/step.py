@@ -27,7 +27,9 @@ class Move:
     (K,)`` the weight factor of that move and of the let-goes in motion
     (:func:`~estimator.motion.let_go_moving`); ``fused (K, M)`` bool: objects at rest moved towards
     their detection (:meth:`~estimator.model.SceneModel.fuse_resting`; scored where the particle expected them);
-    ``jitter (K, M, 3)``: the teleports' position noise (see :class:`~estimator.state.ParticleState`).
+    ``jitter (K, M, 3)``: the teleports' position noise (see :class:`~estimator.state.ParticleState`);
+    ``out_of_reach (M,)``: objects detected out of reach of every tracked hand (None: no hand
+    tracked; :class:`~estimator.likelihood.Evidence`).
     """
 
     poses: np.ndarray
@@ -49,6 +51,7 @@ class Move:
     proposal_log_weight: np.ndarray | None = None
     fused: np.ndarray | None = None
     jitter: np.ndarray | None = None
+    out_of_reach: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

@@ -457,12 +457,15 @@ def test_let_go_in_motion_is_tried_only_out_of_reach_of_the_tracked_hands_and_ne
     rolling = np.zeros((5, 3))
     rolling[BALL] = [0.5, 0.0, 0.0]
     model.memory.last_pose[BALL, :3] = [0.1, 0.0, 0.14]
-    let, logw = model.let_go_moving(modes, supported, seen, rolling, Frame(0.0), np.random.default_rng(3))
+    let, logw = model.let_go_moving(modes, supported, seen, rolling, model._out_of_reach(Frame(0.0), seen),
+                                    np.random.default_rng(3))
     assert let[:, BALL].any() and not let[:, [TABLE, CRATE, CUP, MYSTERY]].any()  # no hand tracked
     hand_near = Frame(0.0, {}, {"right": np.array([0.2, 0.0, 0.2])})
-    assert not model.let_go_moving(modes, supported, seen, rolling, hand_near, np.random.default_rng(3))[0].any()
+    assert not model.let_go_moving(modes, supported, seen, rolling, model._out_of_reach(hand_near, seen),
+                                    np.random.default_rng(3))[0].any()
     hand_far = Frame(0.0, {}, {"right": np.array([1.0, 0.0, 0.2])})
-    assert model.let_go_moving(modes, supported, seen, rolling, hand_far, np.random.default_rng(3))[0].any()
+    assert model.let_go_moving(modes, supported, seen, rolling, model._out_of_reach(hand_far, seen),
+                               np.random.default_rng(3))[0].any()
     paper = make(EstimatorConfig.paper())
-    let1, w1 = paper.let_go_moving(modes[:1], supported[:1], seen, rolling, Frame(0.0), np.random.default_rng(3))
+    let1, w1 = paper.let_go_moving(modes[:1], supported[:1], seen, rolling, None, np.random.default_rng(3))
     assert not let1.any() and np.all(w1 == 0)
