@@ -210,7 +210,7 @@ class SceneEstimator:
         # move (model), propagate (pool), settle (model)
         move = model.move(self.state, frame, detected, perceived, dt, self.rng, cameras)
         batch = model.batch(move, self.state, self._changed_slots(move.poses, move.velocities),
-                            self._settled_entries(move.poses, move.velocities))
+                            self._settled_entries(move.poses, move.velocities, move.fused))
         out = self.pool.run(batch, n_steps, cfg.reasoner.d_sim_perc, cfg.lazy_checks, cfg.moving_teleports,
                             cameras=cameras)  # None: the scene's camera
         bad = self._reset_exploded(out, move.poses, move.modes, t)
@@ -255,13 +255,20 @@ class SceneEstimator:
             return np.ones((self.K, self.M), dtype=bool)
         return np.any(poses != self._world_poses, axis=-1) | np.any(vel != self._world_vel, axis=-1)
 
-    def _settled_entries(self, poses: np.ndarray, vel: np.ndarray) -> np.ndarray | None:
-        """Entries ``(K, M)`` at rest (zero velocity: asleep) exactly as a world produced them: a
-        resampled particle's resting objects, which its new world may load asleep."""
+    def _settled_entries(self, poses: np.ndarray, vel: np.ndarray, fused: np.ndarray | None = None
+                         ) -> np.ndarray | None:
+        """Entries ``(K, M)`` at rest (zero velocity: asleep) as a world produced them, which their
+        world may load asleep: a resampled particle's resting objects, and resting objects that only
+        took a horizontal Kalman step towards their detection (``fused (K, M)``, millimetres along
+        their support: waking them, and what they touch, would cost a settling of every such world
+        at every step of the fusion)."""
         if self._produced is None:
             return None
         p, v = self._produced
-        return np.all(vel == 0.0, axis=-1) & np.all(poses == p, axis=-1) & np.all(vel == v, axis=-1)
+        same = np.all(poses == p, axis=-1) & np.all(vel == v, axis=-1)
+        if fused is not None:  # set at rest by the fusion (SceneModel.move), moved horizontally
+            same |= fused & np.all(poses[..., 2:] == p[..., 2:], axis=-1)
+        return np.all(vel == 0.0, axis=-1) & same
 
     @staticmethod
     def _reset_exploded(out: BatchOutput, poses: np.ndarray, modes: np.ndarray, t: float) -> np.ndarray:

@@ -23,7 +23,7 @@ import numpy as np
 from actions.episodes import EpisodeRule, carried, update_events
 from actions.events import N_ACTIONS
 from actions.modes import FREE, HELD, PLACE, RELEASE
-from actions.push import empty_holds
+from actions.push import REF_Z, empty_holds
 from physics.scene import Scene
 
 from .config import EstimatorConfig
@@ -39,6 +39,7 @@ from .observations import Frame
 from .params import param_bounds, shrink_params
 from .perception_memory import HAND_RADIUS, PerceptionMemory
 from .pool import BatchInput, BatchOutput
+from .resting import REST_SPEED, REST_SPIN
 from .relations import relations_and_support
 from .resampling import normalise_log_weights
 from .state import ParticleState
@@ -209,6 +210,10 @@ class SceneModel:
         resting = state.supported & (np.linalg.norm(state.velocities[..., :3], axis=-1)
                                      < self.config.noise.rest_speed)
         nudged = self.fuse_resting(poses, state.log_weights, modes, resting, detected & perceived & ~tele, rng)
+        # a nudged object that was barely moving is set at rest: its world loads it asleep, without
+        # waking what it touches (woken, a stack would settle again after every step of the fusion)
+        vel[nudged & (np.linalg.norm(vel[..., :3], axis=-1) < REST_SPEED)
+            & (np.linalg.norm(vel[..., 3:], axis=-1) < REST_SPIN)] = 0.0
         let_go = state.let_go_unseen.copy()
         let_go[(release_codes != 0) & (mem.perceived_prev & ~perceived)[None, :]] = frame.t
         target, target_vel, hold_error = self.held_targets(frame, poses, modes, detected, perceived, dt, rng,
@@ -343,10 +348,15 @@ class SceneModel:
         # what is in or on an object held, or perceived moving along its support (a pushed box not
         # yet held in this particle), is carried: whoever moves it moves its support
         carrier = np.where((mem.shifted(CARRIER_SHIFT) & perceived)[None, :], HELD, after_physics)
+        silent = carried(state.is_in, state.on_top, carrier)
+        if cfg.still_unacted:  # seen still, and at rest in its particle before: no one moved it, its
+            # particle's physics did (no events); one never at rest there (held in the air) is held
+            still = detected & self.dynamic & np.isnan(onset) & np.isfinite(mem.still_position[:, 0])
+            silent = silent | (still[None, :] & np.isfinite(state.holds[..., REF_Z]))
         # objects let go behind cover were let go back then, out of view
         release_t = None if move.behind_cover is None else np.where(move.behind_cover, state.hidden_t, np.nan)
         ev = update_events(
-            state.holds, np.isfinite(state.event_t).any(axis=-1), carried(state.is_in, state.on_top, carrier),
+            state.holds, np.isfinite(state.event_t).any(axis=-1), silent,
             move.modes, after_physics, new_modes, move.release_codes, supported,
             supported & (np.linalg.norm(out.velocities[..., :3], axis=-1) < rule.rest_speed), move.poses[..., 2],
             out.poses[..., 2], self._seen_z(t, detected),

@@ -20,11 +20,11 @@ import numpy as np
 import pybullet as pb
 
 from actions.modes import FREE, HELD
-from physics.transforms import quat_from_rotvec, quat_multiply
-from physics.sleep import asleep, near, sleep, touching, wake
+from physics.sleep import asleep, near, touching, wake
 from physics.world import World
 
 from .held import HeldObjects, depenetrate, glide_paths
+from .resting import SETTLED_REACH, restart_after_wake, sleep_resting
 
 PARAM_NAMES = ("lateral_friction", "rolling_friction", "spinning_friction", "restitution", "mass")
 """Columns of the per-object physical parameter arrays ``(..., M, 5)`` (mass in kg)."""
@@ -41,8 +41,9 @@ class StepInput:
     reset ``(M,)`` bool or None: objects whose pose and velocity must be loaded into the world (the
     others already hold the state the world left them in); None loads all.
     settled ``(M,)`` bool or None: objects whose loaded state is one a world produced at rest (zero
-    velocity) and nothing changed since (a resampled particle's): with sleeping on, they are loaded
-    asleep, not woken (what the particle's other objects do may still wake them).
+    velocity) and nothing changed since (a resampled particle's), or that were only moved along
+    their support by the fusion of detections: with sleeping on, they are loaded asleep, not woken
+    (what the particle's other objects do may still wake them).
     depenetrate ``(M,)`` bool: objects just placed with perturbed poses, to be pushed out of anything
     they interpenetrate before stepping (a perturbation must not start a box inside the table).
     """
@@ -154,18 +155,6 @@ def _due_steps(d: np.ndarray, v: np.ndarray, d_sim_perc: float, dt: float) -> np
     return np.maximum(1, (tau / dt).astype(np.int64))
 
 
-REST_SPEED = 0.005
-"""m/s: with sleeping enabled, a free object moving slower than this (and turning slower than
-:data:`REST_SPIN`) at the start and at the end of an update, and not moved by the update's loads, is
-put to sleep: stepping skips it until something touches it or it is reset."""
-REST_SPIN = 0.05
-"""rad/s: see :data:`REST_SPEED`."""
-SETTLED_REACH = 0.03
-"""m: a settled object loaded asleep (:class:`StepInput` ``settled``) is woken when an object of its
-particle that the update moves ends within this distance of it (boxes): three times the largest
-regularisation jitter, so that an object whose support was jittered away does not float."""
-
-
 def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d_sim_perc: float,
                     lazy: bool = False, moving: bool = False) -> BatchOutput:
     """Run Algorithm 1 for ``n_steps`` steps in each of the K worlds ``pws`` (all built from the same
@@ -189,7 +178,7 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
 
     With :attr:`PhysicsSettings.sleeping`, what an update moves (loads, held objects, pushes out of
     penetration) is woken together with everything that touched it, and free objects at rest at both
-    ends of the update are put to sleep (:data:`REST_SPEED`).
+    ends of the update are put to sleep (:data:`~estimator.resting.REST_SPEED`).
 
     Array work is done once for the K worlds (frame conversions, first test steps, the finiteness
     test); each client's loop is plain Python around direct pybullet calls. A world's result depends
@@ -255,8 +244,8 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
             if True in reset_l[k]:
                 loads = [i for i in dyn if reset_l[k][i]]
                 if sleeping and n_steps > 0:
-                    restart += _restart(w, asleep(w, [i for i in loads if speed_l[k][i]]), com_p[k], com_v[k],
-                                        dt, w0.settings.gravity)
+                    restart += restart_after_wake(w, asleep(w, [i for i in loads if speed_l[k][i]]), com_p[k],
+                                                  com_v[k], dt, w0.settings.gravity)
                 w.load_com_state(loads, com_p[k, loads].tolist(), com_v[k, loads].tolist())
             if woken:
                 wake(w, woken)
@@ -302,7 +291,7 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     for k, i, d in switched_at:
         max_d[k, i] = d
     if sleeping:
-        _sleep_resting(pws, dyn_mask & (modes_out == FREE) & ~moved, com_v, vel)
+        sleep_resting(pws, dyn_mask & (modes_out == FREE) & ~moved, com_v, vel)
     finite = (np.isfinite(poses).all(axis=(1, 2)) & np.isfinite(vel).all(axis=(1, 2))
               & (np.abs(vel[..., :3]) < MAX_SPEED).all(axis=(1, 2)))
     aabbs[~finite] = np.nan
@@ -331,22 +320,6 @@ def _glides(pws: list[ParticleWorld], batch: BatchInput, held: np.ndarray,
     return out
 
 
-def _restart(w: World, rows: list[int], com_p: np.ndarray, com_v: np.ndarray, dt: float,
-             gravity: float) -> list[tuple]:
-    """For objects ``rows`` loaded with a velocity while asleep (Bullet clears a woken body's velocity
-    in its first step): the state to give them after that step, that of one free step from the
-    loaded centre-of-mass state ``com_p (M, 7)`` (client frame), ``com_v (M, 6)`` (semi-implicit
-    Euler, as Bullet integrates), as ``[(body id, position, orientation, linear, angular)]``."""
-    if not rows:
-        return []
-    v = com_v[rows].copy()
-    v[:, 2] += gravity * dt
-    pos = com_p[rows, :3] + v[:, :3] * dt
-    orn = quat_multiply(quat_from_rotvec(v[:, 3:] * dt), com_p[rows, 3:])
-    return [(w.uids[i], pos[j].tolist(), orn[j].tolist(), v[j, :3].tolist(), v[j, 3:].tolist())
-            for j, i in enumerate(rows)]
-
-
 def _assemble(w0: World, dyn: list[int], read: list[tuple[list, list, list]],
               origins: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Centre-of-mass poses ``(K, M, 7)``, velocities ``(K, M, 6)`` and AABBs ``(K, M, 2, 3)``, in
@@ -369,23 +342,11 @@ def _assemble(w0: World, dyn: list[int], read: list[tuple[list, list, list]],
     return poses, vel, aabbs
 
 
-def _sleep_resting(pws: list[ParticleWorld], candidates: np.ndarray, vel_in: np.ndarray,
-                   vel_out: np.ndarray) -> None:
-    """Put to sleep the ``candidates (K, M)`` at rest at both ends of the update (velocities
-    ``(K, M, 6)``) that are still awake (a sleeping body reads back exactly zero velocity)."""
-    def slow(v):
-        return ((np.linalg.norm(v[..., :3], axis=-1) < REST_SPEED)
-                & (np.linalg.norm(v[..., 3:], axis=-1) < REST_SPIN))
-    rest = candidates & slow(vel_in) & slow(vel_out) & np.any(vel_out != 0.0, axis=-1)
-    for k in np.flatnonzero(rest.any(axis=1)).tolist():
-        sleep(pws[k].world, np.flatnonzero(rest[k]).tolist())
-
-
 def _simulate(client: int, dt: float, helds: list["HeldObjects"], watch: list[list], n_steps: int,
               d_sim_perc: float, lazy: bool, restart: list[tuple] = ()) -> list[tuple[int, int, float]]:
     """The step loop of one client (the hot path, plain Python), for its worlds' held objects
     ``helds`` (one per world) and divergence tests ``watch`` (items updated in place); ``restart``
-    (see :func:`_restart`) is applied after the first step. Returns the objects that switched to
+    (see :func:`~estimator.resting.restart_after_wake`) is applied after the first step. Returns the objects that switched to
     HELD during the loop as ``(world position, object, largest divergence)`` (lazily, the test
     after the last step is left to the caller, on the state read back)."""
     c = client

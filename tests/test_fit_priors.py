@@ -6,7 +6,11 @@ import pytest
 from actions.modes import ModePriors
 from estimator.config import ReasonerConfig
 from experiments.cli.fit import seed_range as _seed_range
-from experiments.evaluation.fit_priors import Counts, Spread, count_losses, count_out_of_reach
+from types import SimpleNamespace
+
+from experiments.evaluation.fit_priors import (Counts, Spread, best_threshold, count_descents, count_losses,
+                                               count_out_of_reach)
+from physics.scene import scene_from_dict
 
 
 def _stream(hand_path, seen_until, held_until, t_end=2.0, dt=0.05):
@@ -66,3 +70,45 @@ def test_held_objects_seen_out_of_reach_of_the_tracked_hands_are_counted():
     assert (reach.hits, reach.n) == (6, 12)
     count_out_of_reach([dict(o, hands={}) for o in obs], truth, reach)  # no hand tracked: not counted
     assert reach.n == 12
+
+
+def test_best_threshold_separates_the_two_kinds_in_the_middle_of_the_gap():
+    assert best_threshold([1.0, 2.0, 3.0], [8.0, 9.0]) == (5.5, 0)
+    # overlapping: one error at best; the first run of best intervals is [2, 4)
+    assert best_threshold([1.0, 2.0, 5.0], [4.0, 9.0]) == (3.0, 1)
+    # one kind only: just past its extreme
+    assert best_threshold([], [4.0, 9.0]) == (3.5, 0)
+    assert best_threshold([1.0, 2.0], []) == (2.5, 0)
+    with pytest.raises(ValueError):
+        best_threshold([], [])
+
+
+def _descent(lower_accel, drop_at, t_end=1.2, dt=1 / 30):
+    """A cup held 80 cm over the floor, lowered from t = 0.1 s by a hand accelerating down at
+    ``lower_accel`` (m/s^2) to 0.5 m/s, then (at ``drop_at`` s) let go: it falls freely."""
+    scene = scene_from_dict({"name": "drop", "objects": [
+        {"id": "cup", "box": {"size": [0.05, 0.05, 0.08]}, "pose": {"position": [0, 0, 0.04]}}]})
+    obs, truth, z, v = [], [], 0.8, 0.0
+    for t in np.arange(0.0, t_end, dt):
+        held = t < drop_at
+        if t > 0.1:
+            v = max(v - (lower_accel if held else 9.81) * dt, -0.5 if held else -10.0)
+            z = max(z + v * dt, 0.04)
+        pos = [0.0, 0.0, z]
+        obs.append({"t": float(t), "objects": {"cup": {"position": pos}}, "hands": {"h": [0, 0, z + 0.08]}})
+        truth.append({"t": float(t), "objects": {"cup": {"position": pos, "held": held, "visible": True}}})
+    return SimpleNamespace(scene=scene, observations=obs, truth=truth)
+
+
+def test_descents_are_sampled_as_held_while_lowered_and_let_go_once_dropped():
+    r = ReasonerConfig()
+    held, let_go = [], []
+    count_descents(_descent(3.0, drop_at=10.0), r, held, let_go)  # lowered, never let go
+    assert held and not let_go
+    assert max(held) < 5.0  # the hand's 3 m/s^2 (over a reasoning step, with the start of the motion)
+    held, let_go = [], []
+    count_descents(_descent(3.0, drop_at=0.45), r, held, let_go)  # lowered, then dropped
+    assert len(let_go) == 1 and 7.0 < let_go[0] < 12.0  # free fall, seen over whole steps
+    # the fitted threshold lies between them
+    a, errors = best_threshold(held, let_go)
+    assert errors == 0 and max(held) < a < let_go[0]

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from actions.modes import FREE, HELD, PLACE, RELEASE
-from actions.push import LET_GO_T
+from actions.push import LET_GO_T, REF_Z
 from estimator.config import EstimatorConfig, NoiseConfig
 from estimator.likelihood import Evidence
 from estimator.model import SceneModel, initial_poses
@@ -309,9 +309,16 @@ def test_release_on_loss_and_later_releases():
     assert np.all(modes[:, CUP] == HELD)  # input untouched
 
 
-def test_place_a_held_object_perceived_at_rest_on_a_support():
-    model = make(EstimatorConfig(particles=2, noise=NoiseConfig()))
+@pytest.mark.parametrize("still_unacted, rested", [(False, True), (True, True), (True, False)])
+def test_place_a_held_object_perceived_at_rest_on_a_support(still_unacted, rested):
+    """A cup held in both particles, seen at rest on the table: let go where it rests on the table
+    (Place, once physics confirms it), held on where it floats. Seen still all along (no motion
+    onset) after resting on the table in its particles, its episode was a particle's physics, not an
+    agent's: with ``still_unacted`` no event (but one never at rest there, held in the air, has)."""
+    model = make(EstimatorConfig(particles=2, noise=NoiseConfig(), still_unacted=still_unacted))
     st = model.initial_state(np.random.default_rng(0))
+    if rested:
+        st.holds[:, CUP, REF_Z] = 0.14  # it had rested on the table in both particles
     for i in range(13):  # 0.4 s at rest on the table
         model.memory.record(Frame(i / 30, {"cup": Detection(np.array([0.3, 0.3, 0.14]))}))
     t = 12 / 30
@@ -340,8 +347,11 @@ def test_place_a_held_object_perceived_at_rest_on_a_support():
                        np.ones(2, bool), np.zeros((2, 5)))
     s2 = model.settle(st2, replace(mv, modes=s.modes.copy()), out2, t + 0.08, 0.08, perceived, perceived)
     # dated when it came to rest, a dwell before the let-go rule fired
-    assert list(s2.codes[:, CUP]) == [PLACE, 0] and s2.times[0, CUP] == pytest.approx(t - model.config.reasoner.place_dwell)
     assert list(s2.modes[:, CUP]) == [FREE, HELD]
+    if still_unacted and rested:
+        assert list(s2.codes[:, CUP]) == [0, 0]
+        return
+    assert list(s2.codes[:, CUP]) == [PLACE, 0] and s2.times[0, CUP] == pytest.approx(t - model.config.reasoner.place_dwell)
 
 
 def test_log_weight_of_one_particle_is_only_the_explosion_mask():

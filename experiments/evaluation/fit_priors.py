@@ -20,6 +20,14 @@ What is fitted (see :class:`actions.modes.ModePriors` and :class:`estimator.conf
 * ``hand_occlusion``: over the frames where an object is held in truth and the scene alone (the
   estimator's worlds: no hand, no person) would show it to the camera, the fraction where the truth
   (with the hand and the person) does not; again with Laplace's rule.
+* ``release_accel`` (:class:`~estimator.config.ReasonerConfig`, m/s^2): the estimator's perception
+  memory replayed on the stream, reasoning every ``horizon`` as the estimator does; at each step,
+  every object held in truth at the previous step, detected since and perceived moving down at
+  0.3 m/s or more is a sample of its perceived vertical acceleration (as the Release rule measures
+  it), labelled by whether the truth still holds it. The threshold is the one that misclassifies
+  the fewest samples (a hand lowering an object faster is read as a drop; a drop slower, as still
+  held, until the next step), the middle of the interval of such thresholds; it applies only with
+  nothing under the object, which this count does not check.
 
 Only scenarios whose perception tracks hands count. Pure counting over simulated streams, seeded by
 the scenario's seed; the result is a dictionary of the fitted values and their counts.
@@ -32,7 +40,9 @@ import numpy as np
 
 from actions.modes import ModePriors
 from estimator.config import EstimatorConfig, ReasonerConfig
-from estimator.perception_memory import HAND_RADIUS, HAND_SMOOTHING
+from estimator.model import initial_poses
+from estimator.observations import parse_frame
+from estimator.perception_memory import HAND_RADIUS, HAND_SMOOTHING, PerceptionMemory
 from physics.visibility import Camera, local_sample_points, visible_fraction
 from physics.world import PhysicsSettings, World
 
@@ -167,28 +177,95 @@ def count_hand_occlusion(result, threshold: float, occluded: Counts) -> None:
                     occluded.add(not o["visible"])
 
 
+def count_descents(result, reasoner: ReasonerConfig, held: list[float], let_go: list[float],
+                   window: float = 0.5) -> None:
+    """Add the perceived downward accelerations (m/s^2, positive down; as the Release rule measures
+    them) of objects perceived moving down at 0.3 m/s or more in one run (``result``: the
+    simulator's): to ``held``, each reasoning step at which the truth held the object at that step
+    and the one before; to ``let_go``, for each time the truth let an object go, the largest over
+    the steps of the following ``window`` seconds (s) while it stays let go (the rule may fire at
+    any of them; none if it was never seen falling then)."""
+    scene, M = result.scene, len(result.scene.objects)
+    memory = PerceptionMemory(scene, initial_poses(scene)[0], reasoner, follow_hands=True)
+    t_true = np.array([r["t"] for r in result.truth])
+    ids = scene.object_ids
+
+    def held_at(t: float) -> np.ndarray:
+        row = result.truth[int(np.argmin(np.abs(t_true - t)))]["objects"]
+        return np.array([bool(row.get(oid, {}).get("held")) for oid in ids])
+
+    t_tick, was_held, since = None, np.zeros(M, dtype=bool), np.zeros(M, dtype=bool)
+    let_at = np.full(M, np.nan)  # when the truth last let each object go (within the window)
+    best = np.full(M, np.nan)  # the largest acceleration since
+    for line in result.observations:
+        frame = memory.admit(parse_frame(line, known_ids=ids))
+        since |= memory.record(frame)
+        if t_tick is not None and frame.t < t_tick + reasoner.horizon - 1e-9:
+            continue
+        vel = memory.tick_velocity()
+        now = held_at(frame.t)
+        if t_tick is not None:
+            down = -memory.vertical_acceleration(vel, min(frame.t - t_tick, reasoner.max_gap))
+            falling = since & (vel[:, 2] < -0.3)
+            held += down[was_held & now & falling].tolist()
+            let_at[was_held & ~now] = frame.t
+            open_ = np.isfinite(let_at) & ~now & (frame.t - let_at <= window)
+            best[open_ & falling] = np.fmax(best[open_ & falling], down[open_ & falling])
+            closed = np.isfinite(let_at) & ~open_
+            let_go += best[closed & np.isfinite(best)].tolist()
+            let_at[closed], best[closed] = np.nan, np.nan
+        memory.end_tick(memory.perceived(frame.t), since, vel)
+        t_tick, was_held, since = frame.t, now, np.zeros(M, dtype=bool)
+    let_go += best[np.isfinite(let_at) & np.isfinite(best)].tolist()
+
+
+def best_threshold(negatives: list[float], positives: list[float]) -> tuple[float, int]:
+    """The threshold ``a`` that misclassifies the fewest samples when values above ``a`` are read
+    as positive, and that number of errors. The errors are constant between consecutive sample
+    values; the threshold is the middle of the first run of best intervals (beyond the extreme
+    samples, an interval of width 1)."""
+    neg, pos = np.asarray(negatives, float), np.asarray(positives, float)
+    values = np.unique(np.concatenate([neg, pos]))
+    if len(values) == 0:
+        raise ValueError("best_threshold needs samples")
+    edges = np.concatenate([[values[0] - 1.0], values, [values[-1] + 1.0]])
+    # on [edges[k], edges[k + 1]) a negative above edges[k] and a positive at or below it are wrong
+    errors = np.array([np.sum(neg > e) + np.sum(pos <= e) for e in edges[:-1]])
+    i = j = int(np.argmin(errors))
+    while j + 1 < len(errors) and errors[j + 1] == errors[i]:
+        j += 1
+    return float(0.5 * (edges[i] + edges[j + 1])), int(errors[i])
+
+
 def fit_priors(scenarios: list[str] | None = None, seeds=FIT_SEEDS, config: EstimatorConfig | None = None) -> dict:
     """Fit on ``scenarios`` (default: every built-in one with tracked hands) x ``seeds``.
 
     Returns ``{"release_on_loss_carried": p, "release_on_loss_still": p, "release_hidden": p,
-    "held_out_of_reach": p, "hand_occlusion": p, "held_offset_std": m,
-    "counts": {name: [hits, n]}, "scenarios": [...], "seeds": [...]}``."""
+    "held_out_of_reach": p, "hand_occlusion": p, "held_offset_std": m, "release_accel": m/s^2,
+    "counts": {name: [hits, n] (release_accel: errors, samples, extremes)}, "scenarios": [...],
+    "seeds": [...]}``."""
     cfg = config or EstimatorConfig()
     names = [n for n in (scenarios or list_scenarios()) if load_scenario(n).perception.hands_tracked]
     carried, still, hidden, occluded, spread = Counts(), Counts(), Counts(), Counts(), Spread()
-    reach = Counts()
+    reach, held_down, let_go_down = Counts(), [], []
     for name in names:
         for seed in seeds:
             result = simulate(name, int(seed))
+            count_descents(result, cfg.reasoner, held_down, let_go_down)
             count_losses(result.observations, result.truth, cfg.reasoner, cfg.priors, carried, still, spread, hidden)
             count_hand_occlusion(result, cfg.visibility_threshold, occluded)
             count_out_of_reach(result.observations, result.truth, reach)
+    accel, accel_errors = best_threshold(held_down, let_go_down)
     return {"release_on_loss_carried": round(carried.p, 3), "release_on_loss_still": round(still.p, 3),
             "release_hidden": round(hidden.p, 3), "held_out_of_reach": float(f"{reach.p:.2g}"),
             "hand_occlusion": round(occluded.p, 3), "held_offset_std": round(spread.std, 4),
+            "release_accel": round(accel, 2),
             "counts": {"held_offset_std": [round(spread.ss, 6), spread.n],
                        "release_on_loss_carried": [carried.hits, carried.n],
                        "release_on_loss_still": [still.hits, still.n], "release_hidden": [hidden.hits, hidden.n],
                        "held_out_of_reach": [reach.hits, reach.n],
-                       "hand_occlusion": [occluded.hits, occluded.n]},
+                       "hand_occlusion": [occluded.hits, occluded.n],
+                       "release_accel": {"errors": accel_errors, "held": len(held_down), "let_go": len(let_go_down),
+                                         "held_max": round(max(held_down, default=float("nan")), 2),
+                                         "let_go_min": round(min(let_go_down, default=float("nan")), 2)}},
             "scenarios": names, "seeds": [int(s) for s in seeds]}
