@@ -100,8 +100,8 @@ def update_events(holds: np.ndarray, acted_on: np.ndarray, carried: np.ndarray, 
         let_go_t: when a let-go on a support now happened (s; default ``t``; the Place rule fires once
             the object has been at rest a while), not before the episode's Pick; the wait counts
             from it.
-        release_t: ``(..., M)`` when the Releases of ``release_codes`` happened (s; NaN, or None for
-            all: at ``t``; an object let go out of view earlier).
+        release_t: ``(..., M)`` when the Releases (and Places) of ``release_codes`` happened (s; NaN,
+            or None for all: at ``t``; an object let go out of view earlier).
     """
     held = np.asarray(modes_physics) == HELD
     let_go = holds[..., LET_GO_T]
@@ -133,8 +133,11 @@ def update_events(holds: np.ndarray, acted_on: np.ndarray, carried: np.ndarray, 
     codes, push_t = end_codes(codes, holds, rule.lift)
     times = np.where(codes == PICK, pick_t, np.where(codes == PUSH, push_t,
                                                      np.where(confirmed & (codes == ends), let_go, np.nan)))
-    if release_t is not None:
-        times = np.where((codes == RELEASE) & (np.asarray(release_codes) == RELEASE), release_t, times)
+    if release_t is not None:  # (a let-go behind cover may be a Place: put down back then)
+        rc = np.asarray(release_codes)
+        with np.errstate(invalid="ignore"):
+            times = np.where((codes == rc) & ((rc == RELEASE) | (rc == PLACE)) & np.isfinite(release_t), release_t,
+                             times)
     still_waiting = waiting & ~fell & ~confirmed
     when = t if let_go_t is None else np.fmax(let_go_t, holds[..., PICK_T])
     holds[..., LET_GO_T] = np.where(new_let_go, when, np.where(still_waiting, let_go, np.nan))

@@ -257,8 +257,8 @@ class EstimatorConfig:
       moving object that leaves view stops where it was last seen). A moving object that leaves view
       then goes on as physics says.
     * ``still_unacted``: an object detected still (no motion onset since it was last at rest)
-      that diverges in a particle where it had rested on a support (not one held still in the air)
-      was moved by that particle's physics (knocked by something the
+      that diverges in a particle where it had rested, or where it is seen on a support (not one
+      held still in the air), was moved by that particle's physics (knocked by something the
       particle let fall), not by an agent: its held episode is silent, no Pick and no Place or Push
       at its end (the paper reports a Pick for every divergence: off in paper mode).
     * ``physics``: the particle worlds' engine settings; the solver stops at a residual of 1e-4

@@ -33,7 +33,7 @@ from physics.scene import Scene
 
 from .belief import Belief, compute_belief
 from .config import EstimatorConfig
-from .holding import hidden_places
+from .holding import hidden_places, lowest_hidden_place
 from .likelihood import held_unseen_in_view
 from .model import SceneModel, initial_poses
 from .step import Move, Settled
@@ -292,18 +292,21 @@ class SceneEstimator:
         self.model.reseed(settled.poses, settled.velocities, detected, self.rng)
         return np.zeros(self.K), np.full(self.K, 1.0 / self.K)
 
-    def _hidden_places(self, ev, settled: Settled, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _hidden_places(self, ev, settled: Settled, t: float) -> tuple[np.ndarray, ...]:
         """The particles' samples of where their held objects were out of view
-        (:func:`~estimator.holding.hidden_places`), after this update."""
+        (:func:`~estimator.holding.hidden_places`), and where they were lowest then
+        (:func:`~estimator.holding.lowest_hidden_place`), after this update:
+        ``(hidden_at, hidden_t, hidden_n, down_at, down_t, down_n)``."""
         s, thr = self.state, self.config.visibility_threshold
         held = (settled.modes == HELD) & (np.asarray(ev.in_tracked_hand, bool) & ~ev.perceived)[None, :]
         in_view = (ev.visible >= thr) & np.asarray(ev.queried, bool)[None, :]
         reset = (settled.modes != HELD) | ev.detected[None, :]
-        return hidden_places(s.hidden_at, s.hidden_t, s.hidden_n, settled.poses, held & ~in_view,
-                             reset, t, self.rng)
+        hidden = held & ~in_view
+        return (hidden_places(s.hidden_at, s.hidden_t, s.hidden_n, settled.poses, hidden, reset, t, self.rng)
+                + lowest_hidden_place(s.down_at, s.down_t, s.down_n, settled.poses, hidden, reset, t))
 
     def _commit(self, move: Move, settled: Settled, logw: np.ndarray, bad: np.ndarray,
-                unseen_in_view: np.ndarray, hidden: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+                unseen_in_view: np.ndarray, hidden: tuple[np.ndarray, ...]) -> None:
         """The particles after this update (the largest finite log-weight made 0); ``hidden``: see
         :meth:`_hidden_places`."""
         s = self.state
@@ -318,7 +321,8 @@ class SceneEstimator:
             event_t=s.event_t, supported=settled.supported, last_motion=last_motion,
             jolted=np.zeros((self.K, self.M), dtype=bool), unseen_in_view=unseen_in_view,
             hold_error=move.hold_error, let_go_unseen=move.let_go_unseen, hidden_at=hidden[0],
-            hidden_t=hidden[1], hidden_n=hidden[2], push_decided=s.push_decided, holds=settled.holds,
+            hidden_t=hidden[1], hidden_n=hidden[2], down_at=hidden[3], down_t=hidden[4], down_n=hidden[5],
+            push_decided=s.push_decided, holds=settled.holds,
             jitter=move.jitter * (settled.modes == FREE)[..., None])  # held: at the target, no noise
 
     def _resample(self, weights: np.ndarray, hidden: np.ndarray) -> None:

@@ -115,6 +115,25 @@ def hidden_places(hidden_at: np.ndarray, hidden_t: np.ndarray, hidden_n: np.ndar
     return at, tt, n
 
 
+def lowest_hidden_place(low_at: np.ndarray, low_t: np.ndarray, low_n: np.ndarray, poses: np.ndarray,
+                        hidden: np.ndarray, reset: np.ndarray, t: float
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where each particle's held object was lowest while its hand hid it: where a person who put it
+    down behind cover would have let go of it (:func:`release_behind_cover`).
+
+    Arrays as in :func:`hidden_places` (``low_n``: hidden updates counted); the place and time are
+    replaced when the object is lower (m, height of its pose) than at the kept place, or it is the
+    first hidden update. Deterministic. Returns the three arrays after this update (copies)."""
+    n = low_n.astype(np.int32, copy=True)
+    take = hidden & ((n == 0) | (poses[..., 2] < low_at[..., 2]))
+    n[hidden] += 1
+    at, tt = low_at.copy(), low_t.copy()
+    at[take] = poses[take][:, :3]
+    tt[take] = t
+    n[reset] = 0
+    return at, tt, n
+
+
 def release_behind_cover(modes: np.ndarray, unseen_in_view: np.ndarray, hidden_n: np.ndarray,
                          in_tracked_hand: np.ndarray, priors: ModePriors, noise: NoiseConfig,
                          rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:

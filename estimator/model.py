@@ -33,7 +33,7 @@ from .noise import process_noise, regularisation_kernels
 from .likelihood import (DetectionTerm, Evidence, HandReachTerm, LogWeightTerm, ModeSwitchTerm, NegativeEvidenceTerm, ProposalTerm,
                          add_terms,
                          exploded_log_likelihood)
-from .motion import (MOVING_MAX_VERTICAL_SPEED, let_go_moving, out_of_reach, place, roll_released, rolled_along,
+from .motion import (MOVING_MAX_VERTICAL_SPEED, drop_heights, let_go_moving, out_of_reach, place, roll_released, rolled_along,
                      teleport_kinds)
 from .observations import Frame
 from .params import param_bounds, shrink_params
@@ -75,6 +75,15 @@ get no events of their own (:meth:`SceneModel.settle`)."""
 FUSION_SETTLED = 1.5e-3
 """A resting object whose particles' weighted mean is within this (m, horizontally) of the average of
 its detections while still takes no Kalman step: it has converged (:meth:`SceneModel.fuse_resting`)."""
+
+COVER_DROP = 0.10
+"""m: an object let go behind cover where it was lowest (put down: ``ModePriors.put_down_hidden``)
+whose bottom was more than this above what is under it there was dropped (a Release), else put down
+(a Place): a hand's width. Not the 2 cm of ``push_lift``: the particle knows that height only through
+the hand's track and the object's offset to it at its last detection (on the fit's seeds 100-102:
+a cup put down behind a screen is mostly 0-9 cm above the table at its particles' lowest points,
+a few over the floor; a ball let go over a bin's rim, 12-30 cm above what is under it)."""
+
 
 class SceneModel:
     """How the particles of ``scene`` move and are weighed (see the module docstring).
@@ -147,6 +156,8 @@ class SceneModel:
                              unseen_in_view=np.zeros((K, M), dtype=np.int32), hold_error=np.zeros((K, M, 3)),
                              let_go_unseen=np.full((K, M), -np.inf), hidden_at=np.zeros((K, M, 3)),
                              hidden_t=np.full((K, M), -np.inf), hidden_n=np.zeros((K, M), dtype=np.int32),
+                             down_at=np.zeros((K, M, 3)), down_t=np.full((K, M), -np.inf),
+                             down_n=np.zeros((K, M), dtype=np.int32),
                              push_decided=np.full((K, M), -np.inf), holds=empty_holds((K, M)),
                              jitter=np.zeros((K, M, 3)))
 
@@ -195,10 +206,16 @@ class SceneModel:
                                             mem.following_hand(frame))
         cover, proposal = release_behind_cover(modes, state.unseen_in_view, state.hidden_n,
                                                mem.following_hand(frame) & ~perceived, cfg.priors, cfg.noise, rng)
-        if np.any(cover):  # let go where the hand hid it: dropped there, at rest
+        # let go where the hand hid it, at rest: put down where it was lowest (a Place), or dropped at
+        # a uniform sample of where it was (a Release)
+        down = cover & (state.down_n > 0)
+        if np.any(down):
+            down &= rng.random(cover.shape) < cfg.priors.put_down_hidden
+        cover_t = np.where(cover, np.where(down, state.down_t, state.hidden_t), np.nan)
+        if np.any(cover):
             modes[cover] = FREE
-            release_codes[cover] = RELEASE
-            poses[cover, :3] = state.hidden_at[cover]
+            release_codes[cover] = np.where(down[cover], PLACE, RELEASE)
+            poses[cover, :3] = np.where(down[cover][:, None], state.down_at[cover], state.hidden_at[cover])
             vel[cover] = 0.0
         flicked, flick_weight = self.let_go_moving(modes, state.supported, detected & perceived, tick_vel, far, rng)
         if np.any(flicked):  # let go in motion: physics takes it on at its velocity
@@ -231,7 +248,7 @@ class SceneModel:
         depen = (np.broadcast_to(placed & (cfg.noise.position_std > 0), (self.K, self.M)) | jolted
                  | state.jolted | cover) & (modes == FREE)
         return Move(poses, vel, predicted, prev_modes, modes, release_codes, tele, target, target_vel, check,
-                    depen, vis_query, hold_error, let_go, cameras, cover, proposal, nudged, jitter, far)
+                    depen, vis_query, hold_error, let_go, cameras, cover, proposal, nudged, jitter, far, cover_t)
 
     def let_go_moving(self, modes: np.ndarray, supported: np.ndarray, seen: np.ndarray, tick_vel: np.ndarray,
                       far: np.ndarray | None, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -349,15 +366,24 @@ class SceneModel:
         # yet held in this particle), is carried: whoever moves it moves its support
         carrier = np.where((mem.shifted(CARRIER_SHIFT) & perceived)[None, :], HELD, after_physics)
         silent = carried(state.is_in, state.on_top, carrier)
-        if cfg.still_unacted:  # seen still, and at rest in its particle before: no one moved it, its
-            # particle's physics did (no events); one never at rest there (held in the air) is held
+        if cfg.still_unacted:  # seen still, and at rest in its particle before or on a support where
+            # it is seen: no one moved it, its particle's physics did (no events); one held still in
+            # the air is held
             still = detected & self.dynamic & np.isnan(onset) & np.isfinite(mem.still_position[:, 0])
-            silent = silent | (still[None, :] & np.isfinite(state.holds[..., REF_Z]))
+            silent = silent | (still[None, :] & (np.isfinite(state.holds[..., REF_Z]) | supported))
         # objects let go behind cover were let go back then, out of view
-        release_t = None if move.behind_cover is None else np.where(move.behind_cover, state.hidden_t, np.nan)
+        release_t = move.cover_t
+        # put down behind cover where it was lowest, but far above what is under it there (a ball let
+        # go over a bin's rim): it was dropped
+        release_codes = move.release_codes
+        kk, mm = np.nonzero(move.behind_cover & (release_codes == PLACE)) if move.behind_cover is not None else ((), ())
+        if len(kk):
+            fall = drop_heights(out.aabbs, kk, mm, move.poses[kk, mm, 2] - out.poses[kk, mm, 2], self.scene.floor)
+            release_codes = release_codes.copy()
+            release_codes[kk, mm] = np.where(fall > COVER_DROP, RELEASE, PLACE)
         ev = update_events(
             state.holds, np.isfinite(state.event_t).any(axis=-1), silent,
-            move.modes, after_physics, new_modes, move.release_codes, supported,
+            move.modes, after_physics, new_modes, release_codes, supported,
             supported & (np.linalg.norm(out.velocities[..., :3], axis=-1) < rule.rest_speed), move.poses[..., 2],
             out.poses[..., 2], self._seen_z(t, detected),
             np.where((onset >= t - cfg.event_window) & (onset <= t), onset, t), t, rule, let_go_t=t - hr.place_dwell,

@@ -22,8 +22,10 @@ class Move:
     objects displaced without physics; ``vis_query (M,)``: objects whose visibility is wanted;
     ``hold_error (K, M, 3)``, ``let_go_unseen (K, M)``: see :class:`~estimator.state.ParticleState`;
     ``cameras``: the cameras that took the frames of the update (None: the scene's camera);
-    ``behind_cover (K, M)`` bool: objects let go now where their hand hid them earlier, at
-    ``state.hidden_t`` (:func:`~estimator.holding.release_behind_cover`), and ``proposal_log_weight
+    ``behind_cover (K, M)`` bool: objects let go now where their hand hid them earlier, at the
+    time ``cover_t (K, M)`` (s, NaN elsewhere; :func:`~estimator.holding.release_behind_cover`: put
+    down where it was lowest, at ``state.down_t``, a Place, or dropped at ``state.hidden_t``), and
+    ``proposal_log_weight
     (K,)`` the weight factor of that move and of the let-goes in motion
     (:func:`~estimator.motion.let_go_moving`); ``fused (K, M)`` bool: objects at rest moved towards
     their detection (:meth:`~estimator.model.SceneModel.fuse_resting`; scored where the particle expected them);
@@ -52,6 +54,7 @@ class Move:
     fused: np.ndarray | None = None
     jitter: np.ndarray | None = None
     out_of_reach: np.ndarray | None = None
+    cover_t: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

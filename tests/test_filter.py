@@ -620,8 +620,10 @@ def test_a_hand_back_in_view_without_its_object_let_it_go_where_it_was_hidden():
     and comes back into the camera's view without it. The particles that kept it in the hand would
     show it there; those that let it go where the screen hid it (release_behind_cover, prior
     release_hidden = 0.226) explain the view: P(held) ends below 0.3 (about 0.25 expected: the held
-    ones lose at most the factor hand_occlusion) and the cup is on the table behind the screen. Without the move (release_hidden = 0) the few particles that
-    let it go at the loss fall in view, and the cup stays held."""
+    ones lose at most the factor hand_occlusion) and the cup is on the table behind the screen, put
+    down: the timeline has a Place (put_down_hidden: let go where it was lowest, at the 2.4 s the hand
+    lowered it) and no Release. Without the move (release_hidden = 0) the few particles that let it
+    go at the loss fall in view, and the cup stays held."""
     from dataclasses import replace
 
     from actions.modes import ModePriors
@@ -644,7 +646,10 @@ def test_a_hand_back_in_view_without_its_object_let_it_go_where_it_was_hidden():
     cfg = EstimatorConfig(particles=64, noise=NoiseConfig())
     with SceneEstimator(scene, cfg, np.random.default_rng(4)) as est:
         last = est.run(frames)[-1].objects["cup"]
+        events = [(e["action"], e["t"]) for e in est.timeline.to_json()["events"] if e["subject"] == "cup"]
     assert last.p_held < 0.3
+    lets = [(a, t) for a, t in events if a in ("Place", "Release")]
+    assert len(lets) == 1 and lets[0][0] == "Place" and abs(lets[0][1] - 2.4) < 0.25, events
     assert last.hypotheses[0].support == "table" and last.hypotheses[0].p > 0.5
     assert np.linalg.norm(last.position[:2] - put_down) < 0.2
     cfg0 = replace(cfg, priors=replace(ModePriors(), release_hidden=0.0))

@@ -13,14 +13,16 @@ from experiments.evaluation.fit_priors import (Counts, Spread, best_threshold, c
 from physics.scene import scene_from_dict
 
 
-def _stream(hand_path, seen_until, held_until, t_end=2.0, dt=0.05):
+def _stream(hand_path, seen_until, held_until, t_end=2.0, dt=0.05, rest_z=None):
     """Observation and truth lines: the cup 8 cm under the hand, detected until ``seen_until`` s, held
-    in truth until ``held_until`` s (then it stays where it was let go)."""
+    in truth until ``held_until`` s (then it stays where it was let go, or falls to ``rest_z``)."""
     obs, truth = [], []
     for t in np.arange(0.0, t_end, dt):
         hand = np.asarray(hand_path(t), float)
         held = t < held_until
         cup = hand - [0, 0, 0.08] if held else np.asarray(hand_path(held_until)) - [0, 0, 0.08]
+        if not held and rest_z is not None:
+            cup[2] = rest_z
         o = {"t": float(t), "objects": {}, "hands": {"human/right": hand.tolist()}}
         if t < seen_until:
             o["objects"]["cup"] = {"position": cup.tolist()}
@@ -45,13 +47,16 @@ def test_losses_are_counted_as_carried_or_still_with_their_outcome():
 
 def test_carried_losses_let_go_before_being_seen_again_count_for_release_hidden():
     r, pr = ReasonerConfig(), ModePriors(carry_distance=0.05)
-    carried, still, spread, hidden = Counts(), Counts(), Spread(), Counts()
+    carried, still, spread, hidden, put_down = Counts(), Counts(), Spread(), Counts(), Counts()
     carry = lambda t: [0.3 * t, 0.0, 1.0]  # noqa: E731
-    obs, truth = _stream(carry, seen_until=0.5, held_until=1.6)  # carried out of view, let go at 1.6 s
-    count_losses(obs, truth, r, pr, carried, still, spread, hidden)
+    obs, truth = _stream(carry, seen_until=0.5, held_until=1.6)  # carried out of view, put down at 1.6 s
+    count_losses(obs, truth, r, pr, carried, still, spread, hidden, put_down)
     obs, truth = _stream(carry, seen_until=0.5, held_until=9.0)  # carried on to the end
-    count_losses(obs, truth, r, pr, carried, still, spread, hidden)
-    assert (hidden.hits, hidden.n) == (1, 2) and (carried.hits, carried.n) == (0, 2)
+    count_losses(obs, truth, r, pr, carried, still, spread, hidden, put_down)
+    obs, truth = _stream(carry, seen_until=0.5, held_until=1.2, rest_z=0.04)  # dropped to the floor at 1.2 s
+    count_losses(obs, truth, r, pr, carried, still, spread, hidden, put_down)
+    assert (hidden.hits, hidden.n) == (2, 3) and (carried.hits, carried.n) == (0, 3)
+    assert (put_down.hits, put_down.n) == (1, 2)  # of the two let go, one put down, one dropped
 
 
 def test_seed_range_is_checked():

@@ -61,6 +61,30 @@ def test_hidden_places_are_a_uniform_sample_over_the_hidden_updates():
     assert np.all(cnt2 == 0) and np.array_equal(at2, at)  # the sample is kept, the count restarts
 
 
+def test_the_lowest_hidden_place_is_kept_with_its_time():
+    """Where (and when) the held object was lowest over its hidden updates; visible updates do not
+    count; a reset entry starts again, its first hidden update then taken whatever its height."""
+    from estimator.holding import lowest_hidden_place
+
+    K, M = 2, 1
+    at, tt, cnt = np.zeros((K, M, 3)), np.full((K, M), -np.inf), np.zeros((K, M), np.int32)
+    none = np.zeros((K, M), bool)
+    heights = [[0.9, 0.7, 0.8, 0.75], [0.9, 1.0, 0.95, 0.6]]  # per particle, over four hidden updates
+    for j in range(4):
+        poses = np.zeros((K, M, 7))
+        poses[:, 0, 2] = [h[j] for h in heights]
+        poses[:, 0, 0] = j
+        at, tt, cnt = lowest_hidden_place(at, tt, cnt, poses, ~none, none, float(j))
+        at, tt, cnt = lowest_hidden_place(at, tt, cnt, poses - 5.0, none, none, j + 0.5)  # in view: lower, ignored
+    assert list(at[:, 0, 2]) == [0.7, 0.6] and list(tt[:, 0]) == [1.0, 3.0] and list(at[:, 0, 0]) == [1.0, 3.0]
+    assert np.all(cnt == 4)
+    at, tt, cnt = lowest_hidden_place(at, tt, cnt, poses, none, ~none, 9.0)
+    assert np.all(cnt == 0)
+    poses[:, 0, 2] = 2.0  # higher than the kept place, but the first hidden update after the reset
+    at, tt, cnt = lowest_hidden_place(at, tt, cnt, poses, ~none, none, 10.0)
+    assert np.all(at[:, 0, 2] == 2.0) and np.all(tt == 10.0)
+
+
 def test_release_behind_cover_draws_from_the_posterior_and_weighs_the_move():
     """Among held objects whose hand shows in view without them for the first time, the share let go
     is r / (r + (1 - r) L) within a binomial band, and every candidate gets the factor

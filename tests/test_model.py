@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from actions.modes import FREE, HELD, PLACE, RELEASE
-from actions.push import LET_GO_T, REF_Z
+from actions.push import LET_GO_T, PICK_T, REF_Z
 from estimator.config import EstimatorConfig, NoiseConfig
 from estimator.likelihood import Evidence
 from estimator.model import SceneModel, initial_poses
@@ -313,8 +313,10 @@ def test_release_on_loss_and_later_releases():
 def test_place_a_held_object_perceived_at_rest_on_a_support(still_unacted, rested):
     """A cup held in both particles, seen at rest on the table: let go where it rests on the table
     (Place, once physics confirms it), held on where it floats. Seen still all along (no motion
-    onset) after resting on the table in its particles, its episode was a particle's physics, not an
-    agent's: with ``still_unacted`` no event (but one never at rest there, held in the air, has)."""
+    onset) after resting on the table in its particles, or on a support where the particle holds it,
+    its episode was a particle's physics, not an agent's: with ``still_unacted`` no event; but one
+    never at rest in its particle and held in the air there is held by someone (its episode is not
+    silent)."""
     model = make(EstimatorConfig(particles=2, noise=NoiseConfig(), still_unacted=still_unacted))
     st = model.initial_state(np.random.default_rng(0))
     if rested:
@@ -336,6 +338,8 @@ def test_place_a_held_object_perceived_at_rest_on_a_support(still_unacted, reste
                       np.zeros((2, 5)))
     s = model.settle(st, replace(mv, modes=modes.copy()), out, t, 0.08, perceived, perceived)
     assert list(s.modes[:, CUP]) == [FREE, HELD] and list(s.codes[:, CUP]) == [0, 0]
+    if still_unacted and not rested:  # silent on the table (particle 0), not in the air (particle 1)
+        assert s.holds[0, CUP, PICK_T] == -np.inf and np.isnan(s.holds[1, CUP, PICK_T])
     assert s.on_top[0, CUP, TABLE] and s.supported[0, CUP] and not s.supported[1, CUP]
     # the Place waits for physics: at the next update the cup rests where it was let go (as perceived)
     assert s.holds[0, CUP, LET_GO_T] == pytest.approx(t - model.config.reasoner.place_dwell)
@@ -348,7 +352,7 @@ def test_place_a_held_object_perceived_at_rest_on_a_support(still_unacted, reste
     s2 = model.settle(st2, replace(mv, modes=s.modes.copy()), out2, t + 0.08, 0.08, perceived, perceived)
     # dated when it came to rest, a dwell before the let-go rule fired
     assert list(s2.modes[:, CUP]) == [FREE, HELD]
-    if still_unacted and rested:
+    if still_unacted:
         assert list(s2.codes[:, CUP]) == [0, 0]
         return
     assert list(s2.codes[:, CUP]) == [PLACE, 0] and s2.times[0, CUP] == pytest.approx(t - model.config.reasoner.place_dwell)

@@ -106,3 +106,24 @@ def test_no_let_go_in_motion_when_falling_or_slow_or_never_tried(velocity):
     modes, supported, cand, rolling = _held_ball(50)
     let, logw = let_go_moving(modes, supported, cand, rolling, 0.0, np.random.default_rng(3))
     assert not let.any() and np.all(logw == 0)
+
+
+def test_drop_heights_measure_the_fall_to_the_highest_top_under_the_footprint():
+    from estimator.motion import drop_heights
+
+    # particle 0: a cup (object 1) 5 cm over a table top (object 0, top at 0.6); particle 1: the same
+    # cup beside the table, 0.7 m over the floor; object 2, a box beside the cup, never counts
+    aabbs = np.zeros((2, 3, 2, 3))
+    aabbs[:, 0] = [[-0.5, -0.5, 0.0], [0.5, 0.5, 0.6]]
+    aabbs[0, 1] = [[0.0, 0.0, 0.65], [0.08, 0.08, 0.75]]
+    aabbs[1, 1] = [[0.7, 0.0, 0.7], [0.78, 0.08, 0.8]]
+    aabbs[:, 2] = [[0.2, 0.2, 0.0], [0.3, 0.3, 0.9]]
+    kk, mm = np.array([0, 1]), np.array([1, 1])
+    assert np.allclose(drop_heights(aabbs, kk, mm, np.zeros(2), floor=True), [0.05, 0.7])
+    # let go 3 cm higher than where it is now (it fell that far during the update)
+    assert np.allclose(drop_heights(aabbs, kk, mm, np.full(2, 0.03), floor=True), [0.08, 0.73])
+    # no floor: nothing under the cup beside the table
+    assert np.isinf(drop_heights(aabbs, kk, mm, np.zeros(2), floor=False)[1])
+    # sunk 5 mm into its support (a resting contact): no fall, and not through to the floor
+    aabbs[0, 1, :, 2] = [0.595, 0.695]
+    assert drop_heights(aabbs, kk[:1], mm[:1], np.zeros(1), floor=True)[0] == 0.0

@@ -11,6 +11,9 @@ What is fitted (see :class:`actions.modes.ModePriors` and :class:`estimator.conf
   gives 0.5).
 * ``release_hidden``: of the carried losses where the object was still held at the loss, the
   fraction let go before it was detected again (or the run ended), with Laplace's rule.
+* ``put_down_hidden``: of the objects let go while hidden (the hits of ``release_hidden``), the
+  fraction put down (at rest at most ``push_lift`` below where they were let go), not dropped;
+  Laplace's rule.
 * ``held_offset_std``: over the frames where an object is held in truth and not detected, after a
   detection with a tracked hand within that radius, the root-mean-square per axis of the true
   position minus (the tracked hand + the object's offset to it at that detection).
@@ -88,10 +91,13 @@ def _smoothed(hands: list[np.ndarray | None], f: int) -> np.ndarray | None:
 
 
 def count_losses(obs: list[dict], truth: list[dict], reasoner: ReasonerConfig, priors: ModePriors,
-                 carried: Counts, still: Counts, spread: Spread, hidden: Counts | None = None) -> None:
+                 carried: Counts, still: Counts, spread: Spread, hidden: Counts | None = None,
+                 put_down: Counts | None = None) -> None:
     """Add the losses of held objects in one run (``obs``, ``truth``: the simulator's lines) and the
     offset deviations of held, undetected objects to ``spread``; ``hidden``: of the carried losses
-    still held at the loss, those let go before the object was detected again (or the run ended)."""
+    still held at the loss, those let go before the object was detected again (or the run ended);
+    ``put_down``: of those let go, the ones that came to rest at most ``push_lift`` below the height
+    they were let go at (put down, not dropped)."""
     t_obs = np.array([o["t"] for o in obs])
     t_true = np.array([r["t"] for r in truth])
     hands = [None if not o.get("hands") else np.asarray(next(iter(o["hands"].values())), float) for o in obs]
@@ -121,7 +127,11 @@ def count_losses(obs: list[dict], truth: list[dict], reasoner: ReasonerConfig, p
             (carried if moved else still).add(released)
             if moved and not released and hidden is not None:
                 i2 = len(truth) if b is None else int(np.searchsorted(t_true, t_obs[b]))
-                hidden.add(any(not r["objects"][oid].get("held") for r in truth[i1:i2]))
+                let = next((i for i in range(i1, i2) if not truth[i]["objects"][oid].get("held")), None)
+                hidden.add(let is not None)
+                if let is not None and put_down is not None:  # it came to rest where it was let go
+                    drop = truth[let - 1]["objects"][oid]["position"][2] - truth[i2 - 1]["objects"][oid]["position"][2]
+                    put_down.add(bool(drop <= reasoner.push_lift))
 
 
 def _add_spread(obs, truth, t_true, hands, oid: str, a: int, b: int, spread: Spread) -> None:
@@ -240,29 +250,32 @@ def best_threshold(negatives: list[float], positives: list[float]) -> tuple[floa
 def fit_priors(scenarios: list[str] | None = None, seeds=FIT_SEEDS, config: EstimatorConfig | None = None) -> dict:
     """Fit on ``scenarios`` (default: every built-in one with tracked hands) x ``seeds``.
 
-    Returns ``{"release_on_loss_carried": p, "release_on_loss_still": p, "release_hidden": p,
+    Returns ``{"release_on_loss_carried": p, "release_on_loss_still": p, "release_hidden": p, "put_down_hidden": p,
     "held_out_of_reach": p, "hand_occlusion": p, "held_offset_std": m, "release_accel": m/s^2,
     "counts": {name: [hits, n] (release_accel: errors, samples, extremes)}, "scenarios": [...],
     "seeds": [...]}``."""
     cfg = config or EstimatorConfig()
     names = [n for n in (scenarios or list_scenarios()) if load_scenario(n).perception.hands_tracked]
     carried, still, hidden, occluded, spread = Counts(), Counts(), Counts(), Counts(), Spread()
+    put_down = Counts()
     reach, held_down, let_go_down = Counts(), [], []
     for name in names:
         for seed in seeds:
             result = simulate(name, int(seed))
             count_descents(result, cfg.reasoner, held_down, let_go_down)
-            count_losses(result.observations, result.truth, cfg.reasoner, cfg.priors, carried, still, spread, hidden)
+            count_losses(result.observations, result.truth, cfg.reasoner, cfg.priors, carried, still, spread, hidden,
+                         put_down)
             count_hand_occlusion(result, cfg.visibility_threshold, occluded)
             count_out_of_reach(result.observations, result.truth, reach)
     accel, accel_errors = best_threshold(held_down, let_go_down)
     return {"release_on_loss_carried": round(carried.p, 3), "release_on_loss_still": round(still.p, 3),
-            "release_hidden": round(hidden.p, 3), "held_out_of_reach": float(f"{reach.p:.2g}"),
+            "release_hidden": round(hidden.p, 3), "put_down_hidden": round(put_down.p, 3), "held_out_of_reach": float(f"{reach.p:.2g}"),
             "hand_occlusion": round(occluded.p, 3), "held_offset_std": round(spread.std, 4),
             "release_accel": round(accel, 2),
             "counts": {"held_offset_std": [round(spread.ss, 6), spread.n],
                        "release_on_loss_carried": [carried.hits, carried.n],
                        "release_on_loss_still": [still.hits, still.n], "release_hidden": [hidden.hits, hidden.n],
+                       "put_down_hidden": [put_down.hits, put_down.n],
                        "held_out_of_reach": [reach.hits, reach.n],
                        "hand_occlusion": [occluded.hits, occluded.n],
                        "release_accel": {"errors": accel_errors, "held": len(held_down), "let_go": len(let_go_down),
