@@ -156,17 +156,18 @@ def let_go_moving(modes: np.ndarray, supported: np.ndarray, candidates: np.ndarr
 def drop_heights(aabbs: np.ndarray, kk: np.ndarray, mm: np.ndarray, lift: np.ndarray, floor: bool) -> np.ndarray:
     """How far objects ``mm`` of particles ``kk`` (index arrays ``(N,)``) fall from ``lift (N,)`` (m)
     above their bottoms in ``aabbs (K, M, 2, 3)`` to the highest top under their footprints: of the
-    other objects whose boxes overlap theirs horizontally and whose tops are under the bottom (or
-    at most 1 cm over it: resting contacts interpenetrate a little), or the floor at 0 (``floor``;
-    else nothing under: inf). ``(N,)`` m, at least 0."""
+    other objects whose boxes overlap theirs horizontally and whose tops are under the middle of
+    their height (an object held into a table top, a resting contact, still has the table under
+    it), or the floor at 0 (``floor``; else nothing under: inf). ``(N,)`` m, at least 0."""
     box = aabbs[kk, mm]  # (N, 2, 3)
     bottom = box[:, 0, 2] + lift
+    middle = 0.5 * (box[:, 0, 2] + box[:, 1, 2]) + lift
     others = aabbs[kk]  # (N, M, 2, 3)
     over = ((others[:, :, 0, 0] < box[:, None, 1, 0]) & (others[:, :, 1, 0] > box[:, None, 0, 0])
             & (others[:, :, 0, 1] < box[:, None, 1, 1]) & (others[:, :, 1, 1] > box[:, None, 0, 1]))
     tops = others[:, :, 1, 2]
     with np.errstate(invalid="ignore"):
-        under = over & (tops <= bottom[:, None] + 0.01)
+        under = over & (tops <= middle[:, None])
     under[np.arange(len(kk)), mm] = False
     top = np.max(np.where(under, tops, -np.inf), axis=1)
     if floor:

@@ -124,6 +124,6 @@ def test_drop_heights_measure_the_fall_to_the_highest_top_under_the_footprint():
     assert np.allclose(drop_heights(aabbs, kk, mm, np.full(2, 0.03), floor=True), [0.08, 0.73])
     # no floor: nothing under the cup beside the table
     assert np.isinf(drop_heights(aabbs, kk, mm, np.zeros(2), floor=False)[1])
-    # sunk 5 mm into its support (a resting contact): no fall, and not through to the floor
-    aabbs[0, 1, :, 2] = [0.595, 0.695]
+    # sunk 3 cm into its support (held into it): no fall, and not through to the floor
+    aabbs[0, 1, :, 2] = [0.57, 0.67]
     assert drop_heights(aabbs, kk[:1], mm[:1], np.zeros(1), floor=True)[0] == 0.0
