@@ -65,8 +65,9 @@ class ReasonerConfig:
       faster than ``release_speed``, or accelerating down faster than ``release_accel`` (while moving
       down at 0.3 m/s or more) with nothing under it, was let go (Release, in view). Velocities are
       measured over the reasoning period. ``release_accel`` is fitted (``scene-estimator
-      fit-priors``: 6.77 m/s^2 on 20 seeds of every scenario with tracked hands, where hands lowering
-      what they hold reached 5.1 m/s^2 and dropped objects 8.4 or more); it was 4, which hands
+      fit-priors``: 5.0 m/s^2 on 20 seeds of every scenario with tracked hands, on the detections and
+      on the Kalman tracker's filtered stream, where hands lowering what they hold reached 5.1 and
+      5.0 m/s^2, dropped objects 8.4 or more raw but from 2.8 filtered); it was 4, which hands
       lowering a block exceed.
     * ``push_lift`` (m), ``push_smoothing`` and ``place_wait`` (s): a held object let go on a
       support whose height, smoothed over the updates (weight ``push_smoothing`` of the newest),
@@ -92,7 +93,7 @@ class ReasonerConfig:
     place_dwell: float = 0.3
     place_gap: float = 0.03
     release_speed: float = 1.0
-    release_accel: float = 6.77
+    release_accel: float = 5.0
     max_gap: float = 2.0
     push_lift: float = 0.02
     push_smoothing: float = 0.3

@@ -24,7 +24,9 @@ What is fitted (see :class:`actions.modes.ModePriors` and :class:`estimator.conf
   estimator's worlds: no hand, no person) would show it to the camera, the fraction where the truth
   (with the hand and the person) does not; again with Laplace's rule.
 * ``release_accel`` (:class:`~estimator.config.ReasonerConfig`, m/s^2): the estimator's perception
-  memory replayed on the stream, reasoning every ``horizon`` as the estimator does; at each step,
+  memory replayed on the stream, reasoning every ``horizon`` as the estimator does, and again on
+  the stream as the Kalman tracker filters it (the estimator takes both: a filtered drop
+  accelerates less); at each step,
   every object held in truth at the previous step, detected since and perceived moving down at
   0.3 m/s or more is a sample of its perceived vertical acceleration (as the Release rule measures
   it), labelled by whether the truth still holds it. The threshold is the one that misclassifies
@@ -46,6 +48,7 @@ from estimator.config import EstimatorConfig, ReasonerConfig
 from estimator.model import initial_poses
 from estimator.observations import parse_frame
 from estimator.perception_memory import HAND_RADIUS, HAND_SMOOTHING, PerceptionMemory
+from estimator.tracker import PhysicsAwareTracker, TrackerConfig
 from physics.visibility import Camera, local_sample_points, visible_fraction
 from physics.world import PhysicsSettings, World
 
@@ -188,14 +191,18 @@ def count_hand_occlusion(result, threshold: float, occluded: Counts) -> None:
 
 
 def count_descents(result, reasoner: ReasonerConfig, held: list[float], let_go: list[float],
-                   window: float = 0.5) -> None:
+                   window: float = 0.5, filtered: bool = False) -> None:
     """Add the perceived downward accelerations (m/s^2, positive down; as the Release rule measures
     them) of objects perceived moving down at 0.3 m/s or more in one run (``result``: the
     simulator's): to ``held``, each reasoning step at which the truth held the object at that step
     and the one before; to ``let_go``, for each time the truth let an object go, the largest over
     the steps of the following ``window`` seconds (s) while it stays let go (the rule may fire at
-    any of them; none if it was never seen falling then)."""
+    any of them; none if it was never seen falling then). ``filtered``: the stream as the Kalman
+    tracker filters it (:class:`~estimator.tracker.PhysicsAwareTracker`, no feedback; what
+    ``scene-estimator track`` writes and the estimator also takes), whose accelerations are damped."""
     scene, M = result.scene, len(result.scene.objects)
+    tracker = PhysicsAwareTracker(TrackerConfig(feed_estimator=True), tuple(o.id for o in scene.objects
+                                                                            if not o.static)) if filtered else None
     memory = PerceptionMemory(scene, initial_poses(scene)[0], reasoner, follow_hands=True)
     t_true = np.array([r["t"] for r in result.truth])
     ids = scene.object_ids
@@ -208,7 +215,11 @@ def count_descents(result, reasoner: ReasonerConfig, held: list[float], let_go: 
     let_at = np.full(M, np.nan)  # when the truth last let each object go (within the window)
     best = np.full(M, np.nan)  # the largest acceleration since
     for line in result.observations:
-        frame = memory.admit(parse_frame(line, known_ids=ids))
+        frame = parse_frame(line, known_ids=ids)
+        if tracker is not None:
+            tracker.update(frame)
+            frame = tracker.to_frame(hands=frame.hands, detected_only=True)
+        frame = memory.admit(frame)
         since |= memory.record(frame)
         if t_tick is not None and frame.t < t_tick + reasoner.horizon - 1e-9:
             continue
@@ -262,7 +273,8 @@ def fit_priors(scenarios: list[str] | None = None, seeds=FIT_SEEDS, config: Esti
     for name in names:
         for seed in seeds:
             result = simulate(name, int(seed))
-            count_descents(result, cfg.reasoner, held_down, let_go_down)
+            for filtered in (False, True):  # raw detections, and as the Kalman tracker filters them
+                count_descents(result, cfg.reasoner, held_down, let_go_down, filtered=filtered)
             count_losses(result.observations, result.truth, cfg.reasoner, cfg.priors, carried, still, spread, hidden,
                          put_down)
             count_hand_occlusion(result, cfg.visibility_threshold, occluded)
