@@ -8,10 +8,11 @@ import math
 
 import numpy as np
 
-from actions.modes import FREE, HELD, ModePriors, switch_events
+from actions.modes import FREE, HELD, PLACE, RELEASE, ModePriors, switch_events
 
 from .config import NoiseConfig
 from .held import hand_offset_walk
+from .motion import drop_heights
 from .observations import Frame
 from .perception_memory import PerceptionMemory
 
@@ -160,3 +161,47 @@ def release_behind_cover(modes: np.ndarray, unseen_in_view: np.ndarray, hidden_n
     p = r / (r + (1.0 - r) * L)
     factor = math.log((r + (1.0 - r) * L) / L)
     return cand & (u < p), factor * cand.sum(axis=1)
+
+
+COVER_DROP = 0.10
+"""m: an object let go behind cover where it was lowest (put down: ``ModePriors.put_down_hidden``)
+whose bottom was more than this above what is under it there was dropped (a Release), else put down
+(a Place): a hand's width. Not the 2 cm of ``push_lift``: the particle knows that height only through
+the hand's track and the object's offset to it at its last detection (on the fit's seeds 100-102:
+a cup put down behind a screen is mostly 0-9 cm above the table at its particles' lowest points,
+a few over the floor; a ball let go over a bin's rim, 12-30 cm above what is under it)."""
+
+
+def let_go_behind_cover(cover: np.ndarray, state, poses: np.ndarray, vel: np.ndarray, modes: np.ndarray,
+                        codes: np.ndarray, put_down: float, rng: np.random.Generator) -> np.ndarray:
+    """Let go, in place, the entries ``cover (K, M)`` (:func:`release_behind_cover`) where their hand
+    hid them, at rest: with probability ``put_down`` (``ModePriors.put_down_hidden``) put down where
+    they were lowest (``state.down_at``, a Place), else dropped at the uniform sample of where they
+    were (``state.hidden_at``, a Release); ``poses (K, M, 7)``, ``vel (K, M, 6)``, ``modes`` and
+    ``codes (K, M)`` are updated. One uniform draw per entry when some entry could be put down.
+    Returns when each was let go ``(K, M)`` (s; NaN elsewhere)."""
+    down = cover & (state.down_n > 0)
+    if np.any(down):
+        down &= rng.random(cover.shape) < put_down
+    if np.any(cover):
+        modes[cover] = FREE
+        codes[cover] = np.where(down[cover], PLACE, RELEASE)
+        poses[cover, :3] = np.where(down[cover][:, None], state.down_at[cover], state.hidden_at[cover])
+        vel[cover] = 0.0
+    return np.where(cover, np.where(down, state.down_t, state.hidden_t), np.nan)
+
+
+def dropped_behind_cover(codes: np.ndarray, cover: np.ndarray | None, before: np.ndarray, after: np.ndarray,
+                         aabbs: np.ndarray, floor: bool) -> np.ndarray:
+    """``codes (K, M)`` with the Places of the entries let go behind ``cover`` turned into Releases
+    where the object was let go more than :data:`COVER_DROP` above what is under it (a ball let go
+    over a bin's rim), from its height ``before`` and ``after (K, M, 7)`` this update's physics and
+    the boxes ``aabbs (K, M, 2, 3)`` after it (:func:`~estimator.motion.drop_heights`). A new array
+    when any changes."""
+    kk, mm = np.nonzero(cover & (codes == PLACE)) if cover is not None else ((), ())
+    if not len(kk):
+        return codes
+    fall = drop_heights(aabbs, kk, mm, before[kk, mm, 2] - after[kk, mm, 2], floor)
+    codes = codes.copy()
+    codes[kk, mm] = np.where(fall > COVER_DROP, RELEASE, PLACE)
+    return codes

@@ -22,18 +22,18 @@ import numpy as np
 
 from actions.episodes import EpisodeRule, carried, update_events
 from actions.events import N_ACTIONS
-from actions.modes import FREE, HELD, PLACE, RELEASE
+from actions.modes import FREE, HELD, PLACE
 from actions.push import REF_Z, empty_holds
 from physics.scene import Scene
 
 from .config import EstimatorConfig
 from .fusion import ensemble_kalman_step
-from .holding import held_targets, release_behind_cover, release_on_loss
+from .holding import dropped_behind_cover, held_targets, let_go_behind_cover, release_behind_cover, release_on_loss
 from .noise import process_noise, regularisation_kernels
 from .likelihood import (DetectionTerm, Evidence, HandReachTerm, LogWeightTerm, ModeSwitchTerm, NegativeEvidenceTerm, ProposalTerm,
                          add_terms,
                          exploded_log_likelihood)
-from .motion import (MOVING_MAX_VERTICAL_SPEED, drop_heights, let_go_moving, out_of_reach, place, roll_released, rolled_along,
+from .motion import (MOVING_MAX_VERTICAL_SPEED, let_go_moving, out_of_reach, place, roll_released, rolled_along,
                      teleport_kinds)
 from .observations import Frame
 from .params import param_bounds, shrink_params
@@ -75,15 +75,6 @@ get no events of their own (:meth:`SceneModel.settle`)."""
 FUSION_SETTLED = 1.5e-3
 """A resting object whose particles' weighted mean is within this (m, horizontally) of the average of
 its detections while still takes no Kalman step: it has converged (:meth:`SceneModel.fuse_resting`)."""
-
-COVER_DROP = 0.10
-"""m: an object let go behind cover where it was lowest (put down: ``ModePriors.put_down_hidden``)
-whose bottom was more than this above what is under it there was dropped (a Release), else put down
-(a Place): a hand's width. Not the 2 cm of ``push_lift``: the particle knows that height only through
-the hand's track and the object's offset to it at its last detection (on the fit's seeds 100-102:
-a cup put down behind a screen is mostly 0-9 cm above the table at its particles' lowest points,
-a few over the floor; a ball let go over a bin's rim, 12-30 cm above what is under it)."""
-
 
 class SceneModel:
     """How the particles of ``scene`` move and are weighed (see the module docstring).
@@ -206,17 +197,7 @@ class SceneModel:
                                             mem.following_hand(frame))
         cover, proposal = release_behind_cover(modes, state.unseen_in_view, state.hidden_n,
                                                mem.following_hand(frame) & ~perceived, cfg.priors, cfg.noise, rng)
-        # let go where the hand hid it, at rest: put down where it was lowest (a Place), or dropped at
-        # a uniform sample of where it was (a Release)
-        down = cover & (state.down_n > 0)
-        if np.any(down):
-            down &= rng.random(cover.shape) < cfg.priors.put_down_hidden
-        cover_t = np.where(cover, np.where(down, state.down_t, state.hidden_t), np.nan)
-        if np.any(cover):
-            modes[cover] = FREE
-            release_codes[cover] = np.where(down[cover], PLACE, RELEASE)
-            poses[cover, :3] = np.where(down[cover][:, None], state.down_at[cover], state.hidden_at[cover])
-            vel[cover] = 0.0
+        cover_t = let_go_behind_cover(cover, state, poses, vel, modes, release_codes, cfg.priors.put_down_hidden, rng)
         flicked, flick_weight = self.let_go_moving(modes, state.supported, detected & perceived, tick_vel, far, rng)
         if np.any(flicked):  # let go in motion: physics takes it on at its velocity
             modes[flicked] = FREE
@@ -373,14 +354,8 @@ class SceneModel:
             silent = silent | (still[None, :] & (np.isfinite(state.holds[..., REF_Z]) | supported))
         # objects let go behind cover were let go back then, out of view
         release_t = move.cover_t
-        # put down behind cover where it was lowest, but far above what is under it there (a ball let
-        # go over a bin's rim): it was dropped
-        release_codes = move.release_codes
-        kk, mm = np.nonzero(move.behind_cover & (release_codes == PLACE)) if move.behind_cover is not None else ((), ())
-        if len(kk):
-            fall = drop_heights(out.aabbs, kk, mm, move.poses[kk, mm, 2] - out.poses[kk, mm, 2], self.scene.floor)
-            release_codes = release_codes.copy()
-            release_codes[kk, mm] = np.where(fall > COVER_DROP, RELEASE, PLACE)
+        release_codes = dropped_behind_cover(move.release_codes, move.behind_cover, move.poses, out.poses, out.aabbs,
+                                             self.scene.floor)
         ev = update_events(
             state.holds, np.isfinite(state.event_t).any(axis=-1), silent,
             move.modes, after_physics, new_modes, release_codes, supported,
