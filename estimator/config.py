@@ -44,6 +44,18 @@ def _check_nonneg(obj, *names):
             raise ValueError(f"{type(obj).__name__}.{n} must be >= 0, got {v!r}")
 
 
+def reasoning_due(t_last: float | None, t: float, horizon: float) -> bool:
+    """Whether a frame at ``t`` (s) starts a reasoning step, the last one having run at ``t_last``
+    (None: none yet): at the first frame, then once ``horizon`` seconds of stream time have passed
+    (``ReasonerConfig.horizon``)."""
+    return t_last is None or t >= t_last + horizon - 1e-9
+
+
+RELEASE_DOWN_SPEED = 0.3
+"""m/s: the acceleration clause of the Release rule (``ReasonerConfig.release_accel``) applies to
+held objects perceived moving down at least this fast."""
+
+
 @dataclass(frozen=True)
 class ReasonerConfig:
     """The physics reasoner's parameters (defaults: Table I of Sallami et al., IROS 2019).
@@ -63,12 +75,12 @@ class ReasonerConfig:
       implicit (see README).
     * ``release_speed`` (m/s) and ``release_accel`` (m/s^2): a held object perceived moving down
       faster than ``release_speed``, or accelerating down faster than ``release_accel`` (while moving
-      down at 0.3 m/s or more) with nothing under it, was let go (Release, in view). Velocities are
+      down at :data:`RELEASE_DOWN_SPEED` or more) with nothing under it, was let go (Release, in view). Velocities are
       measured over the reasoning period. ``release_accel`` is fitted (``scene-estimator
       fit-priors``: 5.0 m/s^2 on 20 seeds of every scenario with tracked hands, on the detections and
-      on the Kalman tracker's filtered stream, where hands lowering what they hold reached 5.1 and
-      5.0 m/s^2, dropped objects 8.4 or more raw but from 2.8 filtered); it was 4, which hands
-      lowering a block exceed.
+      on the Kalman tracker's filtered stream, where hands lowering what they hold reached 5.12 m/s^2
+      and filtered drops accelerate less than raw ones); it was 4, which hands lowering a block
+      exceed.
     * ``push_lift`` (m), ``push_smoothing`` and ``place_wait`` (s): a held object let go on a
       support whose height, smoothed over the updates (weight ``push_smoothing`` of the newest),
       never rose more than ``push_lift`` above where it rested before was pushed, not picked up: its

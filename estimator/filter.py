@@ -32,7 +32,7 @@ from actions.modes import FREE, HELD
 from physics.scene import Scene
 
 from .belief import Belief, compute_belief
-from .config import EstimatorConfig
+from .config import EstimatorConfig, reasoning_due
 from .holding import hidden_places, lowest_hidden_place
 from .likelihood import held_unseen_in_view
 from .model import SceneModel, initial_poses
@@ -159,7 +159,7 @@ class SceneEstimator:
             own = self._cameras_since_tick if self._cameras_since_tick is not None else {}
             own.update((camera_key(c), c) for c in frame.cameras.values())
             self._cameras_since_tick = own
-        if self.t_tick is not None and frame.t < self.t_tick + self.config.reasoner.horizon - 1e-9:
+        if not reasoning_due(self.t_tick, frame.t, self.config.reasoner.horizon):
             return None
         detected = self._detected_since_tick
         self._detected_since_tick = np.zeros(self.M, bool)
@@ -296,14 +296,14 @@ class SceneEstimator:
         """The particles' samples of where their held objects were out of view
         (:func:`~estimator.holding.hidden_places`), and where they were lowest then
         (:func:`~estimator.holding.lowest_hidden_place`), after this update:
-        ``(hidden_at, hidden_t, hidden_n, down_at, down_t, down_n)``."""
+        ``(hidden_at, hidden_t, hidden_n, down_at, down_t)``."""
         s, thr = self.state, self.config.visibility_threshold
         held = (settled.modes == HELD) & (np.asarray(ev.in_tracked_hand, bool) & ~ev.perceived)[None, :]
         in_view = (ev.visible >= thr) & np.asarray(ev.queried, bool)[None, :]
         reset = (settled.modes != HELD) | ev.detected[None, :]
         hidden = held & ~in_view
         return (hidden_places(s.hidden_at, s.hidden_t, s.hidden_n, settled.poses, hidden, reset, t, self.rng)
-                + lowest_hidden_place(s.down_at, s.down_t, s.down_n, settled.poses, hidden, reset, t))
+                + lowest_hidden_place(s.down_at, s.down_t, s.hidden_n, settled.poses, hidden, t))
 
     def _commit(self, move: Move, settled: Settled, logw: np.ndarray, bad: np.ndarray,
                 unseen_in_view: np.ndarray, hidden: tuple[np.ndarray, ...]) -> None:
@@ -321,7 +321,7 @@ class SceneEstimator:
             event_t=s.event_t, supported=settled.supported, last_motion=last_motion,
             jolted=np.zeros((self.K, self.M), dtype=bool), unseen_in_view=unseen_in_view,
             hold_error=move.hold_error, let_go_unseen=move.let_go_unseen, hidden_at=hidden[0],
-            hidden_t=hidden[1], hidden_n=hidden[2], down_at=hidden[3], down_t=hidden[4], down_n=hidden[5],
+            hidden_t=hidden[1], hidden_n=hidden[2], down_at=hidden[3], down_t=hidden[4],
             push_decided=s.push_decided, holds=settled.holds,
             jitter=move.jitter * (settled.modes == FREE)[..., None])  # held: at the target, no noise
 

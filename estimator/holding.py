@@ -116,23 +116,20 @@ def hidden_places(hidden_at: np.ndarray, hidden_t: np.ndarray, hidden_n: np.ndar
     return at, tt, n
 
 
-def lowest_hidden_place(low_at: np.ndarray, low_t: np.ndarray, low_n: np.ndarray, poses: np.ndarray,
-                        hidden: np.ndarray, reset: np.ndarray, t: float
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def lowest_hidden_place(low_at: np.ndarray, low_t: np.ndarray, hidden_n: np.ndarray, poses: np.ndarray,
+                        hidden: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
     """Where each particle's held object was lowest while its hand hid it: where a person who put it
     down behind cover would have let go of it (:func:`release_behind_cover`).
 
-    Arrays as in :func:`hidden_places` (``low_n``: hidden updates counted); the place and time are
-    replaced when the object is lower (m, height of its pose) than at the kept place, or it is the
-    first hidden update. Deterministic. Returns the three arrays after this update (copies)."""
-    n = low_n.astype(np.int32, copy=True)
-    take = hidden & ((n == 0) | (poses[..., 2] < low_at[..., 2]))
-    n[hidden] += 1
+    Arrays as in :func:`hidden_places`, ``hidden_n`` its count before this update (0: a first hidden
+    update, which is taken whatever its height); the place and time are replaced when the object is
+    lower (m, height of its pose) than at the kept place. Deterministic. Returns the place and time
+    after this update (copies)."""
+    take = hidden & ((hidden_n == 0) | (poses[..., 2] < low_at[..., 2]))
     at, tt = low_at.copy(), low_t.copy()
     at[take] = poses[take][:, :3]
     tt[take] = t
-    n[reset] = 0
-    return at, tt, n
+    return at, tt
 
 
 def release_behind_cover(modes: np.ndarray, unseen_in_view: np.ndarray, hidden_n: np.ndarray,
@@ -166,10 +163,10 @@ def release_behind_cover(modes: np.ndarray, unseen_in_view: np.ndarray, hidden_n
 COVER_DROP = 0.10
 """m: an object let go behind cover where it was lowest (put down: ``ModePriors.put_down_hidden``)
 whose bottom was more than this above what is under it there was dropped (a Release), else put down
-(a Place): a hand's width. Not the 2 cm of ``push_lift``: the particle knows that height only through
-the hand's track and the object's offset to it at its last detection (on the fit's seeds 100-102:
-a cup put down behind a screen is mostly 0-9 cm above the table at its particles' lowest points,
-a few over the floor; a ball let go over a bin's rim, 12-30 cm above what is under it)."""
+(a Place): a hand's width, set by hand, not fitted. Not the 2 cm of ``push_lift``: the particle
+knows that height only through the hand's track and the object's offset to it at its last detection
+(a cup put down behind a screen is a few centimetres above the table at its particles' lowest
+points; a ball let go over a bin's rim, well above what is under it)."""
 
 
 def let_go_behind_cover(cover: np.ndarray, state, poses: np.ndarray, vel: np.ndarray, modes: np.ndarray,
@@ -178,16 +175,15 @@ def let_go_behind_cover(cover: np.ndarray, state, poses: np.ndarray, vel: np.nda
     hid them, at rest: with probability ``put_down`` (``ModePriors.put_down_hidden``) put down where
     they were lowest (``state.down_at``, a Place), else dropped at the uniform sample of where they
     were (``state.hidden_at``, a Release); ``poses (K, M, 7)``, ``vel (K, M, 6)``, ``modes`` and
-    ``codes (K, M)`` are updated. One uniform draw per entry when some entry could be put down.
+    ``codes (K, M)`` are updated. One uniform draw per entry when there is such an entry.
     Returns when each was let go ``(K, M)`` (s; NaN elsewhere)."""
-    down = cover & (state.down_n > 0)
-    if np.any(down):
-        down &= rng.random(cover.shape) < put_down
-    if np.any(cover):
-        modes[cover] = FREE
-        codes[cover] = np.where(down[cover], PLACE, RELEASE)
-        poses[cover, :3] = np.where(down[cover][:, None], state.down_at[cover], state.hidden_at[cover])
-        vel[cover] = 0.0
+    if not np.any(cover):
+        return np.full(cover.shape, np.nan)
+    down = cover & (rng.random(cover.shape) < put_down)  # (a covered entry was hidden: it has both places)
+    modes[cover] = FREE
+    codes[cover] = np.where(down[cover], PLACE, RELEASE)
+    poses[cover, :3] = np.where(down[cover][:, None], state.down_at[cover], state.hidden_at[cover])
+    vel[cover] = 0.0
     return np.where(cover, np.where(down, state.down_t, state.hidden_t), np.nan)
 
 

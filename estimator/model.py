@@ -26,7 +26,7 @@ from actions.modes import FREE, HELD, PLACE
 from actions.push import REF_Z, empty_holds
 from physics.scene import Scene
 
-from .config import EstimatorConfig
+from .config import RELEASE_DOWN_SPEED, EstimatorConfig
 from .fusion import ensemble_kalman_step
 from .holding import dropped_behind_cover, held_targets, let_go_behind_cover, release_behind_cover, release_on_loss
 from .noise import process_noise, regularisation_kernels
@@ -39,7 +39,7 @@ from .observations import Frame
 from .params import param_bounds, shrink_params
 from .perception_memory import HAND_RADIUS, PerceptionMemory
 from .pool import BatchInput, BatchOutput
-from .resting import REST_SPEED, REST_SPIN
+from .resting import slow
 from .relations import relations_and_support
 from .resampling import normalise_log_weights
 from .state import ParticleState
@@ -148,7 +148,6 @@ class SceneModel:
                              let_go_unseen=np.full((K, M), -np.inf), hidden_at=np.zeros((K, M, 3)),
                              hidden_t=np.full((K, M), -np.inf), hidden_n=np.zeros((K, M), dtype=np.int32),
                              down_at=np.zeros((K, M, 3)), down_t=np.full((K, M), -np.inf),
-                             down_n=np.zeros((K, M), dtype=np.int32),
                              push_decided=np.full((K, M), -np.inf), holds=empty_holds((K, M)),
                              jitter=np.zeros((K, M, 3)))
 
@@ -193,10 +192,10 @@ class SceneModel:
                     state.velocities[..., :2], axis=-1) < MOVING_MAX_VERTICAL_SPEED))  # from its target, held
                 vel[started] = 0.0
         self.known |= perceived
-        modes, release_codes = self.release(prev_modes, perceived, state.supported, rng,
-                                            mem.following_hand(frame))
-        cover, proposal = release_behind_cover(modes, state.unseen_in_view, state.hidden_n,
-                                               mem.following_hand(frame) & ~perceived, cfg.priors, cfg.noise, rng)
+        following = mem.following_hand(frame)
+        modes, release_codes = self.release(prev_modes, perceived, state.supported, rng, following)
+        cover, proposal = release_behind_cover(modes, state.unseen_in_view, state.hidden_n, following & ~perceived,
+                                               cfg.priors, cfg.noise, rng)
         cover_t = let_go_behind_cover(cover, state, poses, vel, modes, release_codes, cfg.priors.put_down_hidden, rng)
         flicked, flick_weight = self.let_go_moving(modes, state.supported, detected & perceived, tick_vel, far, rng)
         if np.any(flicked):  # let go in motion: physics takes it on at its velocity
@@ -210,8 +209,7 @@ class SceneModel:
         nudged = self.fuse_resting(poses, state.log_weights, modes, resting, detected & perceived & ~tele, rng)
         # a nudged object that was barely moving is set at rest: its world loads it asleep, without
         # waking what it touches (woken, a stack would settle again after every step of the fusion)
-        vel[nudged & (np.linalg.norm(vel[..., :3], axis=-1) < REST_SPEED)
-            & (np.linalg.norm(vel[..., 3:], axis=-1) < REST_SPIN)] = 0.0
+        vel[nudged & slow(vel)] = 0.0
         let_go = state.let_go_unseen.copy()
         let_go[(release_codes != 0) & (mem.perceived_prev & ~perceived)[None, :]] = frame.t
         target, target_vel, hold_error = self.held_targets(frame, poses, modes, detected, perceived, dt, rng,
@@ -229,7 +227,7 @@ class SceneModel:
         depen = (np.broadcast_to(placed & (cfg.noise.position_std > 0), (self.K, self.M)) | jolted
                  | state.jolted | cover) & (modes == FREE)
         return Move(poses, vel, predicted, prev_modes, modes, release_codes, tele, target, target_vel, check,
-                    depen, vis_query, hold_error, let_go, cameras, cover, proposal, nudged, jitter, far, cover_t)
+                    depen, vis_query, hold_error, let_go, cameras, cover_t, proposal, nudged, jitter, far)
 
     def let_go_moving(self, modes: np.ndarray, supported: np.ndarray, seen: np.ndarray, tick_vel: np.ndarray,
                       far: np.ndarray | None, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -336,7 +334,7 @@ class SceneModel:
         accel = mem.vertical_acceleration(vel, dt)
         # fast enough, it is let go whatever is under it; accelerating down, only if nothing is
         falling = (vel[:, 2] < -hr.release_speed)[None, :] | (
-            ((accel < -hr.release_accel) & (vel[:, 2] < -0.3))[None, :] & ~supported)
+            ((accel < -hr.release_accel) & (vel[:, 2] < -RELEASE_DOWN_SPEED))[None, :] & ~supported)
         held_seen = (new_modes == HELD) & perceived[None, :]
         after_physics = new_modes.copy()
         new_modes[held_seen & ((rested[None, :] & supported) | falling)] = FREE
@@ -352,8 +350,7 @@ class SceneModel:
             # the air is held
             still = detected & self.dynamic & np.isnan(onset) & np.isfinite(mem.still_position[:, 0])
             silent = silent | (still[None, :] & (np.isfinite(state.holds[..., REF_Z]) | supported))
-        # objects let go behind cover were let go back then, out of view
-        release_t = move.cover_t
+        # objects let go behind cover were let go back then, out of view (release_t)
         release_codes = dropped_behind_cover(move.release_codes, move.behind_cover, move.poses, out.poses, out.aabbs,
                                              self.scene.floor)
         ev = update_events(
@@ -362,7 +359,7 @@ class SceneModel:
             supported & (np.linalg.norm(out.velocities[..., :3], axis=-1) < rule.rest_speed), move.poses[..., 2],
             out.poses[..., 2], self._seen_z(t, detected),
             np.where((onset >= t - cfg.event_window) & (onset <= t), onset, t), t, rule, let_go_t=t - hr.place_dwell,
-            release_t=release_t)
+            release_t=move.cover_t)
         velocities = out.velocities
         released = (after_physics == HELD) & (ev.modes == FREE)
         if np.any(released):

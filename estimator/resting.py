@@ -32,13 +32,17 @@ particle that the update moves ends within this distance of it (boxes): three ti
 regularisation jitter, so that an object whose support was jittered away does not float."""
 
 
+def slow(vel: np.ndarray) -> np.ndarray:
+    """``(...)`` bool: velocities ``(..., 6)`` slower than :data:`REST_SPEED` and turning slower than
+    :data:`REST_SPIN`: at rest, for sleeping."""
+    return (np.linalg.norm(vel[..., :3], axis=-1) < REST_SPEED) & (np.linalg.norm(vel[..., 3:], axis=-1) < REST_SPIN)
+
+
 def sleep_resting(pws: list["ParticleWorld"], candidates: np.ndarray, vel_in: np.ndarray,
                   vel_out: np.ndarray) -> None:
     """Put to sleep the ``candidates (K, M)`` at rest at both ends of the update (velocities
-    ``(K, M, 6)``) that are still awake (a sleeping body reads back exactly zero velocity)."""
-    def slow(v):
-        return ((np.linalg.norm(v[..., :3], axis=-1) < REST_SPEED)
-                & (np.linalg.norm(v[..., 3:], axis=-1) < REST_SPIN))
+    ``(K, M, 6)``, :func:`slow`) that are still awake (a sleeping body reads back exactly zero
+    velocity)."""
     rest = candidates & slow(vel_in) & slow(vel_out) & np.any(vel_out != 0.0, axis=-1)
     for k in np.flatnonzero(rest.any(axis=1)).tolist():
         sleep(pws[k].world, np.flatnonzero(rest[k]).tolist())

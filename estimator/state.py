@@ -35,9 +35,9 @@ class ParticleState:
       the hand plus its offset at the last detection (:func:`estimator.held.hand_offset_walk`).
     * ``hidden_at (K, M, 3)`` m, ``hidden_t (K, M)`` s, ``hidden_n (K, M)`` int32: a uniform sample of
       where (and when) a held object was while its tracked hand kept it out of the camera's view, over
-      the ``hidden_n`` updates it was (:func:`estimator.holding.hidden_places`); ``down_at``,
-      ``down_t``, ``down_n``: where and when it was lowest over those ``down_n`` updates (where it
-      would have been put down: :func:`estimator.holding.lowest_hidden_place`).
+      the ``hidden_n`` updates it was (:func:`estimator.holding.hidden_places`); ``down_at (K, M, 3)``,
+      ``down_t (K, M)``: where and when it was lowest over those updates (where it would have been
+      put down: :func:`estimator.holding.lowest_hidden_place`).
     * ``jitter (K, M, 3)`` m: the horizontal perception noise the last update's teleport added to
       each free object's position (zero for objects it did not teleport, held ones, and vertically:
       a support undoes it): what the particle's next prediction of a detection leaves out, so that it
@@ -63,7 +63,6 @@ class ParticleState:
     hidden_n: np.ndarray
     down_at: np.ndarray
     down_t: np.ndarray
-    down_n: np.ndarray
     push_decided: np.ndarray
     holds: np.ndarray
     jitter: np.ndarray

@@ -22,11 +22,10 @@ class Move:
     objects displaced without physics; ``vis_query (M,)``: objects whose visibility is wanted;
     ``hold_error (K, M, 3)``, ``let_go_unseen (K, M)``: see :class:`~estimator.state.ParticleState`;
     ``cameras``: the cameras that took the frames of the update (None: the scene's camera);
-    ``behind_cover (K, M)`` bool: objects let go now where their hand hid them earlier, at the
-    time ``cover_t (K, M)`` (s, NaN elsewhere; :func:`~estimator.holding.release_behind_cover`: put
-    down where it was lowest, at ``state.down_t``, a Place, or dropped at ``state.hidden_t``), and
-    ``proposal_log_weight
-    (K,)`` the weight factor of that move and of the let-goes in motion
+    ``cover_t (K, M)``: when the objects let go now where their hand hid them earlier were let go
+    (s, NaN elsewhere; :attr:`behind_cover` is the mask; :func:`~estimator.holding.let_go_behind_cover`:
+    put down where it was lowest, a Place, or dropped at a sampled hidden place), and
+    ``proposal_log_weight (K,)`` the weight factor of that move and of the let-goes in motion
     (:func:`~estimator.motion.let_go_moving`); ``fused (K, M)`` bool: objects at rest moved towards
     their detection (:meth:`~estimator.model.SceneModel.fuse_resting`; scored where the particle expected them);
     ``jitter (K, M, 3)``: the teleports' position noise (see :class:`~estimator.state.ParticleState`);
@@ -49,12 +48,16 @@ class Move:
     hold_error: np.ndarray
     let_go_unseen: np.ndarray
     cameras: tuple | None = None
-    behind_cover: np.ndarray | None = None
+    cover_t: np.ndarray | None = None
     proposal_log_weight: np.ndarray | None = None
     fused: np.ndarray | None = None
     jitter: np.ndarray | None = None
     out_of_reach: np.ndarray | None = None
-    cover_t: np.ndarray | None = None
+
+    @property
+    def behind_cover(self) -> np.ndarray | None:
+        """``(K, M)`` bool: the objects let go behind cover now (None: no ``cover_t``)."""
+        return None if self.cover_t is None else np.isfinite(self.cover_t)
 
 
 @dataclass(frozen=True)

@@ -62,27 +62,36 @@ def test_hidden_places_are_a_uniform_sample_over_the_hidden_updates():
 
 
 def test_the_lowest_hidden_place_is_kept_with_its_time():
-    """Where (and when) the held object was lowest over its hidden updates; visible updates do not
-    count; a reset entry starts again, its first hidden update then taken whatever its height."""
-    from estimator.holding import lowest_hidden_place
+    """Where (and when) the held object was lowest over its hidden updates, counted by
+    :func:`hidden_places`; visible updates do not count; a reset entry starts again, its first
+    hidden update then taken whatever its height."""
+    from estimator.holding import hidden_places, lowest_hidden_place
 
     K, M = 2, 1
+    rng = np.random.default_rng(3)
     at, tt, cnt = np.zeros((K, M, 3)), np.full((K, M), -np.inf), np.zeros((K, M), np.int32)
+    low, low_t = np.zeros((K, M, 3)), np.full((K, M), -np.inf)
     none = np.zeros((K, M), bool)
+
+    def update(poses, hidden, reset, t):
+        nonlocal at, tt, cnt, low, low_t
+        low, low_t = lowest_hidden_place(low, low_t, cnt, poses, hidden, t)
+        at, tt, cnt = hidden_places(at, tt, cnt, poses, hidden, reset, t, rng)
+
     heights = [[0.9, 0.7, 0.8, 0.75], [0.9, 1.0, 0.95, 0.6]]  # per particle, over four hidden updates
     for j in range(4):
         poses = np.zeros((K, M, 7))
         poses[:, 0, 2] = [h[j] for h in heights]
         poses[:, 0, 0] = j
-        at, tt, cnt = lowest_hidden_place(at, tt, cnt, poses, ~none, none, float(j))
-        at, tt, cnt = lowest_hidden_place(at, tt, cnt, poses - 5.0, none, none, j + 0.5)  # in view: lower, ignored
-    assert list(at[:, 0, 2]) == [0.7, 0.6] and list(tt[:, 0]) == [1.0, 3.0] and list(at[:, 0, 0]) == [1.0, 3.0]
+        update(poses, ~none, none, float(j))
+        update(poses - 5.0, none, none, j + 0.5)  # in view: lower, ignored
+    assert list(low[:, 0, 2]) == [0.7, 0.6] and list(low_t[:, 0]) == [1.0, 3.0] and list(low[:, 0, 0]) == [1.0, 3.0]
     assert np.all(cnt == 4)
-    at, tt, cnt = lowest_hidden_place(at, tt, cnt, poses, none, ~none, 9.0)
+    update(poses, none, ~none, 9.0)
     assert np.all(cnt == 0)
     poses[:, 0, 2] = 2.0  # higher than the kept place, but the first hidden update after the reset
-    at, tt, cnt = lowest_hidden_place(at, tt, cnt, poses, ~none, none, 10.0)
-    assert np.all(at[:, 0, 2] == 2.0) and np.all(tt == 10.0)
+    update(poses, ~none, none, 10.0)
+    assert np.all(low[:, 0, 2] == 2.0) and np.all(low_t == 10.0)
 
 
 def test_release_behind_cover_draws_from_the_posterior_and_weighs_the_move():

@@ -17,7 +17,6 @@ def state(K=3, M=2):
                          hidden_at=rng.normal(size=(K, M, 3)), hidden_t=rng.normal(size=(K, M)),
                          hidden_n=rng.integers(0, 5, (K, M)).astype(np.int32),
                          down_at=rng.normal(size=(K, M, 3)), down_t=rng.normal(size=(K, M)),
-                         down_n=rng.integers(0, 5, (K, M)).astype(np.int32),
                          push_decided=rng.normal(size=(K, M)), holds=rng.normal(size=(K, M, 5)), jitter=rng.normal(size=(K, M, 3)))
 
 

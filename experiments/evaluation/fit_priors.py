@@ -26,10 +26,9 @@ What is fitted (see :class:`actions.modes.ModePriors` and :class:`estimator.conf
 * ``release_accel`` (:class:`~estimator.config.ReasonerConfig`, m/s^2): the estimator's perception
   memory replayed on the stream, reasoning every ``horizon`` as the estimator does, and again on
   the stream as the Kalman tracker filters it (the estimator takes both: a filtered drop
-  accelerates less); at each step,
-  every object held in truth at the previous step, detected since and perceived moving down at
-  0.3 m/s or more is a sample of its perceived vertical acceleration (as the Release rule measures
-  it), labelled by whether the truth still holds it. The threshold is the one that misclassifies
+  accelerates less); at each step, every object held in truth at the previous step, detected since
+  and perceived moving down at ``RELEASE_DOWN_SPEED`` (0.3 m/s) or more is a sample of its perceived
+  vertical acceleration (as the Release rule measures it), labelled by whether the truth still holds it. The threshold is the one that misclassifies
   the fewest samples (a hand lowering an object faster is read as a drop; a drop slower, as still
   held, until the next step), the middle of the interval of such thresholds; it applies only with
   nothing under the object, which this count does not check.
@@ -44,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from actions.modes import ModePriors
-from estimator.config import EstimatorConfig, ReasonerConfig
+from estimator.config import RELEASE_DOWN_SPEED, EstimatorConfig, ReasonerConfig, reasoning_due
 from estimator.model import initial_poses
 from estimator.observations import parse_frame
 from estimator.perception_memory import HAND_RADIUS, HAND_SMOOTHING, PerceptionMemory
@@ -87,6 +86,11 @@ class Counts:
         self.n += 1
 
 
+def _nearest(times: np.ndarray, t: float) -> int:
+    """Index of the entry of ``times`` (s) nearest to ``t``: the truth row of a frame."""
+    return int(np.argmin(np.abs(times - t)))
+
+
 def _smoothed(hands: list[np.ndarray | None], f: int) -> np.ndarray | None:
     """Mean of the last :data:`HAND_SMOOTHING` tracked hand positions up to frame ``f``."""
     pts = [h for h in hands[max(0, f - 4 * HAND_SMOOTHING):f + 1] if h is not None][-HAND_SMOOTHING:]
@@ -115,7 +119,7 @@ def count_losses(obs: list[dict], truth: list[dict], reasoner: ReasonerConfig, p
                 continue
             hand0 = _smoothed(hands, a)
             pos0 = np.asarray(obs[a]["objects"][oid]["position"], float)
-            i0 = int(np.argmin(np.abs(t_true - t0)))
+            i0 = _nearest(t_true, t0)
             if hand0 is None or hands[a] is None or np.linalg.norm(hands[a] - pos0) >= HAND_RADIUS:
                 continue
             if not truth[i0]["objects"][oid].get("held"):
@@ -124,7 +128,7 @@ def count_losses(obs: list[dict], truth: list[dict], reasoner: ReasonerConfig, p
             hand1 = _smoothed(hands, min(f_loss, len(obs) - 1))
             if hand1 is None:
                 continue
-            i1 = int(np.argmin(np.abs(t_true - t_loss)))
+            i1 = _nearest(t_true, t_loss)
             released = not truth[i1]["objects"][oid].get("held")
             moved = float(np.linalg.norm(hand1 - hand0)) > priors.carry_distance
             (carried if moved else still).add(released)
@@ -144,7 +148,7 @@ def _add_spread(obs, truth, t_true, hands, oid: str, a: int, b: int, spread: Spr
         return
     offset = pos0 - hands[a]
     for f in range(a + 1, b):
-        i = int(np.argmin(np.abs(t_true - obs[f]["t"])))
+        i = _nearest(t_true, obs[f]["t"])
         o = truth[i]["objects"][oid]
         if hands[f] is None or not o.get("held"):
             return
@@ -161,7 +165,7 @@ def count_out_of_reach(obs: list[dict], truth: list[dict], out_of_reach: Counts)
     for o in obs:
         if not o.get("hands") or not o["objects"]:
             continue
-        row = truth[int(np.argmin(np.abs(t_true - o["t"])))]["objects"]
+        row = truth[_nearest(t_true, o["t"])]["objects"]
         hands = np.array([np.asarray(h, float) for h in o["hands"].values()])
         for oid, det in o["objects"].items():
             if row.get(oid, {}).get("held"):
@@ -193,8 +197,8 @@ def count_hand_occlusion(result, threshold: float, occluded: Counts) -> None:
 def count_descents(result, reasoner: ReasonerConfig, held: list[float], let_go: list[float],
                    window: float = 0.5, filtered: bool = False) -> None:
     """Add the perceived downward accelerations (m/s^2, positive down; as the Release rule measures
-    them) of objects perceived moving down at 0.3 m/s or more in one run (``result``: the
-    simulator's): to ``held``, each reasoning step at which the truth held the object at that step
+    them) of objects perceived moving down at ``RELEASE_DOWN_SPEED`` or more in one run (``result``:
+    the simulator's): to ``held``, each reasoning step at which the truth held the object at that step
     and the one before; to ``let_go``, for each time the truth let an object go, the largest over
     the steps of the following ``window`` seconds (s) while it stays let go (the rule may fire at
     any of them; none if it was never seen falling then). ``filtered``: the stream as the Kalman
@@ -208,7 +212,7 @@ def count_descents(result, reasoner: ReasonerConfig, held: list[float], let_go: 
     ids = scene.object_ids
 
     def held_at(t: float) -> np.ndarray:
-        row = result.truth[int(np.argmin(np.abs(t_true - t)))]["objects"]
+        row = result.truth[_nearest(t_true, t)]["objects"]
         return np.array([bool(row.get(oid, {}).get("held")) for oid in ids])
 
     t_tick, was_held, since = None, np.zeros(M, dtype=bool), np.zeros(M, dtype=bool)
@@ -221,13 +225,13 @@ def count_descents(result, reasoner: ReasonerConfig, held: list[float], let_go: 
             frame = tracker.to_frame(hands=frame.hands, detected_only=True)
         frame = memory.admit(frame)
         since |= memory.record(frame)
-        if t_tick is not None and frame.t < t_tick + reasoner.horizon - 1e-9:
+        if not reasoning_due(t_tick, frame.t, reasoner.horizon):
             continue
         vel = memory.tick_velocity()
         now = held_at(frame.t)
         if t_tick is not None:
             down = -memory.vertical_acceleration(vel, min(frame.t - t_tick, reasoner.max_gap))
-            falling = since & (vel[:, 2] < -0.3)
+            falling = since & (vel[:, 2] < -RELEASE_DOWN_SPEED)
             held += down[was_held & now & falling].tolist()
             let_at[was_held & ~now] = frame.t
             open_ = np.isfinite(let_at) & ~now & (frame.t - let_at <= window)

@@ -38,7 +38,7 @@ import numpy as np
 
 from actions.modes import ModePriors
 from estimator.belief import Belief
-from estimator.config import EstimatorConfig, NoiseConfig, ReasonerConfig, config_from_dict
+from estimator.config import EstimatorConfig, NoiseConfig, ReasonerConfig, config_from_dict, reasoning_due
 from estimator.filter import SceneEstimator
 from estimator.observations import Frame
 from estimator.relations import relation_list, relation_masks
@@ -256,7 +256,7 @@ class LastSeenBaseline:
             if det.orientation is not None:
                 self.poses[i, 3:] = det.orientation
             self.known[i] = True
-        if self.t_step is not None and frame.t < self.t_step + self.horizon - 1e-9:
+        if not reasoning_due(self.t_step, frame.t, self.horizon):
             return None
         self.t_step = frame.t
         dyn = np.flatnonzero(~self.static)
@@ -372,7 +372,7 @@ class TrackerMethod:
                 return None
             self.tracker.feedback(belief)
             return self._step(frame.t, belief), belief
-        if self.t_step is not None and frame.t < self.t_step + self.horizon - 1e-9:
+        if not reasoning_due(self.t_step, frame.t, self.horizon):
             return None
         self.t_step = frame.t
         return self._step(frame.t, None), None
