@@ -88,6 +88,11 @@ class ModePriors:
       lowest while hidden (a person puts a thing down by lowering it;
       :func:`estimator.holding.lowest_hidden_place`), at that time, and the event is a Place;
       otherwise at a uniform sample of its hidden places, a Release. Fitted the same way.
+    * ``put_down_touched``: probability that an object its tracked hand carried out of view, and that
+      rested on a support where it was lowest there, was let go there when the hand lifts away
+      (carries it more than ``carry_distance`` above that place): the particle then puts it down
+      there, at that time, a Place (:func:`estimator.holding.set_down_behind_cover`), without waiting
+      for the hand to show in view without it. Fitted the same way.
     * ``held_out_of_reach``: probability that an object held by an agent is detected farther than
       :data:`~estimator.perception_memory.HAND_RADIUS` from every hand tracked in that frame (a hand
       nobody tracks moves it); a particle that holds such an object pays its log at every update
@@ -110,6 +115,7 @@ class ModePriors:
     release_on_loss_still: float = 0.5  # fitted: no such loss in the scenarios (Laplace: 0.5)
     release_hidden: float = 0.226  # fitted: fit-priors on every built-in scenario with tracked hands, 11 of 51
     put_down_hidden: float = 0.923  # fitted: fit-priors, 11 of the 11 let go while hidden were put down
+    put_down_touched: float = 0.955  # fitted: fit-priors, 20 of the 20 set down out of view were let go
     held_out_of_reach: float = 6.7e-05  # fitted: scene-estimator fit-priors (seeds 100-119), 0 of 14828 frames
     let_go_moving: float = 0.2
     carry_distance: float = 0.05
@@ -118,7 +124,7 @@ class ModePriors:
         if not (isinstance(self.carry_distance, (int, float)) and 0 <= self.carry_distance < float("inf")):
             raise ValueError(f"ModePriors.carry_distance must be >= 0 metres, got {self.carry_distance!r}")
         for name in ("pick", "place", "release", "release_on_loss", "release_on_loss_carried",
-                     "release_on_loss_still", "release_hidden", "put_down_hidden", "held_out_of_reach",
+                     "release_on_loss_still", "release_hidden", "put_down_hidden", "put_down_touched", "held_out_of_reach",
                      "let_go_moving"):
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:

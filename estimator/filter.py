@@ -33,7 +33,7 @@ from physics.scene import Scene
 
 from .belief import Belief, compute_belief
 from .config import EstimatorConfig, reasoning_due
-from .holding import hidden_places, lowest_hidden_place
+from .holding import hidden_places, lowest_hidden_place, resting_place
 from .likelihood import held_unseen_in_view
 from .model import SceneModel, initial_poses
 from .step import Move, Settled
@@ -296,14 +296,18 @@ class SceneEstimator:
         """The particles' samples of where their held objects were out of view
         (:func:`~estimator.holding.hidden_places`), and where they were lowest then
         (:func:`~estimator.holding.lowest_hidden_place`), after this update:
-        ``(hidden_at, hidden_t, hidden_n, down_at, down_t)``."""
+        ``(hidden_at, hidden_t, hidden_n, down_at, down_t)``; and where they last rested on a support
+        out of view, undetected (:func:`~estimator.holding.resting_place`): ``(rest_at, rest_t)``."""
         s, thr = self.state, self.config.visibility_threshold
-        held = (settled.modes == HELD) & (np.asarray(ev.in_tracked_hand, bool) & ~ev.perceived)[None, :]
+        in_hand = (settled.modes == HELD) & np.asarray(ev.in_tracked_hand, bool)[None, :]
         in_view = (ev.visible >= thr) & np.asarray(ev.queried, bool)[None, :]
         reset = (settled.modes != HELD) | ev.detected[None, :]
-        hidden = held & ~in_view
+        hidden = in_hand & ~ev.perceived[None, :] & ~in_view
+        # an object that still counts as perceived (t_perceived) follows its hand too: set down then
+        unseen = in_hand & ~ev.detected[None, :] & ~in_view
         return (hidden_places(s.hidden_at, s.hidden_t, s.hidden_n, settled.poses, hidden, reset, t, self.rng)
-                + lowest_hidden_place(s.down_at, s.down_t, s.hidden_n, settled.poses, hidden, t))
+                + lowest_hidden_place(s.down_at, s.down_t, s.hidden_n, settled.poses, hidden, t)
+                + resting_place(s.rest_at, s.rest_t, settled.poses, unseen, settled.supported, reset, t))
 
     def _commit(self, move: Move, settled: Settled, logw: np.ndarray, bad: np.ndarray,
                 unseen_in_view: np.ndarray, hidden: tuple[np.ndarray, ...]) -> None:
@@ -322,6 +326,7 @@ class SceneEstimator:
             jolted=np.zeros((self.K, self.M), dtype=bool), unseen_in_view=unseen_in_view,
             hold_error=move.hold_error, let_go_unseen=move.let_go_unseen, hidden_at=hidden[0],
             hidden_t=hidden[1], hidden_n=hidden[2], down_at=hidden[3], down_t=hidden[4],
+            rest_at=hidden[5], rest_t=hidden[6],
             push_decided=s.push_decided, holds=settled.holds,
             jitter=move.jitter * (settled.modes == FREE)[..., None])  # held: at the target, no noise
 

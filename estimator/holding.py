@@ -19,8 +19,13 @@ from .perception_memory import PerceptionMemory
 
 def release_on_loss(modes: np.ndarray, perceived: np.ndarray, supported: np.ndarray, rng: np.random.Generator,
                     memory: PerceptionMemory, priors: ModePriors,
-                    tracked: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Releases of held objects that are not perceived (``modes (K, M)`` int8, ``perceived (M,)``).
+                    tracked: np.ndarray | None = None,
+                    left_view: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Releases of held objects that are not perceived (``modes (K, M)`` int8, ``perceived (M,)``),
+    or that ``left_view (M,)`` now: seen moving along their support at the last update, not detected
+    in this one, with no tracked hand (a ball flicked behind a box rolls on by physics or is pushed on
+    by a hand nobody tracks: both are kept, at ``release_on_loss``, rather than carrying the detection
+    on at a constant velocity until it stops counting as perceived).
 
     With probability ``release_on_loss`` when they were perceived at the last update; for the objects
     whose hand is tracked (``tracked (M,)``) ``release_on_loss_carried`` when the hand has moved more
@@ -33,6 +38,9 @@ def release_on_loss(modes: np.ndarray, perceived: np.ndarray, supported: np.ndar
     lost = memory.perceived_prev & ~perceived
     u = rng.random((K, M))
     held_unseen = (new == HELD) & ~perceived[None, :]
+    if left_view is not None:
+        lost = lost | left_view
+        held_unseen |= (new == HELD) & np.asarray(left_view, dtype=bool)[None, :]
     on_loss = np.full(M, priors.release_on_loss)
     later = np.full(M, priors.release)
     if tracked is not None and np.any(tracked):
@@ -132,6 +140,21 @@ def lowest_hidden_place(low_at: np.ndarray, low_t: np.ndarray, hidden_n: np.ndar
     return at, tt
 
 
+def resting_place(rest_at: np.ndarray, rest_t: np.ndarray, poses: np.ndarray, hidden: np.ndarray,
+                  supported: np.ndarray, reset: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """Where and when each particle's held object last rested on a support (``supported (K, M)``)
+    while out of view and undetected in its hand (``hidden (K, M)``; unlike :func:`hidden_places`,
+    also while it still counts as perceived): where a hand that sets it down leaves it
+    (:func:`set_down_behind_cover`). ``rest_at (K, M, 3)`` m and ``rest_t (K, M)`` s (-inf: none)
+    before; ``reset (K, M)``: entries that start again. Returns both after this update (copies)."""
+    take = hidden & supported
+    at, tt = rest_at.copy(), rest_t.copy()
+    at[take] = poses[take][:, :3]
+    tt[take] = t
+    tt[reset] = -np.inf
+    return at, tt
+
+
 def release_behind_cover(modes: np.ndarray, unseen_in_view: np.ndarray, hidden_n: np.ndarray,
                          in_tracked_hand: np.ndarray, priors: ModePriors, noise: NoiseConfig,
                          rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -158,6 +181,40 @@ def release_behind_cover(modes: np.ndarray, unseen_in_view: np.ndarray, hidden_n
     p = r / (r + (1.0 - r) * L)
     factor = math.log((r + (1.0 - r) * L) / L)
     return cand & (u < p), factor * cand.sum(axis=1)
+
+
+def set_down_behind_cover(modes: np.ndarray, rest_at: np.ndarray, rest_t: np.ndarray, before_z: np.ndarray,
+                          hand_z: np.ndarray, in_tracked_hand: np.ndarray, priors: ModePriors,
+                          rng: np.random.Generator) -> np.ndarray:
+    """Objects set down while their hand hid them, decided when the hand lifts away.
+
+    A held object in a tracked hand (``in_tracked_hand (M,)``, undetected) that rested on a support
+    out of view (:func:`resting_place`: ``rest_at (K, M, 3)``, ``rest_t (K, M)`` finite), and whose
+    hand now carries it (``hand_z (M,)`` m, the height the hand puts it at: NaN without a hand) more
+    than ``carry_distance`` above that place, when it was not at the last update (``before_z (K, M)``),
+    was let go there with probability ``put_down_touched`` (``ModePriors``: a person who lowers a cup
+    onto a table and lifts the hand has mostly left it there). A prior draw: no weight. Returns the
+    entries let go ``(K, M)`` bool; one uniform draw per entry when there is a candidate."""
+    rise = priors.carry_distance
+    with np.errstate(invalid="ignore"):
+        lifted = (hand_z[None, :] - rest_at[..., 2] > rise) & (before_z - rest_at[..., 2] <= rise)
+    cand = ((modes == HELD) & np.isfinite(rest_t) & lifted
+            & np.asarray(in_tracked_hand, dtype=bool)[None, :])
+    if not np.any(cand):
+        return cand
+    return cand & (rng.random(modes.shape) < priors.put_down_touched)
+
+
+def let_go_where_rested(entries: np.ndarray, state, poses: np.ndarray, vel: np.ndarray, modes: np.ndarray,
+                        codes: np.ndarray) -> np.ndarray:
+    """Let go, in place, the ``entries (K, M)`` set down out of view (:func:`set_down_behind_cover`)
+    where and when they last rested (``state.rest_at``, ``state.rest_t``), at rest, a Place. Returns
+    when each was let go ``(K, M)`` (s; NaN elsewhere)."""
+    modes[entries] = FREE
+    codes[entries] = PLACE
+    poses[entries, :3] = state.rest_at[entries]
+    vel[entries] = 0.0
+    return np.where(entries, state.rest_t, np.nan)
 
 
 COVER_DROP = 0.10

@@ -28,7 +28,8 @@ from physics.scene import Scene
 
 from .config import RELEASE_DOWN_SPEED, EstimatorConfig
 from .fusion import ensemble_kalman_step
-from .holding import dropped_behind_cover, held_targets, let_go_behind_cover, release_behind_cover, release_on_loss
+from .holding import (dropped_behind_cover, held_targets, let_go_behind_cover, let_go_where_rested,
+                      release_behind_cover, release_on_loss, set_down_behind_cover)
 from .noise import process_noise, regularisation_kernels
 from .likelihood import (DetectionTerm, Evidence, HandReachTerm, LogWeightTerm, ModeSwitchTerm, NegativeEvidenceTerm, ProposalTerm,
                          add_terms,
@@ -148,6 +149,7 @@ class SceneModel:
                              let_go_unseen=np.full((K, M), -np.inf), hidden_at=np.zeros((K, M, 3)),
                              hidden_t=np.full((K, M), -np.inf), hidden_n=np.zeros((K, M), dtype=np.int32),
                              down_at=np.zeros((K, M, 3)), down_t=np.full((K, M), -np.inf),
+                             rest_at=np.zeros((K, M, 3)), rest_t=np.full((K, M), -np.inf),
                              push_decided=np.full((K, M), -np.inf), holds=empty_holds((K, M)),
                              jitter=np.zeros((K, M, 3)))
 
@@ -176,9 +178,10 @@ class SceneModel:
             moving, falling = teleport_kinds(tele & mem.perceived_prev & ~newly_known & detected, tick_vel,
                                              mem.previous_tick_velocity())
         far = self._out_of_reach(frame, detected)
+        fitted = mem.perc_vel[:, :3].copy()  # the detections' least-squares velocity (not a tick's difference)
         mem.perc_vel[tele] = 0.0
-        mem.perc_vel[moving, :3] = tick_vel[moving]
-        mem.perc_vel[falling, :2] = tick_vel[falling, :2]
+        mem.perc_vel[moving, :3] = fitted[moving]
+        mem.perc_vel[falling, :2] = fitted[falling, :2]
         spinning = moving | falling
         # an object teleported in motion starts where it was at this update's start, so that physics
         # brings it to its detection at frame.t (placed at the detection, the belief would be dt ahead)
@@ -193,10 +196,18 @@ class SceneModel:
                 vel[started] = 0.0
         self.known |= perceived
         following = mem.following_hand(frame)
-        modes, release_codes = self.release(prev_modes, perceived, state.supported, rng, following)
+        left_view = None
+        if cfg.moving_teleports:  # seen moving along at the last update, not now, no tracked hand
+            left_view = perceived & ~detected & rolled_along(mem.previous_tick_velocity()) & ~following
+        modes, release_codes = self.release(prev_modes, perceived, state.supported, rng, following, left_view)
         cover, proposal = release_behind_cover(modes, state.unseen_in_view, state.hidden_n, following & ~perceived,
                                                cfg.priors, cfg.noise, rng)
         cover_t = let_go_behind_cover(cover, state, poses, vel, modes, release_codes, cfg.priors.put_down_hidden, rng)
+        set_down = self.set_down(modes, state, frame, following & ~detected, rng)
+        if np.any(set_down):  # set down out of view, the hand lifting away: let go where it rested
+            cover_t = np.where(set_down, let_go_where_rested(set_down, state, poses, vel, modes, release_codes),
+                               cover_t)
+            cover = cover | set_down
         flicked, flick_weight = self.let_go_moving(modes, state.supported, detected & perceived, tick_vel, far, rng)
         if np.any(flicked):  # let go in motion: physics takes it on at its velocity
             modes[flicked] = FREE
@@ -229,6 +240,22 @@ class SceneModel:
         return Move(poses, vel, predicted, prev_modes, modes, release_codes, tele, target, target_vel, check,
                     depen, vis_query, hold_error, let_go, cameras, cover_t, proposal, nudged, jitter, far)
 
+    def set_down(self, modes: np.ndarray, state: ParticleState, frame: Frame, hidden_hand: np.ndarray,
+                 rng: np.random.Generator) -> np.ndarray:
+        """Held objects set down out of view, their hand lifting away in ``frame``
+        (:func:`~estimator.holding.set_down_behind_cover`); ``hidden_hand (M,)``: unperceived objects
+        in a tracked hand. None in the paper's mode (``hand_occlusion`` 1: held objects are exempt
+        from what the camera does not show)."""
+        if self.config.noise.hand_occlusion >= 1.0 or not np.any(hidden_hand):
+            return np.zeros((self.K, self.M), dtype=bool)
+        hand_z = np.full(self.M, np.nan)
+        for m in np.flatnonzero(hidden_hand):
+            at = self.memory.hand_target(frame, m)
+            if at is not None:
+                hand_z[m] = at[2]
+        return set_down_behind_cover(modes, state.rest_at, state.rest_t, state.poses[..., 2], hand_z, hidden_hand,
+                                     self.config.priors, rng)
+
     def let_go_moving(self, modes: np.ndarray, supported: np.ndarray, seen: np.ndarray, tick_vel: np.ndarray,
                       far: np.ndarray | None, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """Let-goes in motion (:func:`~estimator.motion.let_go_moving`, at ``ModePriors.let_go_moving``)
@@ -251,11 +278,13 @@ class SceneModel:
         """Alg. 2 (:func:`~estimator.motion.place`), in place: objects ``idx`` at their last detection,
         or at ``start (M, 3)`` m (the detections carried back to the update's start,
         :meth:`~estimator.perception_memory.PerceptionMemory.position_at`), with the memory's
-        perceived velocities. Returns the position noise ``(K, len(idx), 3)`` m."""
+        perceived velocities (and, teleported in motion, their standard error as velocity noise). Returns
+        the position noise ``(K, len(idx), 3)`` m."""
         mem = self.memory
         positions = mem.last_pose[:, :3] if start is None else start
         return place(poses, vel, idx, newly_known, is_in, positions, mem.last_pose[:, 3:], mem.last_has_orientation,
-                     mem.perc_vel, self.config.noise, rng, spinning, held, self.ball_radius)
+                     mem.perc_vel, self.config.noise, rng, spinning, held, self.ball_radius,
+                     mem.velocity_std(self.config.noise.position_std))
 
     def fuse_resting(self, poses: np.ndarray, log_weights: np.ndarray, modes: np.ndarray, resting: np.ndarray,
                      seen: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -288,9 +317,12 @@ class SceneModel:
         return out
 
     def release(self, modes: np.ndarray, perceived: np.ndarray, supported: np.ndarray,
-                rng: np.random.Generator, tracked: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Releases of held objects that are not perceived (:func:`~estimator.holding.release_on_loss`)."""
-        return release_on_loss(modes, perceived, supported, rng, self.memory, self.config.priors, tracked)
+                rng: np.random.Generator, tracked: np.ndarray | None = None,
+                left_view: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Releases of held objects that are not perceived or just left view in motion
+        (:func:`~estimator.holding.release_on_loss`)."""
+        return release_on_loss(modes, perceived, supported, rng, self.memory, self.config.priors, tracked,
+                               left_view)
 
     def held_targets(self, frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: np.ndarray,
                      perceived: np.ndarray, dt: float, rng: np.random.Generator,
@@ -421,9 +453,17 @@ class SceneModel:
     def regularisation_kernels(self, poses: np.ndarray, weights: np.ndarray,
                                hidden: np.ndarray) -> dict[int, np.ndarray]:
         """The jitter kernels of the hidden objects ``hidden (M,)`` after resampling
-        (:func:`~estimator.noise.regularisation_kernels`)."""
+        (:func:`~estimator.noise.regularisation_kernels`), from their spread under ``weights (K,)``
+        mixed with equal weights in proportion ``1 - ESS / K``: weights that leave few particles
+        are mostly about other objects (a cube picked up in plain view can give one particle all the
+        weight), and a kernel sized by them alone would leave a hidden object that particle's one
+        value. What the weights do say about a hidden object (negative evidence) they say again at
+        the next update to the jittered copies."""
         nz = self.config.noise
-        return regularisation_kernels(poses, weights, hidden, nz.regularisation, nz.max_jitter_std)
+        K = len(weights)
+        share = 1.0 / (K * float(np.sum(weights ** 2)))  # ESS / K
+        mixed = share * weights + (1.0 - share) / K
+        return regularisation_kernels(poses, mixed, hidden, nz.regularisation, nz.max_jitter_std)
 
     def regularise(self, state: ParticleState, kernels: dict[int, np.ndarray], rng: np.random.Generator) -> None:
         """In place, after resampling: jitter the free copies of each hidden object with its kernel (a

@@ -52,7 +52,8 @@ def teleport_kinds(tracked: np.ndarray, tick_vel: np.ndarray,
 def place(poses: np.ndarray, vel: np.ndarray, idx: np.ndarray, newly_known: np.ndarray, is_in: np.ndarray,
           positions: np.ndarray, orientations: np.ndarray, has_orientation: np.ndarray, perc_vel: np.ndarray,
           noise: NoiseConfig, rng: np.random.Generator, spinning: np.ndarray | None = None,
-          held: np.ndarray | None = None, ball_radius: np.ndarray | None = None) -> np.ndarray:
+          held: np.ndarray | None = None, ball_radius: np.ndarray | None = None,
+          vel_std: np.ndarray | None = None) -> np.ndarray:
     """Alg. 2, in place on ``poses (K, M, 7)`` and ``vel (K, M, 6)``: put objects ``idx`` at
     ``positions (M, 3)`` (their perception, or where it was at the update's start) plus perception
     noise per particle (``noise.position_std``; none where ``held (K, M)``: a held object goes to its
@@ -60,9 +61,12 @@ def place(poses: np.ndarray, vel: np.ndarray, idx: np.ndarray, newly_known: np.n
     where ``has_orientation (M,)`` (noised by a quarter of ``noise.orientation_std``), with the
     perceived linear velocity ``perc_vel (M, 3+)``. The contents of each (``is_in (K, M, M)`` at the
     last update; not for ``newly_known (M,)`` objects) are carried rigidly, rotation included, and
-    given the container's velocity. Objects ``spinning (M,)`` keep each particle's angular velocity,
-    balls among them (``ball_radius (M,)``, NaN for other shapes) the spin of rolling at their
-    velocity (:func:`rolling_spin`); the others have none. Returns the position noise
+    given the container's velocity. Objects ``spinning (M,)`` (teleported in motion) get, per particle,
+    horizontal velocity noise of standard deviation ``vel_std (M,)`` (m/s; the perceived velocity's
+    standard error: a hidden object goes on with what its last detections allow, not with one
+    velocity in every particle) and keep each particle's angular velocity, balls among them
+    (``ball_radius (M,)``, NaN for other shapes) the spin of rolling at their velocity
+    (:func:`rolling_spin`); the others have none. Returns the position noise
     ``(K, len(idx), 3)`` m each particle's object got."""
     K = len(poses)
     new = poses[:, idx].copy()
@@ -93,6 +97,8 @@ def place(poses: np.ndarray, vel: np.ndarray, idx: np.ndarray, newly_known: np.n
     vel[:, idx, :3] = perc_vel[idx, :3]
     if spinning is not None:
         keep = spinning[idx]
+        if vel_std is not None and np.any(vel_std[idx[keep]] > 0):
+            vel[:, idx[keep], :2] += rng.normal(0.0, 1.0, (K, int(keep.sum()), 2)) * vel_std[idx[keep], None]
         vel[:, idx[keep], 3:] = spin[:, keep]
         if ball_radius is not None:
             rolling_spin(vel, idx[keep], ball_radius)

@@ -25,6 +25,10 @@ HAND_SMOOTHING = 3
 MOTION_ONSET = 0.015
 """m: an object still until now starts moving when a detection lies this far from where it was still
 (the average of its still detections); it started at its last detection closer than that."""
+VELOCITY_WINDOW = 0.2
+"""s: an object's perceived velocity is the least-squares slope of its detections over this long (since
+its last gap longer than ``t_perceived``): a difference of two frames 1/30 s apart turns a few
+millimetres of detection noise into tenths of a metre per second, which a hidden object then keeps."""
 STILL_FRAMES = 30
 """A still object's position is the mean of its still detections, the latest :data:`STILL_FRAMES`
 weighing most (an exponential average of weight ``max(1 / n, 1 / STILL_FRAMES)``): it does not follow
@@ -42,7 +46,9 @@ class PerceptionMemory:
 
     Arrays (all ``(M, ...)``): ``last_pose (M, 7)``, ``last_has_orientation`` bool, ``last_seen``
     (s; -inf: never), ``last_std`` (m; NaN: the detector gave none), ``perc_vel (M, 6)`` (linear part
-    from finite differences, m/s; angular part 0), ``pose_at_tick (M, 7)`` (``last_pose`` at the
+    the least-squares slope of the detections over :data:`VELOCITY_WINDOW`, m/s; angular part 0),
+    ``perc_vel_sxx (M,)`` (s^2, the spread of those detections' times about their mean: the slope's
+    standard error is the detection noise over its square root; 0: no slope), ``pose_at_tick (M, 7)`` (``last_pose`` at the
     previous reasoning step), ``perceived_prev`` bool (perceived at the previous step),
     ``hold_hand`` (name of the tracked hand near each object when last detected, or None),
     ``hold_offset (M, 3)`` (object minus hand position then, m), ``still_position (M, 3)`` (m, average
@@ -61,6 +67,10 @@ class PerceptionMemory:
         self.last_seen = np.full(M, -np.inf)
         self.last_std = np.full(M, np.nan)
         self.perc_vel = np.zeros((M, 6))
+        self.perc_vel_sxx = np.zeros(M)
+        self._line_xy = np.zeros((M, 2))  # the fitted line's horizontal position at the last detection
+        self.perc_vel_scatter = np.full(M, np.nan)
+        self._segment_start = np.full(M, -np.inf)
         self.pose_at_tick = poses.copy()
         self.perceived_prev = np.zeros(M, dtype=bool)
         self.hold_hand: list[str | None] = [None] * M
@@ -117,10 +127,8 @@ class PerceptionMemory:
             detected[m] = True
             gap = frame.t - self.last_seen[m]
             self._track_motion(m, frame.t, det.position, gap)
-            if 0 < gap <= hr.t_perceived:
-                self.perc_vel[m, :3] = (det.position - self.last_pose[m, :3]) / gap
-            else:
-                self.perc_vel[m, :3] = 0.0  # first sighting: no velocity (never NaN)
+            if not 0 < gap <= hr.t_perceived:
+                self._segment_start[m] = frame.t  # first sighting or back after a gap: no velocity yet
             self.last_pose[m, :3] = det.position
             if det.orientation is not None:
                 self.last_pose[m, 3:] = det.orientation
@@ -130,10 +138,47 @@ class PerceptionMemory:
             hist = self._history[m]
             hist.append((frame.t, tuple(det.position.tolist()),
                          None if det.orientation is None else tuple(det.orientation.tolist())))
-            while hist and hist[0][0] < frame.t - 2.0 * hr.place_dwell - 0.1:
+            while hist and hist[0][0] < frame.t - max(2.0 * hr.place_dwell + 0.1, VELOCITY_WINDOW):
                 hist.popleft()
+            (self.perc_vel[m, :3], self.perc_vel_sxx[m], self._line_xy[m],
+             self.perc_vel_scatter[m]) = self._fit_velocity(m, frame.t)
             self._nearest_hand(frame, m)
         return detected
+
+    def velocity_std(self, position_std: float) -> np.ndarray:
+        """Standard error ``(M,)`` (m/s) of each perceived velocity per axis: the detection noise over
+        the square root of :attr:`perc_vel_sxx`; 0 where there is no slope. The noise is the detector's
+        ``position_std`` where it gave one, else the detections' horizontal scatter about their line
+        (:attr:`perc_vel_scatter`, from three detections on) up to ``position_std`` (m, the model's
+        perception noise, also used with two detections)."""
+        scatter = np.where(np.isfinite(self.perc_vel_scatter), np.minimum(self.perc_vel_scatter, position_std),
+                           position_std)
+        sigma = np.where(np.isfinite(self.last_std), self.last_std, scatter)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(self.perc_vel_sxx > 0, sigma / np.sqrt(self.perc_vel_sxx), 0.0)
+
+    def _fit_velocity(self, m: int, t: float) -> tuple[np.ndarray, float, np.ndarray, float]:
+        """Least-squares line through object m's detections over the :data:`VELOCITY_WINDOW` up to its
+        latest one at ``t`` (s), since its segment started: the slope ``(3,)`` (m/s), the spread of
+        the detection times ``sxx`` (s^2), the line's horizontal position at ``t`` ``(2,)`` (m) and
+        the detections' horizontal scatter about it (m, RMS per axis over ``n - 2`` degrees of
+        freedom; NaN under three detections); for fewer than two detections
+        ``(0, 0, the latest detection, NaN)``."""
+        since = max(t - VELOCITY_WINDOW, self._segment_start[m]) - 1e-9
+        pts = [(h[0], h[1]) for h in self._history[m] if h[0] >= since]
+        latest = np.asarray(self._history[m][-1][1][:2], dtype=float)
+        if len(pts) < 2:
+            return np.zeros(3), 0.0, latest, math.nan
+        ts = np.array([p[0] for p in pts])
+        xs = np.array([p[1] for p in pts])
+        dt = ts - ts.mean()
+        sxx = float(dt @ dt)
+        if sxx <= 1e-12:
+            return np.zeros(3), 0.0, latest, math.nan
+        slope = dt @ (xs - xs.mean(axis=0)) / sxx
+        resid = xs[:, :2] - xs.mean(axis=0)[:2] - dt[:, None] * slope[None, :2]
+        scatter = math.sqrt(float(np.sum(resid ** 2)) / (2 * (len(pts) - 2))) if len(pts) > 2 else math.nan
+        return slope, sxx, xs.mean(axis=0)[:2] + slope[:2] * (t - ts.mean()), scatter
 
     def _track_motion(self, m: int, t: float, position: np.ndarray, gap: float) -> None:
         """Motion onset of object m from its detection at ``position`` (m) at ``t`` (s), ``gap`` (s)
@@ -191,9 +236,15 @@ class PerceptionMemory:
     def position_at(self, t: float) -> np.ndarray:
         """Perceived positions ``(M, 3)`` (m) carried from each object's last detection to time ``t``
         (s) at its perceived velocity (``perc_vel``; zero for an object teleported at rest): where
-        an object seen moving was at the start of an update whose detections it is teleported to."""
+        an object seen moving was at the start of an update whose detections it is teleported to.
+        Moving horizontally, it is carried along the detections' fitted line (the slope is their
+        average velocity, at the middle of the window: one reasoning period back, an update's start,
+        from where physics slows a rolling ball down as it should); else from its last detection."""
         lag = np.where(np.isfinite(self.last_seen), t - self.last_seen, 0.0)  # never seen: no lag
-        return self.last_pose[:, :3] + self.perc_vel[:, :3] * lag[:, None]
+        base = self.last_pose[:, :3].copy()
+        on_line = np.any(self.perc_vel[:, :2] != 0.0, axis=1)
+        base[on_line, :2] = self._line_xy[on_line]
+        return base + self.perc_vel[:, :3] * lag[:, None]
 
     def jumped(self) -> np.ndarray:
         """Objects ``(M,)`` whose perceived position moved by more than ``d_perc_prev`` since the

@@ -37,7 +37,9 @@ class ParticleState:
       where (and when) a held object was while its tracked hand kept it out of the camera's view, over
       the ``hidden_n`` updates it was (:func:`estimator.holding.hidden_places`); ``down_at (K, M, 3)``,
       ``down_t (K, M)``: where and when it was lowest over those updates (where it would have been
-      put down: :func:`estimator.holding.lowest_hidden_place`).
+      put down: :func:`estimator.holding.lowest_hidden_place`); ``rest_at (K, M, 3)`` m, ``rest_t
+      (K, M)`` s (-inf: none): where and when it last rested on a support out of view, undetected
+      (where a hand that sets it down leaves it: :func:`estimator.holding.resting_place`).
     * ``jitter (K, M, 3)`` m: the horizontal perception noise the last update's teleport added to
       each free object's position (zero for objects it did not teleport, held ones, and vertically:
       a support undoes it): what the particle's next prediction of a detection leaves out, so that it
@@ -63,6 +65,8 @@ class ParticleState:
     hidden_n: np.ndarray
     down_at: np.ndarray
     down_t: np.ndarray
+    rest_at: np.ndarray
+    rest_t: np.ndarray
     push_decided: np.ndarray
     holds: np.ndarray
     jitter: np.ndarray

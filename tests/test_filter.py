@@ -622,8 +622,8 @@ def test_a_hand_back_in_view_without_its_object_let_it_go_where_it_was_hidden():
     release_hidden = 0.226) explain the view: P(held) ends below 0.3 (about 0.25 expected: the held
     ones lose at most the factor hand_occlusion) and the cup is on the table behind the screen, put
     down: the timeline has a Place (put_down_hidden: let go where it was lowest, at the 2.4 s the hand
-    lowered it) and no Release. Without the move (release_hidden = 0) the few particles that let it
-    go at the loss fall in view, and the cup stays held."""
+    lowered it) and no Release. Without the moves (release_hidden = 0, put_down_touched = 0) the few
+    particles that let it go at the loss fall in view, and the cup stays held."""
     from dataclasses import replace
 
     from actions.modes import ModePriors
@@ -652,9 +652,16 @@ def test_a_hand_back_in_view_without_its_object_let_it_go_where_it_was_hidden():
     assert len(lets) == 1 and lets[0][0] == "Place" and abs(lets[0][1] - 2.4) < 0.25, events
     assert last.hypotheses[0].support == "table" and last.hypotheses[0].p > 0.5
     assert np.linalg.norm(last.position[:2] - put_down) < 0.2
-    cfg0 = replace(cfg, priors=replace(ModePriors(), release_hidden=0.0))
+    cfg0 = replace(cfg, priors=replace(ModePriors(), release_hidden=0.0, put_down_touched=0.0))
     with SceneEstimator(scene, cfg0, np.random.default_rng(4)) as est:
         assert est.run(frames)[-1].objects["cup"].p_held > 0.5
+    # set down out of view: where the cup rested on the table at its lowest, the hand lifting away
+    # lets it go in most particles (put_down_touched) before the hand shows in view without it
+    for p, check in ((ModePriors().put_down_touched, lambda h: h < 0.5), (0.0, lambda h: h > 0.9)):
+        cfg1 = replace(cfg, priors=replace(ModePriors(), put_down_touched=p))
+        with SceneEstimator(scene, cfg1, np.random.default_rng(4)) as est:
+            held = [b.objects["cup"].p_held for b in est.run(frames) if 2.6 <= b.t <= 3.0]
+        assert held and all(check(h) for h in held), (p, held)
 
 
 def test_a_resting_object_converges_to_the_mean_of_its_detections():

@@ -9,7 +9,7 @@ from experiments.cli.fit import seed_range as _seed_range
 from types import SimpleNamespace
 
 from experiments.evaluation.fit_priors import (Counts, Spread, best_threshold, count_descents, count_losses,
-                                               count_out_of_reach)
+                                               count_out_of_reach, count_set_downs)
 from physics.scene import scene_from_dict
 
 
@@ -57,6 +57,33 @@ def test_carried_losses_let_go_before_being_seen_again_count_for_release_hidden(
     count_losses(obs, truth, r, pr, carried, still, spread, hidden, put_down)
     assert (hidden.hits, hidden.n) == (2, 3) and (carried.hits, carried.n) == (0, 3)
     assert (put_down.hits, put_down.n) == (1, 2)  # of the two let go, one put down, one dropped
+
+
+def test_set_downs_out_of_view_are_counted_when_the_hand_lifts_away():
+    """Out of view, the held cup rests on the table (a truth relation) while the hand is at 0.8 m;
+    once the hand is more than carry_distance higher, the sample is whether the cup is still held.
+    One sample per stretch out of view; no sample without a rest or without the rise."""
+    pr = ModePriors(carry_distance=0.05)
+
+    def stream(hand_z, held_until, rests_from=0.5):
+        obs, truth = [], []
+        for t in np.arange(0.0, 2.0, 0.05):
+            hand = [0.0, 0.0, float(hand_z(t))]
+            held = t < held_until
+            obs.append({"t": float(t), "objects": {} if t >= 0.2 else {"cup": {"position": [0, 0, 0.7]}},
+                        "hands": {"h": hand}})
+            rel = [{"subject": "cup", "predicate": "isOnTop", "object": "table", "p": 1.0}] if t >= rests_from else []
+            truth.append({"t": float(t), "objects": {"cup": {"held": held}}, "relations": rel})
+        return obs, truth
+
+    lift = lambda t: 0.8 if t < 1.0 else 0.8 + 0.2 * (t - 1.0)  # noqa: E731  (rises from 1 s)
+    touched = Counts()
+    count_set_downs(*stream(lift, held_until=0.9), pr, touched)  # let go before the hand rose
+    count_set_downs(*stream(lift, held_until=9.0), pr, touched)  # lifted again with the hand
+    assert (touched.hits, touched.n) == (1, 2)
+    count_set_downs(*stream(lambda t: 0.8, held_until=0.9), pr, touched)  # the hand never rises
+    count_set_downs(*stream(lift, held_until=0.9, rests_from=9.0), pr, touched)  # never rests
+    assert touched.n == 2
 
 
 def test_seed_range_is_checked():

@@ -1,7 +1,7 @@
 """Held objects in the scene model (estimator/holding.py): release at loss by hand state, targets."""
 import numpy as np
 
-from actions.modes import FREE, HELD, ModePriors
+from actions.modes import FREE, HELD, PLACE, ModePriors
 from estimator.config import ReasonerConfig
 from estimator.holding import release_on_loss
 from estimator.model import initial_poses
@@ -36,6 +36,74 @@ def test_the_share_released_at_loss_follows_the_hand_state():
     new, _ = release_on_loss(modes, np.array([True]), np.zeros((K, 1), bool), np.random.default_rng(3),
                              _memory([0.4, 0.0, 0.78]), priors, np.array([True]))
     assert np.all(new == HELD)
+
+
+def test_a_held_object_that_leaves_view_in_motion_is_let_go_at_the_loss_prior():
+    """Seen moving along its support at the last update, undetected now, no tracked hand (``left_view``):
+    the share of 4000 holding particles that let it go is ``release_on_loss`` within 4 binomial
+    standard errors, though it still counts as perceived; the switch is a Place (on a support);
+    without ``left_view`` nothing is let go while perceived."""
+    priors = ModePriors(release_on_loss=0.3)
+    K = 4000
+    modes = np.full((K, 1), HELD, np.int8)
+    mem = _memory([0.1, 0.0, 0.78])
+    supported = np.ones((K, 1), bool)
+    new, codes = release_on_loss(modes, np.array([True]), supported, np.random.default_rng(5), mem, priors,
+                                 None, np.array([True]))
+    share = np.mean(new[:, 0] == FREE)
+    assert abs(share - 0.3) < 4 * np.sqrt(0.3 * 0.7 / K)
+    assert np.all(codes[new == FREE] == PLACE) and np.all(codes[new == HELD] == 0)
+    kept, _ = release_on_loss(modes, np.array([True]), supported, np.random.default_rng(5), mem, priors, None,
+                              np.array([False]))
+    assert np.all(kept == HELD)
+
+
+def test_where_a_held_object_last_rested_out_of_view_is_kept_until_it_starts_again():
+    from estimator.holding import resting_place
+
+    K, M = 2, 1
+    at, tt = np.zeros((K, M, 3)), np.full((K, M), -np.inf)
+    none = np.zeros((K, M), bool)
+    poses = np.zeros((K, M, 7))
+    for j, (sup, hidden) in enumerate([([False, True], True), ([True, False], True), ([False, False], True),
+                                       ([True, True], False)]):
+        poses[..., 2] = 0.7 + 0.1 * j
+        at, tt = resting_place(at, tt, poses, np.full((K, M), hidden), np.array(sup)[:, None], none, float(j))
+    assert list(tt[:, 0]) == [1.0, 0.0] and np.allclose(at[:, 0, 2], [0.8, 0.7])  # in view (the last): not taken
+    at, tt = resting_place(at, tt, poses, none, none, np.array([[True], [False]]), 5.0)
+    assert list(tt[:, 0]) == [-np.inf, 0.0]
+
+
+def test_a_held_object_set_down_out_of_view_is_let_go_when_its_hand_lifts_away():
+    """Held in a tracked hand out of view, having rested on a support at 0.70 m: once the hand carries
+    it more than carry_distance above that place (and only at that crossing), ``put_down_touched`` of
+    4000 particles let it go (4 binomial standard errors); not where it never rested, nor before the
+    hand rose, nor after the crossing, nor without a tracked hand; let go where it rested, a Place."""
+    from types import SimpleNamespace
+
+    from estimator.holding import let_go_where_rested, set_down_behind_cover
+
+    priors = ModePriors(put_down_touched=0.8, carry_distance=0.05)
+    K = 4000
+    modes = np.full((K, 1), HELD, np.int8)
+    rest_at = np.zeros((K, 1, 3))
+    rest_at[..., 2] = 0.70
+    rest_t = np.full((K, 1), 2.0)
+    rest_t[:1000] = -np.inf
+    before = np.full((K, 1), 0.72)
+    rng = np.random.default_rng(9)
+    let = set_down_behind_cover(modes, rest_at, rest_t, before, np.array([0.80]), np.array([True]), priors, rng)
+    assert not let[:1000].any()
+    assert abs(let[1000:].mean() - 0.8) < 4 * np.sqrt(0.8 * 0.2 / 3000)
+    for hand_z, b, tracked in ((0.74, 0.72, True), (0.80, 0.78, True), (0.80, 0.72, False), (np.nan, 0.72, True)):
+        none = set_down_behind_cover(modes, rest_at, rest_t, np.full((K, 1), b), np.array([hand_z]),
+                                     np.array([tracked]), priors, rng)
+        assert not none.any(), (hand_z, b, tracked)
+    poses, vel, codes = np.ones((K, 1, 7)), np.ones((K, 1, 6)), np.zeros((K, 1), np.int8)
+    when = let_go_where_rested(let, SimpleNamespace(rest_at=rest_at, rest_t=rest_t), poses, vel, modes, codes)
+    assert np.all(modes[let] == FREE) and np.all(codes[let] == PLACE) and np.all(vel[let] == 0)
+    assert np.all(poses[let, 2] == 0.70) and np.all(when[let] == 2.0) and np.all(np.isnan(when[~let]))
+    assert np.all(modes[~let] == HELD) and np.all(poses[~let] == 1)
 
 
 def test_hidden_places_are_a_uniform_sample_over_the_hidden_updates():

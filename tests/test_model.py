@@ -406,6 +406,31 @@ def test_regularisation_jitters_only_free_copies_of_hidden_objects():
     assert np.all(st.params[:, TABLE] == params[:, TABLE])
 
 
+def test_a_hidden_objects_kernel_keeps_its_spread_when_the_weights_pick_one_particle():
+    """Weights that leave one particle (about another object) size the kernel by the equal-weight
+    spread mixed in at ``1 - ESS / K``: h^2 times that covariance, not the near-zero covariance of the
+    one particle; with equal weights, h^2 times the covariance (Silverman-style kernel)."""
+    nz = NoiseConfig(regularisation=0.5, max_jitter_std=1.0)
+    model = make(EstimatorConfig(particles=400, noise=nz))
+    rng = np.random.default_rng(8)
+    st = model.initial_state(rng)
+    st.poses[:, BALL, :3] += rng.normal(0.0, 0.004, (400, 3))
+    hidden = np.zeros(5, bool)
+    hidden[BALL] = True
+    cov = np.cov(st.poses[:, BALL, :3].T, bias=True)
+    even = model.regularisation_kernels(st.poses, np.full(400, 1 / 400), hidden)[BALL]
+    assert np.allclose(even @ even.T, 0.25 * cov, rtol=1e-6, atol=1e-12)
+    w = np.full(400, 1e-12)
+    w[0] = 1.0
+    w /= w.sum()
+    one = model.regularisation_kernels(st.poses, w, hidden)[BALL]
+    share = 1.0 / (400 * np.sum(w ** 2))
+    mixed = share * w + (1.0 - share) / 400
+    assert np.allclose(one @ one.T, 0.25 * np.cov(st.poses[:, BALL, :3].T, aweights=mixed, bias=True),
+                       rtol=1e-6, atol=1e-12)
+    assert np.trace(one @ one.T) > 0.9 * np.trace(even @ even.T)
+
+
 def test_a_still_resting_object_takes_a_kalman_step_to_its_detection_and_a_moving_one_does_not():
     model = make(EstimatorConfig(particles=400, noise=NoiseConfig(process_position_std=0.0)))
     st = model.initial_state(np.random.default_rng(0))

@@ -46,6 +46,34 @@ def test_place_puts_objects_at_the_given_positions_with_noise_except_where_held(
     assert np.all(poses[:, 1] == [0, 0, 0, 0, 0, 0, 1])  # not teleported
 
 
+def test_objects_teleported_in_motion_get_their_velocity_error_per_particle():
+    """``vel_std`` (m/s) spreads the horizontal velocity of objects teleported in motion, per axis
+    within the chi-square 3-sigma band of 4000 particles, around the perceived velocity (mean within
+    3 standard errors); the vertical velocity, objects at rest and paper mode (no vel_std) get none;
+    a ball's spin follows its own drawn velocity."""
+    K, M = 4000, 2
+    poses = np.zeros((K, M, 7))
+    poses[..., 6] = 1.0
+    vel = np.zeros((K, M, 6))
+    positions = np.zeros((M, 3))
+    quat = np.tile([0.0, 0.0, 0.0, 1.0], (M, 1))
+    perc_vel = np.array([[0.5, -0.2, 0.0], [0.0, 0.0, 0.0]])
+    std = np.array([0.05, 0.05])
+    place(poses, vel, np.array([0, 1]), np.zeros(M, bool), np.zeros((K, M, M), bool), positions, quat,
+          np.zeros(M, bool), perc_vel, NoiseConfig(position_std=0.01), np.random.default_rng(2),
+          spinning=np.array([True, False]), ball_radius=np.array([0.03, np.nan]), vel_std=std)
+    sd = vel[:, 0, :2].std(axis=0)
+    assert np.all(np.abs(sd - 0.05) < 3 * 0.05 / math.sqrt(2 * K))
+    assert np.all(np.abs(vel[:, 0, :2].mean(axis=0) - perc_vel[0, :2]) < 3 * 0.05 / math.sqrt(K))
+    assert np.all(vel[:, 0, 2] == 0) and np.all(vel[:, 1] == 0)
+    assert np.allclose(vel[:, 0, 3:5], np.stack([-vel[:, 0, 1], vel[:, 0, 0]], axis=1) / 0.03)
+    again = np.zeros((K, M, 6))
+    place(poses, again, np.array([0]), np.zeros(M, bool), np.zeros((K, M, M), bool), positions, quat,
+          np.zeros(M, bool), perc_vel, NoiseConfig(position_std=0.01), np.random.default_rng(2),
+          spinning=np.array([True, False]), ball_radius=np.array([0.03, np.nan]))
+    assert np.allclose(again[:, 0, :3], perc_vel[0])
+
+
 def test_a_ball_given_a_velocity_spins_as_it_rolls_and_other_shapes_keep_their_spin():
     radius = np.array([0.03, np.nan])
     vel = np.zeros((2, 2, 6))

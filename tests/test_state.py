@@ -17,6 +17,7 @@ def state(K=3, M=2):
                          hidden_at=rng.normal(size=(K, M, 3)), hidden_t=rng.normal(size=(K, M)),
                          hidden_n=rng.integers(0, 5, (K, M)).astype(np.int32),
                          down_at=rng.normal(size=(K, M, 3)), down_t=rng.normal(size=(K, M)),
+                         rest_at=rng.normal(size=(K, M, 3)), rest_t=rng.normal(size=(K, M)),
                          push_decided=rng.normal(size=(K, M)), holds=rng.normal(size=(K, M, 5)), jitter=rng.normal(size=(K, M, 3)))
 
 
@@ -26,7 +27,7 @@ def test_take_follows_the_ancestors_and_equalises_the_weights():
     t = s.take(anc)
     for name in ("poses", "velocities", "params", "modes", "on_top", "is_in", "event_t", "supported",
                  "last_motion", "jolted", "unseen_in_view", "hold_error", "let_go_unseen", "hidden_at", "hidden_t",
-                 "hidden_n", "push_decided", "holds"):
+                 "hidden_n", "rest_at", "rest_t", "push_decided", "holds"):
         a, b = getattr(t, name), getattr(s, name)
         assert a.dtype == b.dtype and np.array_equal(a, b[anc]), name
     assert np.all(t.log_weights == 0) and len(t.log_weights) == 3

@@ -14,6 +14,9 @@ What is fitted (see :class:`actions.modes.ModePriors` and :class:`estimator.conf
 * ``put_down_hidden``: of the objects let go while hidden (the hits of ``release_hidden``), the
   fraction put down (at rest at most ``push_lift`` below where they were let go), not dropped;
   Laplace's rule.
+* ``put_down_touched``: of the stretches out of view in which an object held in truth rests on
+  something and the tracked hand then rises more than ``carry_distance``, the fraction where the
+  object was no longer held when the hand had risen; Laplace's rule.
 * ``held_offset_std``: over the frames where an object is held in truth and not detected, after a
   detection with a tracked hand within that radius, the root-mean-square per axis of the true
   position minus (the tracked hand + the object's offset to it at that detection).
@@ -157,6 +160,34 @@ def _add_spread(obs, truth, t_true, hands, oid: str, a: int, b: int, spread: Spr
         spread.n += 1
 
 
+def count_set_downs(obs: list[dict], truth: list[dict], priors: ModePriors, touched: Counts) -> None:
+    """Add the set-downs out of view of one run (``obs``, ``truth``: the simulator's lines): an object
+    held in truth and not detected rests on something (a truth relation with it as subject) while
+    held, and then the tracked hand (smoothed as the estimator does) rises more than
+    ``carry_distance`` above its height at that moment, before the object is detected again: a hit
+    when the object is no longer held in truth then. One sample per such stretch out of view."""
+    t_true = np.array([r["t"] for r in truth])
+    hands = [None if not o.get("hands") else np.asarray(next(iter(o["hands"].values())), float) for o in obs]
+    ids = sorted({oid for r in truth for oid, o in r["objects"].items() if o.get("held")})
+    for oid in ids:
+        touch_z = None  # the smoothed hand's height when the held object rested, out of view
+        for f, o in enumerate(obs):
+            if oid in o["objects"]:
+                touch_z = None
+                continue
+            row = truth[_nearest(t_true, o["t"])]
+            hand = _smoothed(hands, f)
+            if hand is None or touch_z is False:
+                continue
+            if touch_z is None:
+                resting = any(r["subject"] == oid for r in row["relations"])
+                if row["objects"][oid].get("held") and resting:
+                    touch_z = float(hand[2])
+            elif hand[2] - touch_z > priors.carry_distance:
+                touched.add(not row["objects"][oid].get("held"))
+                touch_z = False  # counted: wait for the object to be detected again
+
+
 def count_out_of_reach(obs: list[dict], truth: list[dict], out_of_reach: Counts) -> None:
     """Add the frames of one run (``obs``, ``truth``: the simulator's lines) with a tracked hand in
     which an object held in truth is detected: a hit when no tracked hand is within
@@ -266,13 +297,14 @@ def fit_priors(scenarios: list[str] | None = None, seeds=FIT_SEEDS, config: Esti
     """Fit on ``scenarios`` (default: every built-in one with tracked hands) x ``seeds``.
 
     Returns ``{"release_on_loss_carried": p, "release_on_loss_still": p, "release_hidden": p, "put_down_hidden": p,
+    "put_down_touched": p,
     "held_out_of_reach": p, "hand_occlusion": p, "held_offset_std": m, "release_accel": m/s^2,
     "counts": {name: [hits, n] (release_accel: errors, samples, extremes)}, "scenarios": [...],
     "seeds": [...]}``."""
     cfg = config or EstimatorConfig()
     names = [n for n in (scenarios or list_scenarios()) if load_scenario(n).perception.hands_tracked]
     carried, still, hidden, occluded, spread = Counts(), Counts(), Counts(), Counts(), Spread()
-    put_down = Counts()
+    put_down, touched = Counts(), Counts()
     reach, held_down, let_go_down = Counts(), [], []
     for name in names:
         for seed in seeds:
@@ -281,17 +313,20 @@ def fit_priors(scenarios: list[str] | None = None, seeds=FIT_SEEDS, config: Esti
                 count_descents(result, cfg.reasoner, held_down, let_go_down, filtered=filtered)
             count_losses(result.observations, result.truth, cfg.reasoner, cfg.priors, carried, still, spread, hidden,
                          put_down)
+            count_set_downs(result.observations, result.truth, cfg.priors, touched)
             count_hand_occlusion(result, cfg.visibility_threshold, occluded)
             count_out_of_reach(result.observations, result.truth, reach)
     accel, accel_errors = best_threshold(held_down, let_go_down)
     return {"release_on_loss_carried": round(carried.p, 3), "release_on_loss_still": round(still.p, 3),
-            "release_hidden": round(hidden.p, 3), "put_down_hidden": round(put_down.p, 3), "held_out_of_reach": float(f"{reach.p:.2g}"),
+            "release_hidden": round(hidden.p, 3), "put_down_hidden": round(put_down.p, 3),
+            "put_down_touched": round(touched.p, 3), "held_out_of_reach": float(f"{reach.p:.2g}"),
             "hand_occlusion": round(occluded.p, 3), "held_offset_std": round(spread.std, 4),
             "release_accel": round(accel, 2),
             "counts": {"held_offset_std": [round(spread.ss, 6), spread.n],
                        "release_on_loss_carried": [carried.hits, carried.n],
                        "release_on_loss_still": [still.hits, still.n], "release_hidden": [hidden.hits, hidden.n],
                        "put_down_hidden": [put_down.hits, put_down.n],
+                       "put_down_touched": [touched.hits, touched.n],
                        "held_out_of_reach": [reach.hits, reach.n],
                        "hand_occlusion": [occluded.hits, occluded.n],
                        "release_accel": {"errors": accel_errors, "held": len(held_down), "let_go": len(let_go_down),
