@@ -106,6 +106,7 @@ class SceneEstimator:
         self.static, self.dynamic, self.hollow = self.model.static, self.model.dynamic, self.model.hollow
         self.timeline = Timeline(cfg.event_threshold)
         self.recoveries = 0
+        self._weighed = np.zeros(self.M, dtype=bool)  # objects some evidence weighed since the last resampling
         self.reseeded = 0  # particles re-seeded from survivors (exploded simulations, dead workers)
         self.n_updates = 0
         self.last_belief: Belief | None = None
@@ -239,8 +240,9 @@ class SceneEstimator:
             belief = self._with_person(belief, settled.poses, weights)
         self._update_timeline(t, belief)
         # resample; particles whose simulation exploded or whose worker died take a survivor's state
+        self._weighed |= detected | np.any(evidence.visible >= cfg.visibility_threshold, axis=0)
         if K > 1 and ess < cfg.resample_threshold * K:
-            self._resample(weights, self.known & self.dynamic & ~perceived)
+            self._resample(weights, self.known & self.dynamic & ~perceived, settled)
         elif K > 1 and np.any(bad) and np.any(weights > 0):
             self._reseed(bad, weights)
         if K > 1 and np.any(bad) and np.any(weights > 0):
@@ -330,12 +332,20 @@ class SceneEstimator:
             push_decided=s.push_decided, holds=settled.holds,
             jitter=move.jitter * (settled.modes == FREE)[..., None])  # held: at the target, no noise
 
-    def _resample(self, weights: np.ndarray, hidden: np.ndarray) -> None:
+    def _resample(self, weights: np.ndarray, hidden: np.ndarray, settled: Settled) -> None:
         """Systematic resampling, then the model's regularisation of hidden objects ``hidden (M,)`` and
-        of the physical parameters. The worlds keep what they hold (``_world_poses``)."""
+        of the physical parameters. The worlds keep what they hold (``_world_poses``).
+
+        Hidden objects that nothing weighed since the last resampling (never detected nor in view in
+        any particle since, see :attr:`_weighed`), free and at rest in every particle, and supporting
+        nothing, keep each particle's own values (:meth:`ParticleState.take`): the weights are about
+        other objects, and resampling them too would only lose their spread (a cube picked up in
+        plain view left a marble hidden in a bin one particle's position). They need no kernel."""
         anc = keep_survivors_in_place(systematic_resample(weights, self.rng))
-        kernels = self.model.regularisation_kernels(self.state.poses, weights, hidden)
-        self.state = self.state.take(anc)
+        own = hidden & ~self._weighed & self.model.unweighable(settled)
+        kernels = self.model.regularisation_kernels(self.state.poses, weights, hidden & ~own)
+        self.state = self.state.take(anc, own)
+        self._weighed = np.zeros(self.M, dtype=bool)
         if self._produced is not None:
             self._produced = (self._produced[0][anc], self._produced[1][anc])
         self.model.regularise(self.state, kernels, self.rng)

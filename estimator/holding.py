@@ -23,9 +23,9 @@ def release_on_loss(modes: np.ndarray, perceived: np.ndarray, supported: np.ndar
                     left_view: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Releases of held objects that are not perceived (``modes (K, M)`` int8, ``perceived (M,)``),
     or that ``left_view (M,)`` now: seen moving along their support at the last update, not detected
-    in this one, with no tracked hand (a ball flicked behind a box rolls on by physics or is pushed on
-    by a hand nobody tracks: both are kept, at ``release_on_loss``, rather than carrying the detection
-    on at a constant velocity until it stops counting as perceived).
+    in this one, with no tracked hand. Those are let go in every particle: with no hand to follow,
+    physics is the only model of where they go (a ball flicked behind a box rolls on and stops), not
+    the detection carried on at a constant velocity until it stops counting as perceived.
 
     With probability ``release_on_loss`` when they were perceived at the last update; for the objects
     whose hand is tracked (``tracked (M,)``) ``release_on_loss_carried`` when the hand has moved more
@@ -38,9 +38,6 @@ def release_on_loss(modes: np.ndarray, perceived: np.ndarray, supported: np.ndar
     lost = memory.perceived_prev & ~perceived
     u = rng.random((K, M))
     held_unseen = (new == HELD) & ~perceived[None, :]
-    if left_view is not None:
-        lost = lost | left_view
-        held_unseen |= (new == HELD) & np.asarray(left_view, dtype=bool)[None, :]
     on_loss = np.full(M, priors.release_on_loss)
     later = np.full(M, priors.release)
     if tracked is not None and np.any(tracked):
@@ -51,6 +48,8 @@ def release_on_loss(modes: np.ndarray, perceived: np.ndarray, supported: np.ndar
         later[tracked & carried] = 0.0  # what a moving hand carries, it keeps
     p_rel = np.where(lost[None, :], on_loss[None, :], later[None, :])
     new[held_unseen & (u < p_rel)] = FREE
+    if left_view is not None:
+        new[(new == HELD) & np.asarray(left_view, dtype=bool)[None, :]] = FREE
     return new, switch_events(modes, new, supported)
 
 

@@ -117,7 +117,7 @@ class SceneModel:
     # -- the prior ------------------------------------------------------------------------------------
     def initial_state(self, rng: np.random.Generator) -> ParticleState:
         """K particles at the scene's poses, with physical parameters drawn from their priors and the
-        positions of known dynamic objects perturbed by ``position_std``."""
+        positions of known dynamic objects perturbed horizontally by ``position_std``."""
         K, M, nz = self.K, self.M, self.config.noise
         poses = np.repeat(initial_poses(self.scene)[0][None], K, axis=0)
         base = self.base_params
@@ -136,9 +136,9 @@ class SceneModel:
         if nz.mass_scale_range is not None:
             lo, hi = nz.mass_scale_range
             params[:, dyn, 4] = base[dyn, 4] * rng.uniform(lo, hi, size=(K, len(dyn)))
-        if nz.position_std > 0:
-            known_dyn = np.flatnonzero(self.dynamic & self.known)
-            poses[:, known_dyn, :3] += rng.normal(0, nz.position_std, (K, len(known_dyn), 3))
+        if nz.position_std > 0:  # horizontally: pushed into its support or dropped onto it, an object
+            known_dyn = np.flatnonzero(self.dynamic & self.known)  # starts by bouncing (a duck tips over)
+            poses[:, known_dyn, :2] += rng.normal(0, nz.position_std, (K, len(known_dyn), 2))
             self._just_initialised[known_dyn] = True
         return ParticleState(poses=poses, velocities=np.zeros((K, M, 6)), params=params,
                              modes=np.zeros((K, M), dtype=np.int8), log_weights=np.zeros(K),
@@ -450,6 +450,14 @@ class SceneModel:
             vel[:, idx] = 0.0
 
     # -- after resampling -----------------------------------------------------------------------------
+    def unweighable(self, settled: Settled) -> np.ndarray:
+        """Objects ``(M,)`` whose particles physics cannot tell apart by what else happens: free and at
+        rest on a support in every particle, and no other object on or in them in any particle."""
+        at_rest = settled.supported & slow(settled.velocities)
+        parent = settled.on_top[..., :self.M].any(axis=1) | settled.is_in.any(axis=1)
+        return np.all((settled.modes == FREE) & at_rest & ~parent, axis=0)
+
+
     def regularisation_kernels(self, poses: np.ndarray, weights: np.ndarray,
                                hidden: np.ndarray) -> dict[int, np.ndarray]:
         """The jitter kernels of the hidden objects ``hidden (M,)`` after resampling

@@ -2,9 +2,10 @@
 
 M objects; positions in metres, quaternions ``(x, y, z, w)``, times and durations in seconds,
 velocities in m/s. The memory holds the latest detection of each object (pose, time, std, and
-velocity by finite differences), the tracked hand nearest to it, a short history of detections (for
-the Place rule) and the perception at the previous reasoning step (for teleports and for the
-velocity over a reasoning period).
+velocity: the least-squares line through its recent detections, with the slope's standard error),
+the tracked hand nearest to it, a short history of detections (for the Place rule and the line) and
+the perception at the previous reasoning step (for teleports and for the velocity over a reasoning
+period).
 """
 from __future__ import annotations
 

@@ -5,6 +5,8 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from physics.transforms import carry_pose
+
 
 @dataclass
 class ParticleState:
@@ -71,8 +73,27 @@ class ParticleState:
     holds: np.ndarray
     jitter: np.ndarray
 
-    def take(self, ancestors: np.ndarray) -> "ParticleState":
-        """The particles ``ancestors (K,)`` (indices, repeats allowed), copied, equally weighted."""
+    def take(self, ancestors: np.ndarray, own: np.ndarray | None = None) -> "ParticleState":
+        """The particles ``ancestors (K,)`` (indices, repeats allowed), copied, equally weighted.
+
+        Objects ``own (M,)`` bool keep each particle's own pose, velocity, parameters and relations
+        (as subject), not the ancestor's: nothing weighed them (see
+        :meth:`~estimator.filter.SceneEstimator._resample`), so resampling them with the others would
+        only lose their spread. Those in or on another object (``is_in``, ``on_top`` of the particle
+        before) are carried rigidly from that support's pose in the particle to its pose in the
+        ancestor."""
         out = ParticleState(*(getattr(self, f.name)[ancestors].copy() for f in fields(self)))
         out.log_weights = np.zeros(len(ancestors))
+        if own is None or not np.any(own):
+            return out
+        idx = np.flatnonzero(own)
+        for name in ("poses", "velocities", "params", "supported", "on_top", "is_in"):
+            getattr(out, name)[:, idx] = getattr(self, name)[:, idx]
+        M = self.poses.shape[1]
+        for k in range(len(ancestors)):
+            for m in idx:
+                parents = np.flatnonzero(self.is_in[k, m] | self.on_top[k, m, :M])
+                if len(parents):
+                    c = int(parents[0])
+                    out.poses[k, m] = carry_pose(self.poses[k, m], self.poses[k, c], out.poses[k, c])
         return out

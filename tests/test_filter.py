@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from actions.modes import FREE
 from estimator.config import EstimatorConfig
 from estimator.filter import SceneEstimator
 from estimator.observations import Detection, Frame
@@ -243,8 +244,11 @@ def test_unseen_free_fall_mean_matches_the_analytic_solution():
     assert abs(b.t * 240 - n) < 1e-9 and n == 120
     se = z.std(ddof=1) / np.sqrt(k)
     assert abs(b.objects["ball"].position[2] - exact) < 3 * se
-    # the spread is the prior's (0.01 m) plus the process noise random walk
-    assert 0.006 < np.sqrt(b.objects["ball"].position_cov[2, 2]) < 0.015
+    # the spread: horizontally the prior's (0.01 m, with the process noise's random walk); vertically
+    # the random walk (3 mm per sqrt(s) over 0.5 s) and the 5 mm covariance floor (the prior's noise
+    # is horizontal: an object is mostly placed on a support)
+    cov = b.objects["ball"].position_cov
+    assert 0.006 < np.sqrt(cov[0, 0]) < 0.015 and 0.005 < np.sqrt(cov[2, 2]) < 0.006
     assert b.ess == pytest.approx(k)  # nothing was perceived: the weights stay uniform
 
 
@@ -532,11 +536,13 @@ def test_a_worker_killed_mid_run_is_restarted_and_the_run_goes_on():
 
 def test_a_gap_of_an_hour_simulates_at_most_max_gap():
     """A stream that stops for an hour and resumes: the update after the gap simulates max_gap (2 s)
-    of physics, not an hour, and the unseen box has fallen onto the table meanwhile."""
+    of physics, not an hour, and the cup seen in the air (held), let go at the loss in some particles
+    (release_on_loss, 0.5 of 8: all kept held has probability 1/256), has fallen onto the table in
+    every particle that let it go."""
     scene = table_scene(dict(BOX, pose={"position": [0.1, 0, TABLE_TOP + 0.03]}),
                         {"id": "cup", "cylinder": {"radius": 0.03, "height": 0.08}})
     steps = []
-    with SceneEstimator(scene, EstimatorConfig(particles=4, noise=NoiseConfig()), np.random.default_rng(0)) as est:
+    with SceneEstimator(scene, EstimatorConfig(particles=8, noise=NoiseConfig()), np.random.default_rng(0)) as est:
         real_run = est.pool.run
 
         def counting(batch, n_steps, *a, **kw):
@@ -546,9 +552,11 @@ def test_a_gap_of_an_hour_simulates_at_most_max_gap():
         est.pool.run = counting
         before = est.run([Frame(t, {"cup": det([-0.2, 0.1, TABLE_TOP + 0.3])}) for t in (0.0, 0.08)])
         after = est.run([Frame(3600.0, {}), Frame(3600.08, {})])
+        free = est.state.modes[:, 2] == FREE
+        z = est.poses[:, 2, 2]
     assert steps == [0, 19, 480, 19]
     assert before[-1].objects["cup"].perceived and not after[-1].objects["cup"].perceived
-    assert TABLE_TOP < after[-1].objects["cup"].position[2] < TABLE_TOP + 0.05  # standing or lying on the table
+    assert np.any(free) and np.all((TABLE_TOP < z[free]) & (z[free] < TABLE_TOP + 0.05))  # standing or lying
 
 
 # -- held objects out of view (the hand's motion and visibility) -------------------------------------

@@ -33,3 +33,25 @@ def test_take_follows_the_ancestors_and_equalises_the_weights():
     assert np.all(t.log_weights == 0) and len(t.log_weights) == 3
     t.poses[0, 0, 0] = 99.0
     assert s.poses[2, 0, 0] != 99.0 and t.poses[1, 0, 0] != 99.0  # copies, not views
+
+
+def test_objects_nothing_weighed_keep_their_own_values_and_ride_their_support():
+    """``take(anc, own)``: the object in ``own`` keeps each particle's own pose, velocity and
+    parameters (its spread survives weights that pick one particle); one in a container is carried
+    from the container's pose in its particle to the ancestor's; the others follow the ancestors."""
+    from physics.transforms import carry_pose
+
+    s = state(K=3, M=3)
+    s.poses[..., 3:] = [0.0, 0.0, 0.0, 1.0]
+    s.on_top[:] = False
+    s.is_in[:] = False
+    s.is_in[:, 2, 1] = True  # object 2 in object 1 in every particle
+    anc = np.array([0, 0, 0])
+    before = s.poses.copy()
+    t = s.take(anc, own=np.array([True, False, True]))
+    assert np.array_equal(t.poses[:, 0], before[:, 0]) and np.array_equal(t.params[:, 0], s.params[:, 0])
+    assert np.array_equal(t.velocities[:, 0], s.velocities[:, 0])
+    assert np.array_equal(t.poses[:, 1], before[[0, 0, 0], 1])  # the container: resampled
+    for k in range(3):
+        assert np.allclose(t.poses[k, 2], carry_pose(before[k, 2], before[k, 1], before[0, 1]))
+    assert np.array_equal(s.take(anc).poses[:, 0], before[[0, 0, 0], 0])  # without own: the ancestors
