@@ -243,6 +243,29 @@ def let_go_behind_cover(cover: np.ndarray, state, poses: np.ndarray, vel: np.nda
     return np.where(cover, np.where(down, state.down_t, state.hidden_t), np.nan)
 
 
+def let_go_out_of_view(state, poses: np.ndarray, vel: np.ndarray, modes: np.ndarray, codes: np.ndarray,
+                       frame: Frame, memory: PerceptionMemory, following: np.ndarray, perceived: np.ndarray,
+                       detected: np.ndarray, priors: ModePriors, noise: NoiseConfig,
+                       rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Held objects in a tracked hand (``following (M,)``) let go out of view, in place on ``poses
+    (K, M, 7)``, ``vel (K, M, 6)``, ``modes`` and ``codes (K, M)``: those the hand shows in view
+    without (:func:`release_behind_cover`, :func:`let_go_behind_cover`), and those set down where they
+    rested, the hand lifting away (:func:`set_down_behind_cover`, :func:`let_go_where_rested`; not in
+    the paper's mode, ``hand_occlusion`` 1). Returns the entries let go ``(K, M)``, when ``(K, M)``
+    (s; NaN elsewhere) and the proposal's log-weight factors ``(K,)``."""
+    cover, proposal = release_behind_cover(modes, state.unseen_in_view, state.hidden_n, following & ~perceived,
+                                           priors, noise, rng)
+    when = let_go_behind_cover(cover, state, poses, vel, modes, codes, priors.put_down_hidden, rng)
+    unseen = following & ~detected
+    if noise.hand_occlusion >= 1.0 or not np.any(unseen):
+        return cover, when, proposal
+    set_down = set_down_behind_cover(modes, state.rest_at, state.rest_t, state.poses[..., 2],
+                                     memory.hand_heights(frame, unseen), unseen, priors, rng)
+    if np.any(set_down):
+        when = np.where(set_down, let_go_where_rested(set_down, state, poses, vel, modes, codes), when)
+    return cover | set_down, when, proposal
+
+
 def dropped_behind_cover(codes: np.ndarray, cover: np.ndarray | None, before: np.ndarray, after: np.ndarray,
                          aabbs: np.ndarray, floor: bool) -> np.ndarray:
     """``codes (K, M)`` with the Places of the entries let go behind ``cover`` turned into Releases

@@ -28,8 +28,7 @@ from physics.scene import Scene
 
 from .config import RELEASE_DOWN_SPEED, EstimatorConfig
 from .fusion import ensemble_kalman_step
-from .holding import (dropped_behind_cover, held_targets, let_go_behind_cover, let_go_where_rested,
-                      release_behind_cover, release_on_loss, set_down_behind_cover)
+from .holding import dropped_behind_cover, held_targets, let_go_out_of_view, release_on_loss
 from .noise import process_noise, regularisation_kernels
 from .likelihood import (DetectionTerm, Evidence, HandReachTerm, LogWeightTerm, ModeSwitchTerm, NegativeEvidenceTerm, ProposalTerm,
                          add_terms,
@@ -200,14 +199,8 @@ class SceneModel:
         if cfg.moving_teleports:  # seen moving along at the last update, not now, no tracked hand
             left_view = perceived & ~detected & rolled_along(mem.previous_tick_velocity()) & ~following
         modes, release_codes = self.release(prev_modes, perceived, state.supported, rng, following, left_view)
-        cover, proposal = release_behind_cover(modes, state.unseen_in_view, state.hidden_n, following & ~perceived,
-                                               cfg.priors, cfg.noise, rng)
-        cover_t = let_go_behind_cover(cover, state, poses, vel, modes, release_codes, cfg.priors.put_down_hidden, rng)
-        set_down = self.set_down(modes, state, frame, following & ~detected, rng)
-        if np.any(set_down):  # set down out of view, the hand lifting away: let go where it rested
-            cover_t = np.where(set_down, let_go_where_rested(set_down, state, poses, vel, modes, release_codes),
-                               cover_t)
-            cover = cover | set_down
+        cover, cover_t, proposal = let_go_out_of_view(state, poses, vel, modes, release_codes, frame, mem, following,
+                                                      perceived, detected, cfg.priors, cfg.noise, rng)
         flicked, flick_weight = self.let_go_moving(modes, state.supported, detected & perceived, tick_vel, far, rng)
         if np.any(flicked):  # let go in motion: physics takes it on at its velocity
             modes[flicked] = FREE
@@ -239,22 +232,6 @@ class SceneModel:
                  | state.jolted | cover) & (modes == FREE)
         return Move(poses, vel, predicted, prev_modes, modes, release_codes, tele, target, target_vel, check,
                     depen, vis_query, hold_error, let_go, cameras, cover_t, proposal, nudged, jitter, far)
-
-    def set_down(self, modes: np.ndarray, state: ParticleState, frame: Frame, hidden_hand: np.ndarray,
-                 rng: np.random.Generator) -> np.ndarray:
-        """Held objects set down out of view, their hand lifting away in ``frame``
-        (:func:`~estimator.holding.set_down_behind_cover`); ``hidden_hand (M,)``: unperceived objects
-        in a tracked hand. None in the paper's mode (``hand_occlusion`` 1: held objects are exempt
-        from what the camera does not show)."""
-        if self.config.noise.hand_occlusion >= 1.0 or not np.any(hidden_hand):
-            return np.zeros((self.K, self.M), dtype=bool)
-        hand_z = np.full(self.M, np.nan)
-        for m in np.flatnonzero(hidden_hand):
-            at = self.memory.hand_target(frame, m)
-            if at is not None:
-                hand_z[m] = at[2]
-        return set_down_behind_cover(modes, state.rest_at, state.rest_t, state.poses[..., 2], hand_z, hidden_hand,
-                                     self.config.priors, rng)
 
     def let_go_moving(self, modes: np.ndarray, supported: np.ndarray, seen: np.ndarray, tick_vel: np.ndarray,
                       far: np.ndarray | None, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:

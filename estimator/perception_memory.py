@@ -266,6 +266,16 @@ class PerceptionMemory:
             return np.asarray(frame.hands[hand]) + self.hold_offset[m]
         return None
 
+    def hand_heights(self, frame: Frame, objects: np.ndarray) -> np.ndarray:
+        """Height ``(M,)`` (m) at which each of ``objects (M,)`` follows its tracked hand in ``frame``
+        (:meth:`hand_target`); NaN for the others and where the hand is not in the frame."""
+        out = np.full(self.M, np.nan)
+        for m in np.flatnonzero(objects):
+            at = self.hand_target(frame, m)
+            if at is not None:
+                out[m] = at[2]
+        return out
+
     def tick_velocity(self) -> np.ndarray:
         """Perceived velocity ``(M, 3)`` (m/s) over the last reasoning period (smoother than
         frame-to-frame differences): from the detections used at the previous step to the latest."""
