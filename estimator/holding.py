@@ -37,7 +37,7 @@ def release_on_loss(modes: np.ndarray, perceived: np.ndarray, supported: np.ndar
     new = modes.copy()
     lost = memory.perceived_prev & ~perceived
     u = rng.random((K, M))
-    held_unseen = (new == HELD) & ~perceived[None, :]
+    gone = ~perceived
     on_loss = np.full(M, priors.release_on_loss)
     later = np.full(M, priors.release)
     if tracked is not None and np.any(tracked):
@@ -46,10 +46,11 @@ def release_on_loss(modes: np.ndarray, perceived: np.ndarray, supported: np.ndar
         on_loss[tracked & carried] = priors.release_on_loss_carried
         on_loss[tracked & ~carried] = priors.release_on_loss_still
         later[tracked & carried] = 0.0  # what a moving hand carries, it keeps
-    p_rel = np.where(lost[None, :], on_loss[None, :], later[None, :])
-    new[held_unseen & (u < p_rel)] = FREE
-    if left_view is not None:
-        new[(new == HELD) & np.asarray(left_view, dtype=bool)[None, :]] = FREE
+    p_rel = np.where(lost, on_loss, later)
+    if left_view is not None:  # let go for certain
+        left_view = np.asarray(left_view, dtype=bool)
+        gone, p_rel = gone | left_view, np.where(left_view, 1.0, p_rel)
+    new[(new == HELD) & gone[None, :] & (u < p_rel[None, :])] = FREE
     return new, switch_events(modes, new, supported)
 
 
@@ -251,19 +252,20 @@ def let_go_out_of_view(state, poses: np.ndarray, vel: np.ndarray, modes: np.ndar
     (K, M, 7)``, ``vel (K, M, 6)``, ``modes`` and ``codes (K, M)``: those the hand shows in view
     without (:func:`release_behind_cover`, :func:`let_go_behind_cover`), and those set down where they
     rested, the hand lifting away (:func:`set_down_behind_cover`, :func:`let_go_where_rested`; not in
-    the paper's mode, ``hand_occlusion`` 1). Returns the entries let go ``(K, M)``, when ``(K, M)``
-    (s; NaN elsewhere) and the proposal's log-weight factors ``(K,)``."""
+    the paper's mode, ``hand_occlusion`` 1). Returns when each entry was let go ``(K, M)`` (s; NaN
+    for the others: the entries let go are the finite ones) and the proposal's log-weight factors
+    ``(K,)``."""
     cover, proposal = release_behind_cover(modes, state.unseen_in_view, state.hidden_n, following & ~perceived,
                                            priors, noise, rng)
     when = let_go_behind_cover(cover, state, poses, vel, modes, codes, priors.put_down_hidden, rng)
     unseen = following & ~detected
     if noise.hand_occlusion >= 1.0 or not np.any(unseen):
-        return cover, when, proposal
+        return when, proposal
     set_down = set_down_behind_cover(modes, state.rest_at, state.rest_t, state.poses[..., 2],
                                      memory.hand_heights(frame, unseen), unseen, priors, rng)
     if np.any(set_down):
         when = np.where(set_down, let_go_where_rested(set_down, state, poses, vel, modes, codes), when)
-    return cover | set_down, when, proposal
+    return when, proposal
 
 
 def dropped_behind_cover(codes: np.ndarray, cover: np.ndarray | None, before: np.ndarray, after: np.ndarray,

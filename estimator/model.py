@@ -41,7 +41,7 @@ from .perception_memory import HAND_RADIUS, PerceptionMemory
 from .pool import BatchInput, BatchOutput
 from .resting import slow
 from .relations import relations_and_support
-from .resampling import normalise_log_weights
+from .resampling import effective_sample_size, normalise_log_weights
 from .state import ParticleState
 from .step import Move, Settled
 
@@ -177,11 +177,11 @@ class SceneModel:
             moving, falling = teleport_kinds(tele & mem.perceived_prev & ~newly_known & detected, tick_vel,
                                              mem.previous_tick_velocity())
         far = self._out_of_reach(frame, detected)
-        fitted = mem.perc_vel[:, :3].copy()  # the detections' least-squares velocity (not a tick's difference)
-        mem.perc_vel[tele] = 0.0
-        mem.perc_vel[moving, :3] = fitted[moving]
-        mem.perc_vel[falling, :2] = fitted[falling, :2]
         spinning = moving | falling
+        # teleported in motion, an object keeps the detections' fitted velocity (falling, its
+        # horizontal part); at rest, none
+        mem.perc_vel[tele & ~spinning] = 0.0
+        mem.perc_vel[falling, 2] = 0.0
         # an object teleported in motion starts where it was at this update's start, so that physics
         # brings it to its detection at frame.t (placed at the detection, the belief would be dt ahead)
         start = mem.position_at(frame.t - dt) if cfg.moving_teleports else None
@@ -199,8 +199,9 @@ class SceneModel:
         if cfg.moving_teleports:  # seen moving along at the last update, not now, no tracked hand
             left_view = perceived & ~detected & rolled_along(mem.previous_tick_velocity()) & ~following
         modes, release_codes = self.release(prev_modes, perceived, state.supported, rng, following, left_view)
-        cover, cover_t, proposal = let_go_out_of_view(state, poses, vel, modes, release_codes, frame, mem, following,
-                                                      perceived, detected, cfg.priors, cfg.noise, rng)
+        cover_t, proposal = let_go_out_of_view(state, poses, vel, modes, release_codes, frame, mem, following,
+                                               perceived, detected, cfg.priors, cfg.noise, rng)
+        cover = np.isfinite(cover_t)
         flicked, flick_weight = self.let_go_moving(modes, state.supported, detected & perceived, tick_vel, far, rng)
         if np.any(flicked):  # let go in motion: physics takes it on at its velocity
             modes[flicked] = FREE
@@ -434,7 +435,6 @@ class SceneModel:
         parent = settled.on_top[..., :self.M].any(axis=1) | settled.is_in.any(axis=1)
         return np.all((settled.modes == FREE) & at_rest & ~parent, axis=0)
 
-
     def regularisation_kernels(self, poses: np.ndarray, weights: np.ndarray,
                                hidden: np.ndarray) -> dict[int, np.ndarray]:
         """The jitter kernels of the hidden objects ``hidden (M,)`` after resampling
@@ -446,7 +446,7 @@ class SceneModel:
         the next update to the jittered copies."""
         nz = self.config.noise
         K = len(weights)
-        share = 1.0 / (K * float(np.sum(weights ** 2)))  # ESS / K
+        share = effective_sample_size(weights) / K
         mixed = share * weights + (1.0 - share) / K
         return regularisation_kernels(poses, mixed, hidden, nz.regularisation, nz.max_jitter_std)
 

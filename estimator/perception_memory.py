@@ -67,10 +67,11 @@ class PerceptionMemory:
         self.last_has_orientation = np.zeros(M, dtype=bool)
         self.last_seen = np.full(M, -np.inf)
         self.last_std = np.full(M, np.nan)
-        self.perc_vel = np.zeros((M, 6))
-        self.perc_vel_sxx = np.zeros(M)
+        self._perc_vel = np.zeros((M, 6))
+        self._sxx = np.zeros(M)
         self._line_xy = np.zeros((M, 2))  # the fitted line's horizontal position at the last detection
-        self.perc_vel_scatter = np.full(M, np.nan)
+        self._scatter = np.full(M, np.nan)
+        self._fit_due = np.zeros(M, dtype=bool)  # detected since their line was last fitted
         self._segment_start = np.full(M, -np.inf)
         self.pose_at_tick = poses.copy()
         self.perceived_prev = np.zeros(M, dtype=bool)
@@ -141,10 +142,34 @@ class PerceptionMemory:
                          None if det.orientation is None else tuple(det.orientation.tolist())))
             while hist and hist[0][0] < frame.t - max(2.0 * hr.place_dwell + 0.1, VELOCITY_WINDOW):
                 hist.popleft()
-            (self.perc_vel[m, :3], self.perc_vel_sxx[m], self._line_xy[m],
-             self.perc_vel_scatter[m]) = self._fit_velocity(m, frame.t)
+            self._fit_due[m] = True
             self._nearest_hand(frame, m)
         return detected
+
+    # -- the fitted lines (fitted when read, once per object detected since: not at every frame) -------
+    def _fit_pending(self) -> None:
+        for m in np.flatnonzero(self._fit_due):
+            self._perc_vel[m, :3], self._sxx[m], self._line_xy[m], self._scatter[m] = \
+                self._fit_velocity(m, self.last_seen[m])
+        self._fit_due[:] = False
+
+    @property
+    def perc_vel(self) -> np.ndarray:
+        """``(M, 6)`` m/s: the perceived velocities (see the class docstring); writable in place."""
+        self._fit_pending()
+        return self._perc_vel
+
+    @property
+    def perc_vel_sxx(self) -> np.ndarray:
+        """``(M,)`` s^2: the spread of the fitted detections' times (see the class docstring)."""
+        self._fit_pending()
+        return self._sxx
+
+    @property
+    def perc_vel_scatter(self) -> np.ndarray:
+        """``(M,)`` m: the fitted detections' horizontal scatter about their line (NaN: under three)."""
+        self._fit_pending()
+        return self._scatter
 
     def velocity_std(self, position_std: float) -> np.ndarray:
         """Standard error ``(M,)`` (m/s) of each perceived velocity per axis: the detection noise over
@@ -152,11 +177,11 @@ class PerceptionMemory:
         ``position_std`` where it gave one, else the detections' horizontal scatter about their line
         (:attr:`perc_vel_scatter`, from three detections on) up to ``position_std`` (m, the model's
         perception noise, also used with two detections)."""
-        scatter = np.where(np.isfinite(self.perc_vel_scatter), np.minimum(self.perc_vel_scatter, position_std),
-                           position_std)
+        self._fit_pending()
+        scatter = np.where(np.isfinite(self._scatter), np.minimum(self._scatter, position_std), position_std)
         sigma = np.where(np.isfinite(self.last_std), self.last_std, scatter)
         with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(self.perc_vel_sxx > 0, sigma / np.sqrt(self.perc_vel_sxx), 0.0)
+            return np.where(self._sxx > 0, sigma / np.sqrt(self._sxx), 0.0)
 
     def _fit_velocity(self, m: int, t: float) -> tuple[np.ndarray, float, np.ndarray, float]:
         """Least-squares line through object m's detections over the :data:`VELOCITY_WINDOW` up to its
@@ -242,10 +267,11 @@ class PerceptionMemory:
         average velocity, at the middle of the window: one reasoning period back, an update's start,
         from where physics slows a rolling ball down as it should); else from its last detection."""
         lag = np.where(np.isfinite(self.last_seen), t - self.last_seen, 0.0)  # never seen: no lag
+        vel = self.perc_vel[:, :3]
         base = self.last_pose[:, :3].copy()
-        on_line = np.any(self.perc_vel[:, :2] != 0.0, axis=1)
+        on_line = np.any(vel[:, :2] != 0.0, axis=1)
         base[on_line, :2] = self._line_xy[on_line]
-        return base + self.perc_vel[:, :3] * lag[:, None]
+        return base + vel * lag[:, None]
 
     def jumped(self) -> np.ndarray:
         """Objects ``(M,)`` whose perceived position moved by more than ``d_perc_prev`` since the

@@ -90,10 +90,8 @@ class ParticleState:
         for name in ("poses", "velocities", "params", "supported", "on_top", "is_in"):
             getattr(out, name)[:, idx] = getattr(self, name)[:, idx]
         M = self.poses.shape[1]
-        for k in range(len(ancestors)):
-            for m in idx:
-                parents = np.flatnonzero(self.is_in[k, m] | self.on_top[k, m, :M])
-                if len(parents):
-                    c = int(parents[0])
-                    out.poses[k, m] = carry_pose(self.poses[k, m], self.poses[k, c], out.poses[k, c])
+        support = self.is_in[:, idx] | self.on_top[:, idx, :M]  # (K, n, M)
+        for k, j in zip(*np.nonzero(support.any(axis=-1))):
+            m, c = idx[j], int(np.argmax(support[k, j]))  # its first support, as an index
+            out.poses[k, m] = carry_pose(self.poses[k, m], self.poses[k, c], out.poses[k, c])
         return out

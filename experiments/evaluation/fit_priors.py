@@ -94,6 +94,11 @@ def _nearest(times: np.ndarray, t: float) -> int:
     return int(np.argmin(np.abs(times - t)))
 
 
+def _hand_track(obs: list[dict]) -> list[np.ndarray | None]:
+    """The tracked hand's position ``(3,)`` (m) in each observation line (its first hand), or None."""
+    return [None if not o.get("hands") else np.asarray(next(iter(o["hands"].values())), float) for o in obs]
+
+
 def _smoothed(hands: list[np.ndarray | None], f: int) -> np.ndarray | None:
     """Mean of the last :data:`HAND_SMOOTHING` tracked hand positions up to frame ``f``."""
     pts = [h for h in hands[max(0, f - 4 * HAND_SMOOTHING):f + 1] if h is not None][-HAND_SMOOTHING:]
@@ -110,7 +115,7 @@ def count_losses(obs: list[dict], truth: list[dict], reasoner: ReasonerConfig, p
     they were let go at (put down, not dropped)."""
     t_obs = np.array([o["t"] for o in obs])
     t_true = np.array([r["t"] for r in truth])
-    hands = [None if not o.get("hands") else np.asarray(next(iter(o["hands"].values())), float) for o in obs]
+    hands = _hand_track(obs)
     ids = set().union(*(o["objects"].keys() for o in obs)) if obs else set()
     for oid in sorted(ids):
         seen = [i for i, o in enumerate(obs) if oid in o["objects"]]
@@ -167,7 +172,7 @@ def count_set_downs(obs: list[dict], truth: list[dict], priors: ModePriors, touc
     ``carry_distance`` above its height at that moment, before the object is detected again: a hit
     when the object is no longer held in truth then. One sample per such stretch out of view."""
     t_true = np.array([r["t"] for r in truth])
-    hands = [None if not o.get("hands") else np.asarray(next(iter(o["hands"].values())), float) for o in obs]
+    hands = _hand_track(obs)
     ids = sorted({oid for r in truth for oid, o in r["objects"].items() if o.get("held")})
     for oid in ids:
         touch_z = None  # the smoothed hand's height when the held object rested, out of view
