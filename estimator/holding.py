@@ -15,6 +15,7 @@ from .held import hand_offset_walk
 from .motion import drop_heights
 from .observations import Frame
 from .perception_memory import PerceptionMemory
+from .step import Fall
 
 
 def release_on_loss(modes: np.ndarray, perceived: np.ndarray, supported: np.ndarray, rng: np.random.Generator,
@@ -57,7 +58,8 @@ def release_on_loss(modes: np.ndarray, perceived: np.ndarray, supported: np.ndar
 def held_targets(frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: np.ndarray, perceived: np.ndarray,
                  dt: float, rng: np.random.Generator, hold_error: np.ndarray, memory: PerceptionMemory,
                  noise: NoiseConfig, moving_teleports: bool,
-                 teleported: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 teleported: np.ndarray | None = None,
+                 falling: Fall | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Targets ``(K, M, 7)``, target velocities ``(K, M, 6)`` and offset errors ``(K, M, 3)``.
 
     Perceived objects at their perception (no noise: it would shake what a held object carries), with
@@ -65,18 +67,24 @@ def held_targets(frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: n
     divergence test then carries the target on at that velocity, see
     :func:`~estimator.propagate.propagate_batch`); held objects not detected in this update follow the
     hand that held them when last detected, if it is tracked, at its offset then plus each particle's
-    error (``hold_error (K, M, 3)`` before, walked by :func:`~estimator.held.hand_offset_walk`), else
+    error (``hold_error (K, M, 3)`` before, walked by :func:`~estimator.held.hand_offset_walk`; so
+    do those detected only in an earlier frame of this update: the hand has moved on since), else
     stay where they were perceived (while perceived; with ``moving_teleports``, where their last
     detection carried on at its perceived velocity puts them now: an object seen moving and then not
     seen goes on, not pinned where it was seen) or where the particle has them, drifting by
-    ``held_drift_std`` (m per sqrt(s)) when not perceived. Others: their pose in ``poses (K, M, 7)``."""
+    ``held_drift_std`` (m per sqrt(s)) when not perceived. Others: their pose in ``poses (K, M, 7)``.
+    Objects perceived ``falling`` off an edge (:class:`~estimator.step.Fall`) are where their free
+    fall has them at ``frame.t`` (horizontally on their line), moving at its mean vertical velocity
+    over the update: the Release rule lets them go there, not where they were last seen."""
     K, M = modes.shape
     new_error = np.zeros_like(hold_error)
     target = poses.copy()
     target_vel = np.zeros((K, M, 6))
     pidx = np.flatnonzero(perceived)
+    stale = memory.stale_in_hand(frame) & detected
+    now = memory.detections_now(frame)
     if len(pidx):
-        target[:, pidx, :3] = memory.last_pose[pidx, :3]
+        target[:, pidx, :3] = now[pidx, :3]
         has_q = memory.last_has_orientation[pidx]
         target[:, pidx[has_q], 3:] = memory.last_pose[pidx[has_q], 3:]
         # with moving_teleports the divergence test carries a target on at its velocity: only
@@ -90,10 +98,15 @@ def held_targets(frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: n
             cidx = np.flatnonzero(perceived & ~detected)
             target[:, cidx, :3] = memory.position_at(frame.t)[cidx]
             target_vel[:, cidx, :3] = memory.perc_vel[cidx, :3]
-    held = (modes == HELD) & ~detected[None, :]
+        if falling is not None:
+            fidx = np.flatnonzero(falling.mask & perceived)
+            target[:, fidx, :2] = memory.position_at(frame.t)[fidx, :2]
+            target[:, fidx, 2] = falling.z[fidx]
+            target_vel[:, fidx, 2] = falling.mean_vz[fidx]
+    held = (modes == HELD) & (~detected | stale)[None, :]
     for m in np.flatnonzero(held.any(axis=0)):
         rows = held[:, m]
-        hand = memory.hand_target(frame, m)
+        hand = now[m, :3] if stale[m] else memory.hand_target(frame, m)
         if hand is not None:
             new_error[rows, m] = hand_offset_walk(hold_error[rows, m], dt, noise.held_offset_std,
                                                   noise.held_offset_time, rng)

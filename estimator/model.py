@@ -43,7 +43,7 @@ from .resting import slow
 from .relations import relations_and_support
 from .resampling import effective_sample_size, normalise_log_weights
 from .state import ParticleState
-from .step import Move, Settled
+from .step import Fall, Move, Settled
 
 
 def initial_poses(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
@@ -173,28 +173,42 @@ class SceneModel:
         # of continuous tracking is (moving_teleports: an object tracked in motion keeps moving)
         tick_vel = mem.tick_velocity()
         moving = falling = np.zeros(self.M, dtype=bool)
+        following = mem.following_hand(frame)
         if cfg.moving_teleports:  # moving along, or rolled off an edge: keeps its velocity and spin
-            moving, falling = teleport_kinds(tele & mem.perceived_prev & ~newly_known & detected, tick_vel,
-                                             mem.previous_tick_velocity())
+            tracked = perceived & mem.perceived_prev & ~newly_known & detected
+            # seen rolling off an edge (with no tracked hand to move it), it is placed on its fall
+            # even if it moved little since the last update (one late detection): a fixed target
+            # would make it held in the air
+            tele = tele | (teleport_kinds(tracked, tick_vel, mem.previous_tick_velocity())[1] & ~following)
+            moving, falling = teleport_kinds(tele & tracked, tick_vel, mem.previous_tick_velocity())
         far = self._out_of_reach(frame, detected)
         spinning = moving | falling
         # teleported in motion, an object keeps the detections' fitted velocity (falling, its
-        # horizontal part); at rest, none
+        # horizontal part, and the vertical one of a free fall, below); at rest, none
         mem.perc_vel[tele & ~spinning] = 0.0
         mem.perc_vel[falling, 2] = 0.0
         # an object teleported in motion starts where it was at this update's start, so that physics
         # brings it to its detection at frame.t (placed at the detection, the belief would be dt ahead)
         start = mem.position_at(frame.t - dt) if cfg.moving_teleports else None
+        fall_now, fall = None, np.zeros(self.M, dtype=bool)
+        if cfg.moving_teleports and np.any(falling):  # ... falling, on the free fall through its
+            g, std = cfg.physics.gravity, cfg.noise.position_std  # last detections
+            z0, vz0, vz_std = mem.free_fall(frame.t - dt, g, std)
+            fall = falling & np.isfinite(z0) & ~following
+            start[fall, 2], mem.perc_vel[fall, 2] = z0[fall], vz0[fall]
+            z1, vz1, _ = mem.free_fall(frame.t, g, std)
+            fall_now = Fall(fall, z1, vz1, (z1 - z0) / dt)
         if np.any(tele):
             jitter[:, tele] = self.teleport(poses, vel, np.flatnonzero(tele), newly_known, state.is_in, rng,
                                             spinning, start, prev_modes == HELD)
             jitter[..., 2] = 0.0  # a support undoes the vertical noise: only the horizontal persists
+            if np.any(fall):  # when the fall began is known to the vertical velocity's error
+                vel[:, fall, 2] += rng.normal(0.0, 1.0, (self.K, int(fall.sum()))) * vz_std[fall]
             if cfg.moving_teleports:  # at rest in a particle, nothing in its world set it moving: an agent
                 started = (spinning[None, :] & (prev_modes == FREE) & (np.linalg.norm(  # did; it stays, diverges
                     state.velocities[..., :2], axis=-1) < MOVING_MAX_VERTICAL_SPEED))  # from its target, held
                 vel[started] = 0.0
         self.known |= perceived
-        following = mem.following_hand(frame)
         left_view = None
         if cfg.moving_teleports:  # seen moving along at the last update, not now, no tracked hand
             left_view = perceived & ~detected & rolled_along(mem.previous_tick_velocity()) & ~following
@@ -218,7 +232,7 @@ class SceneModel:
         let_go = state.let_go_unseen.copy()
         let_go[(release_codes != 0) & (mem.perceived_prev & ~perceived)[None, :]] = frame.t
         target, target_vel, hold_error = self.held_targets(frame, poses, modes, detected, perceived, dt, rng,
-                                                           state.hold_error, tele)
+                                                           state.hold_error, tele, fall_now)
         jolted = self.process_noise(poses, modes, perceived, state.supported, resting, state.last_motion, dt, rng)
         # what physics checks and reports
         vis_query = self.known & self.dynamic & ~detected
@@ -232,7 +246,8 @@ class SceneModel:
         depen = (np.broadcast_to(placed & (cfg.noise.position_std > 0), (self.K, self.M)) | jolted
                  | state.jolted | cover) & (modes == FREE)
         return Move(poses, vel, predicted, prev_modes, modes, release_codes, tele, target, target_vel, check,
-                    depen, vis_query, hold_error, let_go, cameras, cover_t, proposal, nudged, jitter, far)
+                    depen, vis_query, hold_error, let_go, cameras, cover_t, proposal, nudged, jitter, far,
+                    fall_now)
 
     def let_go_moving(self, modes: np.ndarray, supported: np.ndarray, seen: np.ndarray, tick_vel: np.ndarray,
                       far: np.ndarray | None, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -304,11 +319,11 @@ class SceneModel:
 
     def held_targets(self, frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: np.ndarray,
                      perceived: np.ndarray, dt: float, rng: np.random.Generator,
-                     hold_error: np.ndarray, teleported: np.ndarray | None = None
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     hold_error: np.ndarray, teleported: np.ndarray | None = None,
+                     falling: Fall | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Targets, target velocities and hand-offset errors (:func:`~estimator.holding.held_targets`)."""
         return held_targets(frame, poses, modes, detected, perceived, dt, rng, hold_error, self.memory,
-                            self.config.noise, self.config.moving_teleports, teleported)
+                            self.config.noise, self.config.moving_teleports, teleported, falling)
 
     def process_noise(self, poses: np.ndarray, modes: np.ndarray, perceived: np.ndarray, supported: np.ndarray,
                       resting: np.ndarray, last_motion: np.ndarray, dt: float,
@@ -375,6 +390,9 @@ class SceneModel:
         if np.any(released):
             velocities = velocities.copy()
             self.roll_released(velocities, released, supported)
+            if move.fall is not None:  # let go falling: at the free fall's speed now
+                fell = released & move.fall.mask[None, :]
+                velocities[..., 2] = np.where(fell, move.fall.vz[None, :], velocities[..., 2])
         return Settled(out.poses, velocities, ev.modes, on_top, is_in, supported, ev.codes, vel, ev.holds,
                        ev.times)
 
@@ -393,7 +411,7 @@ class SceneModel:
         mem = self.memory
         return Evidence(poses=settled.poses, predicted=move.predicted, previous_modes=move.previous_modes,
                         modes=settled.modes, detected=detected & self.dynamic, teleported=move.teleported,
-                        perceived=perceived, detected_poses=mem.last_pose,
+                        perceived=perceived, detected_poses=mem.detections_now(frame),
                         has_orientation=mem.last_has_orientation, detection_std=mem.last_std,
                         visible=out.visible, queried=move.vis_query,
                         in_tracked_hand=mem.following_hand(frame), finite=out.finite,

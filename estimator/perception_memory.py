@@ -16,7 +16,7 @@ import numpy as np
 
 from physics.scene import Scene
 
-from .config import ReasonerConfig
+from .config import RELEASE_DOWN_SPEED, ReasonerConfig
 from .observations import Frame
 
 HAND_RADIUS = 0.3
@@ -273,6 +273,42 @@ class PerceptionMemory:
         base[on_line, :2] = self._line_xy[on_line]
         return base + vel * lag[:, None]
 
+    def free_fall(self, t: float, gravity: float,
+                  position_std: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Height ``(M,)`` (m), vertical velocity ``(M,)`` (m/s) and that velocity's standard error
+        ``(M,)`` (m/s) at ``t`` (s) of a free fall through each object's last two detections of its
+        segment, for ``gravity`` (m/s^2, negative); the error is ``sqrt(2)`` times the detection
+        noise (the detector's ``position_std``, else ``position_std`` m) over their interval.
+        Their difference is the velocity half-way between them; the velocity at the last one, ``v``,
+        adds gravity over half their interval. At ``t`` the fall descends: that height and velocity;
+        carried back to a ``t`` before it began (the object was still on its support, or had just
+        left it): at rest at the fall's top, ``z + v^2 / 2|g|``, from where physics takes it off its
+        edge. NaN for objects with fewer than two detections in their segment or not moving down at
+        the last one."""
+        z0 = np.full(self.M, np.nan)
+        v0 = np.full(self.M, np.nan)
+        err = np.full(self.M, np.nan)
+        g = -float(gravity)
+        sigma = np.where(np.isfinite(self.last_std), self.last_std, position_std)
+        for m in range(self.M):
+            hist = self._history[m]
+            if len(hist) < 2 or hist[-2][0] < self._segment_start[m] - 1e-9:
+                continue
+            (t1, p1, _), (t2, p2, _) = hist[-2], hist[-1]
+            if not t2 > t1:
+                continue
+            v = (p2[2] - p1[2]) / (t2 - t1) - 0.5 * g * (t2 - t1)
+            if v >= 0.0:
+                continue
+            tau = t - t2
+            at = v - g * tau
+            err[m] = math.sqrt(2.0) * sigma[m] / (t2 - t1)
+            if at < 0.0:
+                z0[m], v0[m] = p2[2] + v * tau - 0.5 * g * tau * tau, at
+            else:
+                z0[m], v0[m] = p2[2] + v * v / (2.0 * g), 0.0
+        return z0, v0, err
+
     def jumped(self) -> np.ndarray:
         """Objects ``(M,)`` whose perceived position moved by more than ``d_perc_prev`` since the
         previous reasoning step."""
@@ -291,6 +327,26 @@ class PerceptionMemory:
         if hand is not None and hand in frame.hands and self.follow_hands:
             return np.asarray(frame.hands[hand]) + self.hold_offset[m]
         return None
+
+    def stale_in_hand(self, frame: Frame) -> np.ndarray:
+        """Objects ``(M,)`` last detected before ``frame.t`` (within the update, the frames after it
+        did not show them) whose hand then is tracked in ``frame``: the hand says where they are now.
+        Not those perceived moving down at :data:`~estimator.config.RELEASE_DOWN_SPEED` or faster
+        over the reasoning period (:meth:`tick_velocity`): a hand near a falling object let it go."""
+        falling = self.tick_velocity()[:, 2] < -RELEASE_DOWN_SPEED
+        return self.following_hand(frame) & (self.last_seen < frame.t - 1e-9) & ~falling
+
+    def detections_now(self, frame: Frame) -> np.ndarray:
+        """The latest detections ``(M, 7)`` carried to ``frame.t``: an object last detected in an
+        earlier frame whose hand is tracked now (:meth:`stale_in_hand`) has moved on with that hand
+        (a cup carried at 1.3 m/s is 9 cm on two frames after its last detection): by the hand's
+        displacement since, between its smoothed positions (:meth:`hand_position`, as
+        :meth:`hand_travel`; a raw hand position is noisier than a detection). The others at their
+        latest detection. Call after the frame is recorded."""
+        out = self.last_pose.copy()
+        for m in np.flatnonzero(self.stale_in_hand(frame)):
+            out[m, :3] += self.hand_position(self.hold_hand[m]) - self.hold_hand_position[m]
+        return out
 
     def hand_heights(self, frame: Frame, objects: np.ndarray) -> np.ndarray:
         """Height ``(M,)`` (m) at which each of ``objects (M,)`` follows its tracked hand in ``frame``

@@ -9,6 +9,21 @@ import numpy as np
 
 
 @dataclass(frozen=True)
+class Fall:
+    """Objects ``mask (M,)`` perceived falling off an edge, on the free fall through their last
+    detections (:meth:`~estimator.perception_memory.PerceptionMemory.free_fall`): height ``z (M,)``
+    (m) and vertical velocity ``vz (M,)`` (m/s) at the update's end, and ``mean_vz (M,)`` (m/s)
+    over the update (from where the fall had them at its start). Held objects are there (the
+    divergence test's target moving on a line at the mean velocity: the fall's own chord, not the
+    end velocity carried back), and those let go now keep ``vz``."""
+
+    mask: np.ndarray
+    z: np.ndarray
+    vz: np.ndarray
+    mean_vz: np.ndarray
+
+
+@dataclass(frozen=True)
 class Move:
     """A particle's motion before physics in one update (K particles, M objects).
 
@@ -30,7 +45,8 @@ class Move:
     their detection (:meth:`~estimator.model.SceneModel.fuse_resting`; scored where the particle expected them);
     ``jitter (K, M, 3)``: the teleports' position noise (see :class:`~estimator.state.ParticleState`);
     ``out_of_reach (M,)``: objects detected out of reach of every tracked hand (None: no hand
-    tracked; :class:`~estimator.likelihood.Evidence`).
+    tracked; :class:`~estimator.likelihood.Evidence`); ``fall``: the objects perceived falling off
+    an edge (:class:`Fall`; None: none).
     """
 
     poses: np.ndarray
@@ -53,6 +69,7 @@ class Move:
     fused: np.ndarray | None = None
     jitter: np.ndarray | None = None
     out_of_reach: np.ndarray | None = None
+    fall: Fall | None = None
 
     @property
     def behind_cover(self) -> np.ndarray | None:

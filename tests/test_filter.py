@@ -354,20 +354,22 @@ def test_held_object_lost_splits_into_released_and_held_hypotheses():
     cup = b.objects["cup"]
     p_held = b.hypothesis_p("cup", "held", None)
     p_floor = b.hypothesis_p("cup", "isOnTop", "floor")
+    p_falling = b.hypothesis_p("cup", "none", None)  # let go late (the hazard), still in the air
     assert cup.p_held == pytest.approx(p_held)
-    assert 0.15 < p_held < 0.85 and p_floor > 0.1 and p_held + p_floor > 0.95
+    assert 0.15 < p_held < 0.85 and p_floor > 0.1 and p_held + p_floor + p_falling > 0.95
     held_pos = [h.position for h in cup.hypotheses if h.relation == "held"][0]
     assert np.allclose(held_pos, [1.0, 0.0, 0.95], atol=0.05)  # in the tracked hand
 
 
-def _flicked_ball(x_cut=-0.25):
-    """A ball at rest on the table flicked along x at 0.9 m/s at t = 0.5 s (rolling without slipping,
-    a little rolling friction), simulated for 3 s; detected at 30 Hz only while x < ``x_cut`` (the
-    camera sees the first part of its path). Returns the scene, the frames, the true final position,
-    the time and position of the last detection, and the true position ``(3,)`` at each frame's time."""
-    r, v = 0.03, 0.9
+def _flicked_ball(x_cut=-0.25, x0=-0.5, v=0.9):
+    """A ball at rest on the table at ``x0`` flicked along x at ``v`` (0.9 m/s) at t = 0.5 s (rolling
+    without slipping, a little rolling friction), simulated for 3 s; detected at 30 Hz only while
+    x < ``x_cut`` (the camera sees the first part of its path). Returns the scene, the frames, the
+    true final position, the time and position of the last detection, and the true position ``(3,)``
+    at each frame's time."""
+    r = 0.03
     scene = table_scene({"id": "ball", "sphere": {"radius": r}, "mass": 0.05, "rolling_friction": 0.002,
-                         "pose": {"position": [-0.5, 0.0, TABLE_TOP + r]}})
+                         "pose": {"position": [x0, 0.0, TABLE_TOP + r]}})
     frs, seen, truth = [], [], {}
     with World(scene) as w:
         n = int(round(1 / HZ / w.settings.time_step))
@@ -415,6 +417,22 @@ def test_a_ball_rolling_out_of_view_goes_on_as_physics_says_and_paper_mode_pins_
     assert pinned and all(b.objects["ball"].perceived for b in pinned)
     for b in pinned:
         assert np.allclose(b.objects["ball"].position, p_last, atol=0.005)
+
+
+def test_a_ball_seen_rolling_off_the_edge_falls_on_as_its_last_detections_say():
+    """A ball rolls off the table's edge (x = 0.76 m) at 1 m/s, seen for the first frames of its fall
+    only: it falls on along the free fall through its last detections (their vertical speed kept,
+    and the hand-less held hypothesis let go there), within 4 cm of where it is at every update of
+    the fall; started from rest where it was last seen, it was 8 to 30 cm behind."""
+    scene, frs, _final, (t_last, p_last), truth = _flicked_ball(x_cut=0.8, x0=0.3, v=1.0)
+    assert TABLE_TOP < p_last[2] < TABLE_TOP + 0.028  # seen leaving the edge, a little fallen
+    cfg = EstimatorConfig(particles=16, noise=NoiseConfig(rolling_friction_scale=None))
+    with SceneEstimator(scene, cfg, np.random.default_rng(6)) as est:
+        beliefs = est.run(frs)
+    falling = [b for b in beliefs if t_last < b.t and truth[round(b.t, 6)][2] > 0.1]
+    assert len(falling) >= 2
+    for b in falling:
+        assert np.linalg.norm(b.objects["ball"].position - truth[round(b.t, 6)]) < 0.04
 
 
 def test_a_ball_rolling_in_view_is_estimated_where_it_is_now_not_an_update_ahead():

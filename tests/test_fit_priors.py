@@ -8,8 +8,8 @@ from estimator.config import ReasonerConfig
 from experiments.cli.fit import seed_range as _seed_range
 from types import SimpleNamespace
 
-from experiments.evaluation.fit_priors import (Counts, Spread, best_threshold, count_descents, count_losses,
-                                               count_out_of_reach, count_set_downs)
+from experiments.evaluation.fit_priors import (Counts, Spread, best_threshold, count_accelerations, count_descents,
+                                               count_losses, count_out_of_reach, count_set_downs)
 from physics.scene import scene_from_dict
 
 
@@ -144,3 +144,17 @@ def test_descents_are_sampled_as_held_while_lowered_and_let_go_once_dropped():
     # the fitted threshold lies between them
     a, errors = best_threshold(held, let_go)
     assert errors == 0 and max(held) < a < let_go[0]
+
+
+def test_accelerations_of_held_objects_are_sampled_per_axis_from_the_truth():
+    """A cup held on a parabola x = a t^2 / 2 (a = 3 m/s^2) gives a on x and 0 on y and z at every
+    interior row held in truth; rows next to one where it is not held give none."""
+    a = 3.0
+    obs, truth = _stream(lambda t: [0.5 * a * t * t, 0.0, 1.0], seen_until=2.0, held_until=1.0, t_end=1.5)
+    samples = []
+    count_accelerations(truth, samples)
+    held_rows = sum(r["objects"]["cup"]["held"] for r in truth)
+    assert len(samples) == 3 * (held_rows - 2)
+    s = np.asarray(samples).reshape(-1, 3)
+    np.testing.assert_allclose(s[:, 0], a, rtol=1e-6)
+    np.testing.assert_allclose(s[:, 1:], 0.0, atol=1e-9)

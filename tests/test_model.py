@@ -265,8 +265,18 @@ def test_held_target_adds_each_particles_offset_error_to_the_tracked_hand():
     assert np.all(err[:, [i for i in range(5) if i != CUP]] == 0)
     detected = none.copy()
     detected[CUP] = True
+    model.memory.last_seen[CUP] = frame.t  # detected in this update's last frame
     _, _, err = model.held_targets(frame, st.poses, modes, detected, detected, 0.1, np.random.default_rng(3), before)
     assert np.all(err == 0)
+    # detected in an earlier frame of the update only: the hand has moved on since (its smoothed
+    # position, over the frames recorded since), and the object with it, plus each particle's error
+    from estimator.observations import Detection
+    model.memory.record(Frame(0.9, {"cup": Detection(np.array([1.0, 0.0, 0.95]))}, {"human/right": [1.0, 0.0, 1.0]}))
+    model.memory.record(Frame(1.0, {}, {"human/right": [1.06, 0.0, 1.0]}))
+    target, _, err = model.held_targets(frame, st.poses, modes, detected, detected, 0.1, np.random.default_rng(3),
+                                        before)
+    np.testing.assert_allclose(err[:, CUP], expect)
+    np.testing.assert_allclose(target[:, CUP, :3], np.array([1.03, 0.0, 0.95]) + expect)
 
 
 def test_release_on_loss_depends_on_whether_the_tracked_hand_carried_the_object():

@@ -72,6 +72,34 @@ def test_nearest_tracked_hand_within_30_cm():
     assert not off.following_hand(Frame(0.1, {}, hands)).any() and off.hand_target(Frame(0.1, {}, hands), CUP) is None
 
 
+def test_a_detection_from_an_earlier_frame_is_carried_on_by_its_tracked_hand():
+    """An object detected in an earlier frame of the update, not in the last one, has moved on with
+    its tracked hand: by the displacement of the hand's smoothed position since (exact on uniform
+    motion); one detected in the last frame, or without a tracked hand, is at its detection; not
+    one seen falling (its hand let it go)."""
+    mem = memory()
+    step = np.array([0.0, 0.045, 0.0])  # 1.35 m/s
+    hand0 = np.array([0.3, 0.3, 0.34])
+    for f in range(-2, 1):  # carried in view; the ball, far from the hand, lies still
+        mem.record(Frame(f / 30, {"cup": det(hand0 + f * step - [0, 0, 0.2]), "ball": det([0.0, 0.0, 0.2])},
+                         {"human/right": hand0 + f * step}))
+    assert not mem.stale_in_hand(Frame(0.0, {}, {"human/right": hand0})).any()
+    for f in (1, 2):  # then hidden, the hand tracked on
+        mem.record(Frame(f / 30, {}, {"human/right": hand0 + f * step}))
+    later = Frame(2 / 30, {}, {"human/right": hand0 + 2 * step})
+    assert list(mem.stale_in_hand(later)) == [False, True, False]
+    at = mem.detections_now(later)
+    np.testing.assert_allclose(at[CUP, :3], hand0 + 2 * step - [0, 0, 0.2], atol=1e-12)
+    np.testing.assert_allclose(at[BALL], mem.last_pose[BALL])  # no hand near it: at its detection
+    np.testing.assert_allclose(at[CUP, 3:], mem.last_pose[CUP, 3:])
+    assert not mem.stale_in_hand(Frame(2 / 30, {}, {})).any()  # the hand is not tracked now
+    # seen falling over the reasoning period (5 cm in 0.1 s): the hand near it let it go
+    mem.end_tick(mem.perceived(2 / 30), np.array([False, True, True]), np.zeros((3, 3)))
+    mem.record(Frame(3 / 30, {"cup": det(mem.last_pose[CUP, :3] - [0, 0, 0.05])}, {"human/right": hand0 + 3 * step}))
+    assert mem.tick_velocity()[CUP, 2] < -0.3 and mem.hold_hand[CUP] == "human/right"
+    assert not mem.stale_in_hand(Frame(4 / 30, {}, {"human/right": hand0 + 4 * step})).any()
+
+
 def _frames(mem, positions, quats=None, hz=30.0):
     for i, p in enumerate(positions):
         mem.record(Frame(i / hz, {"cup": det(p, None if quats is None else quats[i])}))
@@ -233,3 +261,23 @@ def test_perceived_velocity_is_the_least_squares_slope_over_the_window_with_its_
     assert np.all(mem.perc_vel[BALL] == 0) and mem.velocity_std(0.003)[BALL] == 0
     mem.record(Frame(2.1, {"ball": det([0.52, 0.5, 0.3])}))  # only the detections since the gap count
     assert mem.perc_vel[BALL, :3] == pytest.approx([0.2, 0.0, 0.0])
+
+
+def test_free_fall_through_the_last_two_detections_is_exact_on_a_parabola():
+    """Detections of a ball rolling off an edge at t = 0.1 s (level before, then z = z0 - g t^2 / 2):
+    the fall through the last two is the parabola, forwards and backwards while it still descends;
+    before it began, the ball is at the fall's top, at rest. Its velocity error is sqrt(2) sigma / dt."""
+    g, z0, hz = 9.81, 0.7, 30.0
+    mem = memory()
+    ts = np.arange(0, 7) / hz
+    fall = lambda t: z0 - 0.5 * g * max(t - 0.1, 0.0) ** 2
+    for t in ts:
+        mem.record(Frame(float(t), {"ball": det([0.5 * t, 0.0, fall(t)], std=0.002)}))
+    for t in (ts[-1], ts[-1] + 0.05, ts[-1] - 0.04):
+        z, v, err = mem.free_fall(float(t), -g, 0.01)
+        assert z[BALL] == pytest.approx(fall(t), abs=1e-9)
+        assert v[BALL] == pytest.approx(-g * (t - 0.1), abs=1e-9)
+        assert err[BALL] == pytest.approx(math.sqrt(2) * 0.002 * hz)
+    z, v, _ = mem.free_fall(0.05, -g, 0.01)
+    assert z[BALL] == pytest.approx(z0, abs=1e-9) and v[BALL] == 0.0
+    assert np.isnan(z[CUP])  # never detected
