@@ -18,6 +18,15 @@ from .perception_memory import PerceptionMemory
 from .step import Fall
 
 
+def stratified_uniforms(K: int, M: int, rng: np.random.Generator) -> np.ndarray:
+    """Uniforms ``(K, M)`` float64 on [0, 1), one column per object, stratified over the K
+    particles: column m is ``(pi_m(k) + v_m) / K`` for a random permutation ``pi_m`` of the
+    particles and one uniform ``v_m``. Each entry is uniform on [0, 1), and ``u < p`` holds for
+    ``floor(K p)`` or ``ceil(K p)`` particles of a column."""
+    offsets = rng.random(M)
+    return np.stack([(rng.permutation(K) + offsets[m]) / K for m in range(M)], axis=1) if M else np.zeros((K, 0))
+
+
 def release_on_loss(modes: np.ndarray, perceived: np.ndarray, supported: np.ndarray, rng: np.random.Generator,
                     memory: PerceptionMemory, priors: ModePriors,
                     tracked: np.ndarray | None = None,
@@ -33,11 +42,16 @@ def release_on_loss(modes: np.ndarray, perceived: np.ndarray, supported: np.ndar
     than ``carry_distance`` since the object was last seen (:meth:`PerceptionMemory.hand_travel`), else
     ``release_on_loss_still``; ``release`` per update after (not while the tracked hand has carried
     the object more than ``carry_distance`` since it was seen). Returns the new modes ``(K, M)`` and
-    the event codes of the switches ``(K, M)`` (``supported (K, M)``: Place or Release)."""
+    the event codes of the switches ``(K, M)`` (``supported (K, M)``: Place or Release).
+
+    The draws are stratified over the particles (:func:`stratified_uniforms`): a release of
+    probability ``p`` lets go ``K p`` particles give or take one, not a binomial count (at
+    ``release_on_loss_carried`` 0.024 and K = 64, 1 or 2 rather than anything from 0 to 5): the
+    share that let go is what the weights then compare with the particles that kept it."""
     K, M = modes.shape
     new = modes.copy()
     lost = memory.perceived_prev & ~perceived
-    u = rng.random((K, M))
+    u = stratified_uniforms(K, M, rng)
     gone = ~perceived
     on_loss = np.full(M, priors.release_on_loss)
     later = np.full(M, priors.release)

@@ -3,7 +3,7 @@ import numpy as np
 
 from actions.modes import FREE, HELD, PLACE, ModePriors
 from estimator.config import ReasonerConfig
-from estimator.holding import release_on_loss
+from estimator.holding import release_on_loss, stratified_uniforms
 from estimator.model import initial_poses
 from estimator.observations import Detection, Frame
 from estimator.perception_memory import PerceptionMemory
@@ -36,6 +36,22 @@ def test_the_share_released_at_loss_follows_the_hand_state():
     new, _ = release_on_loss(modes, np.array([True]), np.zeros((K, 1), bool), np.random.default_rng(3),
                              _memory([0.4, 0.0, 0.78]), priors, np.array([True]))
     assert np.all(new == HELD)
+
+
+def test_stratified_draws_let_go_k_p_particles_and_each_one_with_probability_p():
+    """Each column lets go floor(K p) or ceil(K p) particles (64 particles at the carried prior
+    0.024: 1 or 2, where independent draws give 0 to 5); each particle is let go with probability p
+    (over 4000 seeds, within 4 binomial standard errors)."""
+    K, p, n = 64, 0.024, 4000
+    counts, first = [], []
+    for seed in range(n):
+        u = stratified_uniforms(K, 3, np.random.default_rng(seed))
+        assert u.shape == (K, 3) and np.all((u >= 0) & (u < 1))
+        counts += list((u < p).sum(axis=0))
+        first.append(u[0, 1] < p)
+    assert set(counts) <= {int(np.floor(K * p)), int(np.ceil(K * p))}
+    assert abs(np.mean(first) - p) < 4 * np.sqrt(p * (1 - p) / n)
+    assert abs(np.mean(counts) - K * p) < 4 * 0.5 / np.sqrt(len(counts))  # the count's mean is K p
 
 
 def test_a_held_object_that_leaves_view_in_motion_is_let_go_in_every_particle():
