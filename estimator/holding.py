@@ -46,7 +46,7 @@ def release_on_loss(modes: np.ndarray, perceived: np.ndarray, supported: np.ndar
 
     The draws are stratified over the particles (:func:`stratified_uniforms`): a release of
     probability ``p`` lets go ``K p`` particles give or take one, not a binomial count (at
-    ``release_on_loss_carried`` 0.024 and K = 64, 1 or 2 rather than anything from 0 to 5): the
+    ``release_on_loss_carried`` 0.024 and K = 64, 1 or 2 rather than 1.5 +- 1.2): the
     share that let go is what the weights then compare with the particles that kept it."""
     K, M = modes.shape
     new = modes.copy()
@@ -73,7 +73,8 @@ def held_targets(frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: n
                  dt: float, rng: np.random.Generator, hold_error: np.ndarray, memory: PerceptionMemory,
                  noise: NoiseConfig, moving_teleports: bool,
                  teleported: np.ndarray | None = None,
-                 falling: Fall | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 falling: Fall | None = None, detections: np.ndarray | None = None,
+                 stale: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Targets ``(K, M, 7)``, target velocities ``(K, M, 6)`` and offset errors ``(K, M, 3)``.
 
     Perceived objects at their perception (no noise: it would shake what a held object carries), with
@@ -82,7 +83,10 @@ def held_targets(frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: n
     :func:`~estimator.propagate.propagate_batch`); held objects not detected in this update follow the
     hand that held them when last detected, if it is tracked, at its offset then plus each particle's
     error (``hold_error (K, M, 3)`` before, walked by :func:`~estimator.held.hand_offset_walk`; so
-    do those detected only in an earlier frame of this update: the hand has moved on since), else
+    do those ``stale (M,)``, detected only in an earlier frame of this update, from their
+    ``detections (M, 7)`` carried on by the hand:
+    :meth:`~estimator.perception_memory.PerceptionMemory.detections_now`; None: none, and the
+    memory's latest detections), else
     stay where they were perceived (while perceived; with ``moving_teleports``, where their last
     detection carried on at its perceived velocity puts them now: an object seen moving and then not
     seen goes on, not pinned where it was seen) or where the particle has them, drifting by
@@ -95,8 +99,8 @@ def held_targets(frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: n
     target = poses.copy()
     target_vel = np.zeros((K, M, 6))
     pidx = np.flatnonzero(perceived)
-    stale = memory.stale_in_hand(frame) & detected
-    now = memory.detections_now(frame)
+    now = memory.last_pose if detections is None else detections
+    stale = np.zeros(M, dtype=bool) if stale is None else stale
     if len(pidx):
         target[:, pidx, :3] = now[pidx, :3]
         has_q = memory.last_has_orientation[pidx]
@@ -108,13 +112,14 @@ def held_targets(frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: n
             with_vel = perceived & (np.zeros(M, bool) if teleported is None else teleported)
         vidx = np.flatnonzero(with_vel)
         target_vel[:, vidx, :3] = memory.perc_vel[vidx, :3]
+        at_now = memory.position_at(frame.t) if moving_teleports or falling is not None else None
         if moving_teleports:  # not detected now: the detection ages, carried on at its velocity
             cidx = np.flatnonzero(perceived & ~detected)
-            target[:, cidx, :3] = memory.position_at(frame.t)[cidx]
+            target[:, cidx, :3] = at_now[cidx]
             target_vel[:, cidx, :3] = memory.perc_vel[cidx, :3]
         if falling is not None:
             fidx = np.flatnonzero(falling.mask & perceived)
-            target[:, fidx, :2] = memory.position_at(frame.t)[fidx, :2]
+            target[:, fidx, :2] = at_now[fidx, :2]
             target[:, fidx, 2] = falling.z[fidx]
             target_vel[:, fidx, 2] = falling.mean_vz[fidx]
     held = (modes == HELD) & (~detected | stale)[None, :]
@@ -274,7 +279,7 @@ def let_go_behind_cover(cover: np.ndarray, state, poses: np.ndarray, vel: np.nda
 def let_go_out_of_view(state, poses: np.ndarray, vel: np.ndarray, modes: np.ndarray, codes: np.ndarray,
                        frame: Frame, memory: PerceptionMemory, following: np.ndarray, perceived: np.ndarray,
                        detected: np.ndarray, priors: ModePriors, noise: NoiseConfig,
-                       rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                       rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Held objects in a tracked hand (``following (M,)``) let go out of view, in place on ``poses
     (K, M, 7)``, ``vel (K, M, 6)``, ``modes`` and ``codes (K, M)``: those the hand shows in view
     without (:func:`release_behind_cover`, :func:`let_go_behind_cover`), and those set down where they

@@ -175,12 +175,13 @@ class SceneModel:
         moving = falling = np.zeros(self.M, dtype=bool)
         following = mem.following_hand(frame)
         if cfg.moving_teleports:  # moving along, or rolled off an edge: keeps its velocity and spin
-            tracked = perceived & mem.perceived_prev & ~newly_known & detected
+            moving, falling = teleport_kinds(perceived & mem.perceived_prev & ~newly_known & detected, tick_vel,
+                                             mem.previous_tick_velocity())
             # seen rolling off an edge (with no tracked hand to move it), it is placed on its fall
             # even if it moved little since the last update (one late detection): a fixed target
             # would make it held in the air
-            tele = tele | (teleport_kinds(tracked, tick_vel, mem.previous_tick_velocity())[1] & ~following)
-            moving, falling = teleport_kinds(tele & tracked, tick_vel, mem.previous_tick_velocity())
+            tele = tele | (falling & ~following)
+            moving, falling = moving & tele, falling & tele
         far = self._out_of_reach(frame, detected)
         spinning = moving | falling
         # teleported in motion, an object keeps the detections' fitted velocity (falling, its
@@ -192,11 +193,10 @@ class SceneModel:
         start = mem.position_at(frame.t - dt) if cfg.moving_teleports else None
         fall_now, fall = None, np.zeros(self.M, dtype=bool)
         if cfg.moving_teleports and np.any(falling):  # ... falling, on the free fall through its
-            g, std = cfg.physics.gravity, cfg.noise.position_std  # last detections
-            z0, vz0, vz_std = mem.free_fall(frame.t - dt, g, std)
+            (z0, z1), (vz0, vz1), vz_std = mem.free_fall((frame.t - dt, frame.t), cfg.physics.gravity,
+                                                         cfg.noise.position_std)  # last detections
             fall = falling & np.isfinite(z0) & ~following
             start[fall, 2], mem.perc_vel[fall, 2] = z0[fall], vz0[fall]
-            z1, vz1, _ = mem.free_fall(frame.t, g, std)
             fall_now = Fall(fall, z1, vz1, (z1 - z0) / dt)
         if np.any(tele):
             jitter[:, tele] = self.teleport(poses, vel, np.flatnonzero(tele), newly_known, state.is_in, rng,
@@ -231,8 +231,11 @@ class SceneModel:
         vel[nudged & slow(vel)] = 0.0
         let_go = state.let_go_unseen.copy()
         let_go[(release_codes != 0) & (mem.perceived_prev & ~perceived)[None, :]] = frame.t
+        # detected in an earlier frame of the update only, in a tracked hand: moved on with it
+        stale = mem.stale_in_hand(frame) & detected
+        detections = mem.detections_now(stale)
         target, target_vel, hold_error = self.held_targets(frame, poses, modes, detected, perceived, dt, rng,
-                                                           state.hold_error, tele, fall_now)
+                                                           state.hold_error, tele, fall_now, detections, stale)
         jolted = self.process_noise(poses, modes, perceived, state.supported, resting, state.last_motion, dt, rng)
         # what physics checks and reports
         vis_query = self.known & self.dynamic & ~detected
@@ -247,7 +250,7 @@ class SceneModel:
                  | state.jolted | cover) & (modes == FREE)
         return Move(poses, vel, predicted, prev_modes, modes, release_codes, tele, target, target_vel, check,
                     depen, vis_query, hold_error, let_go, cameras, cover_t, proposal, nudged, jitter, far,
-                    fall_now)
+                    fall_now, detections)
 
     def let_go_moving(self, modes: np.ndarray, supported: np.ndarray, seen: np.ndarray, tick_vel: np.ndarray,
                       far: np.ndarray | None, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -320,10 +323,12 @@ class SceneModel:
     def held_targets(self, frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: np.ndarray,
                      perceived: np.ndarray, dt: float, rng: np.random.Generator,
                      hold_error: np.ndarray, teleported: np.ndarray | None = None,
-                     falling: Fall | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     falling: Fall | None = None, detections: np.ndarray | None = None,
+                     stale: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Targets, target velocities and hand-offset errors (:func:`~estimator.holding.held_targets`)."""
         return held_targets(frame, poses, modes, detected, perceived, dt, rng, hold_error, self.memory,
-                            self.config.noise, self.config.moving_teleports, teleported, falling)
+                            self.config.noise, self.config.moving_teleports, teleported, falling, detections,
+                            stale)
 
     def process_noise(self, poses: np.ndarray, modes: np.ndarray, perceived: np.ndarray, supported: np.ndarray,
                       resting: np.ndarray, last_motion: np.ndarray, dt: float,
@@ -411,7 +416,7 @@ class SceneModel:
         mem = self.memory
         return Evidence(poses=settled.poses, predicted=move.predicted, previous_modes=move.previous_modes,
                         modes=settled.modes, detected=detected & self.dynamic, teleported=move.teleported,
-                        perceived=perceived, detected_poses=mem.detections_now(frame),
+                        perceived=perceived, detected_poses=mem.last_pose if move.detections is None else move.detections,
                         has_orientation=mem.last_has_orientation, detection_std=mem.last_std,
                         visible=out.visible, queried=move.vis_query,
                         in_tracked_hand=mem.following_hand(frame), finite=out.finite,

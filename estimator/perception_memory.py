@@ -273,20 +273,21 @@ class PerceptionMemory:
         base[on_line, :2] = self._line_xy[on_line]
         return base + vel * lag[:, None]
 
-    def free_fall(self, t: float, gravity: float,
+    def free_fall(self, times, gravity: float,
                   position_std: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Height ``(M,)`` (m), vertical velocity ``(M,)`` (m/s) and that velocity's standard error
-        ``(M,)`` (m/s) at ``t`` (s) of a free fall through each object's last two detections of its
-        segment, for ``gravity`` (m/s^2, negative); the error is ``sqrt(2)`` times the detection
+        """Heights ``(T, M)`` (m) and vertical velocities ``(T, M)`` (m/s) at ``times (T,)`` (s) of a
+        free fall through each object's last two detections of its segment, for ``gravity`` (m/s^2,
+        negative), and that velocity's standard error ``(M,)`` (m/s): ``sqrt(2)`` times the detection
         noise (the detector's ``position_std``, else ``position_std`` m) over their interval.
         Their difference is the velocity half-way between them; the velocity at the last one, ``v``,
-        adds gravity over half their interval. At ``t`` the fall descends: that height and velocity;
-        carried back to a ``t`` before it began (the object was still on its support, or had just
+        adds gravity over half their interval. At a time the fall descends: that height and velocity;
+        carried back to a time before it began (the object was still on its support, or had just
         left it): at rest at the fall's top, ``z + v^2 / 2|g|``, from where physics takes it off its
         edge. NaN for objects with fewer than two detections in their segment or not moving down at
         the last one."""
-        z0 = np.full(self.M, np.nan)
-        v0 = np.full(self.M, np.nan)
+        times = np.atleast_1d(np.asarray(times, dtype=float))
+        z = np.full((len(times), self.M), np.nan)
+        vz = np.full((len(times), self.M), np.nan)
         err = np.full(self.M, np.nan)
         g = -float(gravity)
         sigma = np.where(np.isfinite(self.last_std), self.last_std, position_std)
@@ -300,14 +301,13 @@ class PerceptionMemory:
             v = (p2[2] - p1[2]) / (t2 - t1) - 0.5 * g * (t2 - t1)
             if v >= 0.0:
                 continue
-            tau = t - t2
-            at = v - g * tau
             err[m] = math.sqrt(2.0) * sigma[m] / (t2 - t1)
-            if at < 0.0:
-                z0[m], v0[m] = p2[2] + v * tau - 0.5 * g * tau * tau, at
-            else:
-                z0[m], v0[m] = p2[2] + v * v / (2.0 * g), 0.0
-        return z0, v0, err
+            tau = times - t2
+            at = v - g * tau
+            descending = at < 0.0
+            z[:, m] = np.where(descending, p2[2] + v * tau - 0.5 * g * tau * tau, p2[2] + v * v / (2.0 * g))
+            vz[:, m] = np.where(descending, at, 0.0)
+        return z, vz, err
 
     def jumped(self) -> np.ndarray:
         """Objects ``(M,)`` whose perceived position moved by more than ``d_perc_prev`` since the
@@ -336,15 +336,14 @@ class PerceptionMemory:
         falling = self.tick_velocity()[:, 2] < -RELEASE_DOWN_SPEED
         return self.following_hand(frame) & (self.last_seen < frame.t - 1e-9) & ~falling
 
-    def detections_now(self, frame: Frame) -> np.ndarray:
-        """The latest detections ``(M, 7)`` carried to ``frame.t``: an object last detected in an
-        earlier frame whose hand is tracked now (:meth:`stale_in_hand`) has moved on with that hand
-        (a cup carried at 1.3 m/s is 9 cm on two frames after its last detection): by the hand's
-        displacement since, between its smoothed positions (:meth:`hand_position`, as
-        :meth:`hand_travel`; a raw hand position is noisier than a detection). The others at their
-        latest detection. Call after the frame is recorded."""
+    def detections_now(self, stale: np.ndarray) -> np.ndarray:
+        """The latest detections ``(M, 7)``, those of ``stale (M,)`` (:meth:`stale_in_hand`) carried
+        on to the update's frame with their hand (a cup carried at 1.3 m/s is 9 cm on two frames
+        after its last detection): by the hand's displacement since, between its smoothed positions
+        (:meth:`hand_position`, as :meth:`hand_travel`; a raw hand position is noisier than a
+        detection). Call after the frame is recorded."""
         out = self.last_pose.copy()
-        for m in np.flatnonzero(self.stale_in_hand(frame)):
+        for m in np.flatnonzero(stale):
             out[m, :3] += self.hand_position(self.hold_hand[m]) - self.hold_hand_position[m]
         return out
 

@@ -46,7 +46,9 @@ class Move:
     ``jitter (K, M, 3)``: the teleports' position noise (see :class:`~estimator.state.ParticleState`);
     ``out_of_reach (M,)``: objects detected out of reach of every tracked hand (None: no hand
     tracked; :class:`~estimator.likelihood.Evidence`); ``fall``: the objects perceived falling off
-    an edge (:class:`Fall`; None: none).
+    an edge (:class:`Fall`; None: none); ``detections (M, 7)``: the latest detections, those made in
+    an earlier frame of the update carried on by their tracked hand
+    (:meth:`~estimator.perception_memory.PerceptionMemory.detections_now`; None: as detected).
     """
 
     poses: np.ndarray
@@ -70,6 +72,7 @@ class Move:
     jitter: np.ndarray | None = None
     out_of_reach: np.ndarray | None = None
     fall: Fall | None = None
+    detections: np.ndarray | None = None
 
     @property
     def behind_cover(self) -> np.ndarray | None:

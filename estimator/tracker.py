@@ -48,8 +48,8 @@ class TrackerConfig:
             percentile of the per-axis accelerations of objects held in truth, a robust maximum; their
             RMS is 1.4): of the order of the largest acceleration the filter must follow, not the
             RMS, so that it trails a carry's start and stop by little. At 2 m/s^2 the filtered cup
-            lagged its hand by a centimetre or more where a carry turned, and the estimator fed
-            the filtered stream took that lag into the hand offset it carried out of view.
+            lagged its hand where a carry turned, and the estimator fed the filtered stream took
+            that lag into the hand offset it carried out of view.
         measurement_std: position noise of a detection without its own ``position_std`` (m).
         velocity_std: initial velocity standard deviation of a new track (m/s).
         gate_probability: a detection is accepted when its Mahalanobis distance squared to the

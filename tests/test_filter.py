@@ -424,7 +424,7 @@ def test_a_ball_seen_rolling_off_the_edge_falls_on_as_its_last_detections_say():
     only: it falls on along the free fall through its last detections (their vertical speed kept,
     and the hand-less held hypothesis let go there). At every update of the fall the truth lies in
     the belief's 99 % region (its covariance plus the 5 mm perception floor) and within 10 cm;
-    before, every particle took it for held in the air where it was last seen, 7 to 59 cm off."""
+    before, every particle took it for held in the air where it was last seen."""
     scene, frs, _final, (t_last, p_last), truth = _flicked_ball(x_cut=0.8, x0=0.3, v=1.0)
     assert TABLE_TOP < p_last[2] < TABLE_TOP + 0.028  # seen leaving the edge, a little fallen
     cfg = EstimatorConfig(particles=16, noise=NoiseConfig(rolling_friction_scale=None))

@@ -40,7 +40,7 @@ def test_the_share_released_at_loss_follows_the_hand_state():
 
 def test_stratified_draws_let_go_k_p_particles_and_each_one_with_probability_p():
     """Each column lets go floor(K p) or ceil(K p) particles (64 particles at the carried prior
-    0.024: 1 or 2, where independent draws give 0 to 5); each particle is let go with probability p
+    0.024: 1 or 2, where independent draws give 1.5 +- 1.2); each particle is let go with probability p
     (over 4000 seeds, within 4 binomial standard errors)."""
     K, p, n = 64, 0.024, 4000
     counts, first = [], []

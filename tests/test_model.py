@@ -273,8 +273,9 @@ def test_held_target_adds_each_particles_offset_error_to_the_tracked_hand():
     from estimator.observations import Detection
     model.memory.record(Frame(0.9, {"cup": Detection(np.array([1.0, 0.0, 0.95]))}, {"human/right": [1.0, 0.0, 1.0]}))
     model.memory.record(Frame(1.0, {}, {"human/right": [1.06, 0.0, 1.0]}))
+    stale = model.memory.stale_in_hand(frame) & detected  # as the model's move computes them
     target, _, err = model.held_targets(frame, st.poses, modes, detected, detected, 0.1, np.random.default_rng(3),
-                                        before)
+                                        before, None, None, model.memory.detections_now(stale), stale)
     np.testing.assert_allclose(err[:, CUP], expect)
     np.testing.assert_allclose(target[:, CUP, :3], np.array([1.03, 0.0, 0.95]) + expect)
 

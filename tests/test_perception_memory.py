@@ -88,7 +88,7 @@ def test_a_detection_from_an_earlier_frame_is_carried_on_by_its_tracked_hand():
         mem.record(Frame(f / 30, {}, {"human/right": hand0 + f * step}))
     later = Frame(2 / 30, {}, {"human/right": hand0 + 2 * step})
     assert list(mem.stale_in_hand(later)) == [False, True, False]
-    at = mem.detections_now(later)
+    at = mem.detections_now(mem.stale_in_hand(later))
     np.testing.assert_allclose(at[CUP, :3], hand0 + 2 * step - [0, 0, 0.2], atol=1e-12)
     np.testing.assert_allclose(at[BALL], mem.last_pose[BALL])  # no hand near it: at its detection
     np.testing.assert_allclose(at[CUP, 3:], mem.last_pose[CUP, 3:])
@@ -273,11 +273,12 @@ def test_free_fall_through_the_last_two_detections_is_exact_on_a_parabola():
     fall = lambda t: z0 - 0.5 * g * max(t - 0.1, 0.0) ** 2
     for t in ts:
         mem.record(Frame(float(t), {"ball": det([0.5 * t, 0.0, fall(t)], std=0.002)}))
-    for t in (ts[-1], ts[-1] + 0.05, ts[-1] - 0.04):
-        z, v, err = mem.free_fall(float(t), -g, 0.01)
-        assert z[BALL] == pytest.approx(fall(t), abs=1e-9)
-        assert v[BALL] == pytest.approx(-g * (t - 0.1), abs=1e-9)
-        assert err[BALL] == pytest.approx(math.sqrt(2) * 0.002 * hz)
+    times = (ts[-1], ts[-1] + 0.05, ts[-1] - 0.04)
+    z, v, err = mem.free_fall(times, -g, 0.01)
+    for i, t in enumerate(times):
+        assert z[i, BALL] == pytest.approx(fall(t), abs=1e-9)
+        assert v[i, BALL] == pytest.approx(-g * (t - 0.1), abs=1e-9)
+    assert err[BALL] == pytest.approx(math.sqrt(2) * 0.002 * hz)
     z, v, _ = mem.free_fall(0.05, -g, 0.01)
-    assert z[BALL] == pytest.approx(z0, abs=1e-9) and v[BALL] == 0.0
-    assert np.isnan(z[CUP])  # never detected
+    assert z[0, BALL] == pytest.approx(z0, abs=1e-9) and v[0, BALL] == 0.0
+    assert np.isnan(z[0, CUP])  # never detected

@@ -35,7 +35,6 @@ What is fitted (see :class:`actions.modes.ModePriors` and :class:`estimator.conf
   the fewest samples (a hand lowering an object faster is read as a drop; a drop slower, as still
   held, until the next step), the middle of the interval of such thresholds; it applies only with
   nothing under the object, which this count does not check.
-
 * ``accel_std`` (:class:`~estimator.tracker.TrackerConfig`, m/s^2): over the truth's frames where
   an object is held (in a hand, which moves it as no physics does), its acceleration per axis from
   second differences of the true positions; the 99th percentile of their magnitudes, a robust
