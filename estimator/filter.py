@@ -97,7 +97,8 @@ class SceneEstimator:
         self.K, self.M = K, M
         self.pool = WorldPool(scene, K, cfg.workers, cfg.physics, cfg.worlds)
         try:
-            self.memory = PerceptionMemory(scene, initial_poses(scene)[0], cfg.reasoner, cfg.follow_hands)
+            self.memory = PerceptionMemory(scene, initial_poses(scene)[0], cfg.reasoner, cfg.follow_hands,
+                                           from_onset=cfg.moving_teleports)
             self.model = SceneModel(scene, cfg, self.memory, self.pool.initial_params)
             self.state: ParticleState = self.model.initial_state(self.rng)
         except BaseException:
@@ -215,6 +216,8 @@ class SceneEstimator:
         out = self.pool.run(batch, n_steps, cfg.reasoner.d_sim_perc, cfg.lazy_checks, cfg.moving_teleports,
                             cameras=cameras)  # None: the scene's camera
         bad = self._reset_exploded(out, move.poses, move.modes, t)
+        # what the worlds hold now, before the model sets velocities (a ball let go falls at its speed)
+        produced = (out.poses.copy(), out.velocities.copy())
         settled = model.settle(self.state, move, out, t, dt, detected, perceived)
         # weigh (the model's terms)
         evidence = model.evidence(move, settled, out, frame, detected, perceived, self.state.unseen_in_view)
@@ -225,7 +228,8 @@ class SceneEstimator:
         ess = effective_sample_size(weights)
         # commit
         hidden = self._hidden_places(evidence, settled, t)
-        self._commit(move, settled, logw, bad, held_unseen_in_view(evidence, cfg.visibility_threshold), hidden)
+        self._commit(move, settled, logw, bad, held_unseen_in_view(evidence, cfg.visibility_threshold), hidden,
+                     produced)
         self.memory.end_tick(perceived, detected, settled.tick_vel)
         self.t_tick = t
         self.n_updates += 1
@@ -312,12 +316,14 @@ class SceneEstimator:
                 + resting_place(s.rest_at, s.rest_t, settled.poses, unseen, settled.supported, reset, t))
 
     def _commit(self, move: Move, settled: Settled, logw: np.ndarray, bad: np.ndarray,
-                unseen_in_view: np.ndarray, hidden: tuple[np.ndarray, ...]) -> None:
+                unseen_in_view: np.ndarray, hidden: tuple[np.ndarray, ...],
+                produced: tuple[np.ndarray, np.ndarray]) -> None:
         """The particles after this update (the largest finite log-weight made 0); ``hidden``: see
-        :meth:`_hidden_places`."""
+        :meth:`_hidden_places`; ``produced``: the poses and velocities ``(K, M, 7)``, ``(K, M, 6)``
+        the worlds hold (entries the model changed since differ, and are loaded at the next update)."""
         s = self.state
         last_motion = np.linalg.norm(settled.poses[..., :3] - move.poses[..., :3], axis=-1)
-        self._world_poses, self._world_vel = settled.poses.copy(), settled.velocities.copy()
+        self._world_poses, self._world_vel = produced
         self._produced = (self._world_poses.copy(), self._world_vel)
         if np.any(bad):  # exploded worlds must be reloaded from the arrays
             self._world_poses[bad] = np.nan

@@ -84,9 +84,9 @@ def held_targets(frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: n
     hand that held them when last detected, if it is tracked, at its offset then plus each particle's
     error (``hold_error (K, M, 3)`` before, walked by :func:`~estimator.held.hand_offset_walk`; so
     do those ``stale (M,)``, detected only in an earlier frame of this update, from their
-    ``detections (M, 7)`` carried on by the hand:
-    :meth:`~estimator.perception_memory.PerceptionMemory.detections_now`; None: none, and the
-    memory's latest detections), else
+    ``detections (M, 7)`` carried on to ``frame.t`` (by the hand; others seen moving, at their
+    velocity: :meth:`~estimator.perception_memory.PerceptionMemory.detections_now`; None: none, and
+    the memory's latest detections), else
     stay where they were perceived (while perceived; with ``moving_teleports``, where their last
     detection carried on at its perceived velocity puts them now: an object seen moving and then not
     seen goes on, not pinned where it was seen) or where the particle has them, drifting by

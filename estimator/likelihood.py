@@ -222,8 +222,8 @@ class Evidence:
     * ``previous_modes``, ``modes`` ``(K, M)`` int8: modes at the previous update and now.
     * ``detected (M,)``: dynamic objects detected since the previous update; ``teleported (M,)``;
       ``perceived (M,)``: dynamic objects seen within ``t_perceived``.
-    * ``detected_poses (M, 7)``: latest detection per object, carried to the update's time by its
-      tracked hand when it was detected in an earlier frame (m; quaternion x, y, z, w,
+    * ``detected_poses (M, 7)``: latest detection per object, carried to the update's time when it
+      was detected in an earlier frame, by its tracked hand or at its velocity (m; quaternion x, y, z, w,
       :meth:`~estimator.perception_memory.PerceptionMemory.detections_now`);
       ``has_orientation (M,)``; ``detection_std (M,)`` m, the detector's position std (NaN: unknown).
     * ``visible (K, M)``: visible fractions from the pool (0 where not queried); ``queried (M,)``:

@@ -231,9 +231,10 @@ class SceneModel:
         vel[nudged & slow(vel)] = 0.0
         let_go = state.let_go_unseen.copy()
         let_go[(release_codes != 0) & (mem.perceived_prev & ~perceived)[None, :]] = frame.t
-        # detected in an earlier frame of the update only, in a tracked hand: moved on with it
+        # detected in an earlier frame of the update only: moved on with its tracked hand, or, seen
+        # moving, at its velocity
         stale = mem.stale_in_hand(frame) & detected
-        detections = mem.detections_now(stale)
+        detections = mem.detections_now(stale, frame.t, detected if cfg.moving_teleports else None)
         target, target_vel, hold_error = self.held_targets(frame, poses, modes, detected, perceived, dt, rng,
                                                            state.hold_error, tele, fall_now, detections, stale)
         jolted = self.process_noise(poses, modes, perceived, state.supported, resting, state.last_motion, dt, rng)
@@ -395,9 +396,18 @@ class SceneModel:
         if np.any(released):
             velocities = velocities.copy()
             self.roll_released(velocities, released, supported)
+            fell = np.zeros_like(released)
             if move.fall is not None:  # let go falling: at the free fall's speed now
                 fell = released & move.fall.mask[None, :]
                 velocities[..., 2] = np.where(fell, move.fall.vz[None, :], velocities[..., 2])
+            # dropped from a hand, seen falling (the Release rule): at the speed of the free fall
+            # through its last detections, not the hand's (a ball seen falling for 0.2 s falls at
+            # 2 m/s; let go at rest, it would land an update late)
+            dropped = released & falling & ~fell
+            if cfg.moving_teleports and np.any(dropped):
+                vz_now = mem.free_fall((t,), cfg.physics.gravity, cfg.noise.position_std)[1][0]
+                dropped &= np.isfinite(vz_now)[None, :]
+                velocities[..., 2] = np.where(dropped, vz_now[None, :], velocities[..., 2])
         return Settled(out.poses, velocities, ev.modes, on_top, is_in, supported, ev.codes, vel, ev.holds,
                        ev.times)
 

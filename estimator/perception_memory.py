@@ -44,6 +44,8 @@ class PerceptionMemory:
         poses: ``(M, 7)`` initial poses (known objects at their scene pose, the others parked).
         reasoner: ``t_perceived``, ``d_perc_prev`` and the Place rule's parameters.
         follow_hands: whether held objects follow the tracked hand (:meth:`following_hand`).
+        from_onset: whether the perceived velocity's line starts at the motion onset
+            (``moving_since``); False: over the whole window (the paper's mode keeps it).
 
     Arrays (all ``(M, ...)``): ``last_pose (M, 7)``, ``last_has_orientation`` bool, ``last_seen``
     (s; -inf: never), ``last_std`` (m; NaN: the detector gave none), ``perc_vel (M, 6)`` (linear part
@@ -57,11 +59,13 @@ class PerceptionMemory:
     a still object started moving, :data:`MOTION_ONSET`, until it is at rest again; NaN: still).
     """
 
-    def __init__(self, scene: Scene, poses: np.ndarray, reasoner: ReasonerConfig, follow_hands: bool):
+    def __init__(self, scene: Scene, poses: np.ndarray, reasoner: ReasonerConfig, follow_hands: bool,
+                 from_onset: bool = True):
         M = len(scene.objects)
         self.scene = scene
         self.reasoner = reasoner
         self.follow_hands = follow_hands
+        self.from_onset = from_onset
         self.static = np.array([o.static for o in scene.objects], dtype=bool)
         self.last_pose = poses.copy()
         self.last_has_orientation = np.zeros(M, dtype=bool)
@@ -185,12 +189,15 @@ class PerceptionMemory:
 
     def _fit_velocity(self, m: int, t: float) -> tuple[np.ndarray, float, np.ndarray, float]:
         """Least-squares line through object m's detections over the :data:`VELOCITY_WINDOW` up to its
-        latest one at ``t`` (s), since its segment started: the slope ``(3,)`` (m/s), the spread of
+        latest one at ``t`` (s), since its segment started and (``from_onset``) since it started
+        moving (its last still detection on: a line through the still ones before a flick lags it):
+        the slope ``(3,)`` (m/s), the spread of
         the detection times ``sxx`` (s^2), the line's horizontal position at ``t`` ``(2,)`` (m) and
         the detections' horizontal scatter about it (m, RMS per axis over ``n - 2`` degrees of
         freedom; NaN under three detections); for fewer than two detections
         ``(0, 0, the latest detection, NaN)``."""
-        since = max(t - VELOCITY_WINDOW, self._segment_start[m]) - 1e-9
+        onset = self.moving_since[m] if self.from_onset else math.nan
+        since = max(t - VELOCITY_WINDOW, self._segment_start[m], onset if np.isfinite(onset) else -np.inf) - 1e-9
         pts = [(h[0], h[1]) for h in self._history[m] if h[0] >= since]
         latest = np.asarray(self._history[m][-1][1][:2], dtype=float)
         if len(pts) < 2:
@@ -336,15 +343,21 @@ class PerceptionMemory:
         falling = self.tick_velocity()[:, 2] < -RELEASE_DOWN_SPEED
         return self.following_hand(frame) & (self.last_seen < frame.t - 1e-9) & ~falling
 
-    def detections_now(self, stale: np.ndarray) -> np.ndarray:
-        """The latest detections ``(M, 7)``, those of ``stale (M,)`` (:meth:`stale_in_hand`) carried
-        on to the update's frame with their hand (a cup carried at 1.3 m/s is 9 cm on two frames
-        after its last detection): by the hand's displacement since, between its smoothed positions
-        (:meth:`hand_position`, as :meth:`hand_travel`; a raw hand position is noisier than a
-        detection). Call after the frame is recorded."""
+    def detections_now(self, stale: np.ndarray, t: float, aged: np.ndarray | None = None) -> np.ndarray:
+        """The latest detections ``(M, 7)`` carried on to the update's frame at ``t`` (s): those of
+        ``stale (M,)`` (:meth:`stale_in_hand`) with their hand (a cup carried at 1.3 m/s is 9 cm on
+        two frames after its last detection), by the hand's displacement since, between its smoothed
+        positions (:meth:`hand_position`, as :meth:`hand_travel`; a raw hand position is noisier
+        than a detection); the other ``aged (M,)`` ones detected before ``t`` and seen moving at
+        their perceived velocity (:meth:`position_at`: a ball flicked at 1 m/s is 3 cm on one frame
+        after its last detection). Call after the frame is recorded."""
         out = self.last_pose.copy()
         for m in np.flatnonzero(stale):
             out[m, :3] += self.hand_position(self.hold_hand[m]) - self.hold_hand_position[m]
+        if aged is not None:
+            carry = aged & ~stale & np.isfinite(self.moving_since) & (self.last_seen < t - 1e-9)
+            if np.any(carry):
+                out[carry, :3] = self.position_at(t)[carry]
         return out
 
     def hand_heights(self, frame: Frame, objects: np.ndarray) -> np.ndarray:

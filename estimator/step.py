@@ -47,8 +47,9 @@ class Move:
     ``out_of_reach (M,)``: objects detected out of reach of every tracked hand (None: no hand
     tracked; :class:`~estimator.likelihood.Evidence`); ``fall``: the objects perceived falling off
     an edge (:class:`Fall`; None: none); ``detections (M, 7)``: the latest detections, those made in
-    an earlier frame of the update carried on by their tracked hand
-    (:meth:`~estimator.perception_memory.PerceptionMemory.detections_now`; None: as detected).
+    an earlier frame of the update carried on to its end by their tracked hand, or, seen moving, at
+    their velocity (:meth:`~estimator.perception_memory.PerceptionMemory.detections_now`; None: as
+    detected).
     """
 
     poses: np.ndarray

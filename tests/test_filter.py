@@ -439,6 +439,71 @@ def test_a_ball_seen_rolling_off_the_edge_falls_on_as_its_last_detections_say():
         assert np.linalg.norm(e) < 0.1
 
 
+def test_a_ball_dropped_from_a_tracked_hand_falls_on_at_the_speed_it_was_seen_falling():
+    """A tracked hand holds a ball 30 cm above the table and lets go at t = 1 s; the ball is seen
+    for the first 15 cm of its fall, then no more (no camera: nothing says where it went), the hand
+    still. Let go where it was last seen, it falls on at the free fall's speed there (1.7 m/s), and
+    lands when the truth does: from the second update after its last detection on, its height is
+    within 2 cm of the truth's. Let go at rest (the hand's speed), it landed an update late, 10 cm
+    high then."""
+    r, drop, g = 0.03, 0.3, 9.81
+    scene = table_scene({"id": "ball", "sphere": {"radius": r}, "mass": 0.05, "restitution": 0.0,
+                         "pose": {"position": [0.0, 0.0, TABLE_TOP + r]}})
+    z_rest, z_top = TABLE_TOP + r, TABLE_TOP + r + drop
+
+    def true_z(t):
+        return max(z_top - 0.5 * g * max(t - 1.0, 0.0) ** 2, z_rest) if t >= 0.3 else z_rest
+
+    frs = []
+    for t in np.arange(0.0, 2.0, 1 / HZ):
+        hand = np.array([0.0, 0.0, z_top + 0.06])
+        z = true_z(t) if t >= 0.3 else z_rest
+        seen = z > z_top - 0.15 or t < 0.3
+        frs.append(Frame(float(t), {"ball": Detection(np.array([0.0, 0.0, z]))} if seen else {},
+                         {"human/right": hand} if t >= 0.2 else {}))
+    t_last = max(f.t for f in frs if "ball" in f.objects)
+    cfg = EstimatorConfig(particles=8, noise=NoiseConfig(rolling_friction_scale=None))
+    with SceneEstimator(scene, cfg, np.random.default_rng(3)) as est:
+        beliefs = est.run(frs)
+    after = [b for b in beliefs if t_last + 0.1 < b.t <= t_last + 0.6]
+    assert len(after) >= 3
+    for b in after:
+        assert abs(b.objects["ball"].position[2] - true_z(b.t)) < 0.02, (b.t, b.objects["ball"].position, true_z(b.t))
+    assert after[-1].objects["ball"].p_held < 0.2
+
+
+def test_velocities_the_model_sets_after_physics_reach_the_worlds(monkeypatch):
+    """What the model's settle step changes after physics (here: particle 1's resting ball given
+    0.5 m/s along x) is loaded into that particle's world at the next update, which rolls it about
+    5 cm in 0.1 s (before, a world kept what its physics produced); the other particles' balls stay."""
+    import dataclasses
+    r = 0.03
+    scene = table_scene({"id": "ball", "sphere": {"radius": r}, "mass": 0.05, "rolling_friction": 0.002,
+                         "pose": {"position": [0.0, 0.0, TABLE_TOP + r]}})
+    cfg = EstimatorConfig(particles=4, noise=NoiseConfig.off())
+    with SceneEstimator(scene, cfg, np.random.default_rng(0)) as est:
+        ball = est.model.M - 1
+        settle = est.model.settle
+        pushed = []
+
+        def pushing_settle(*args, **kwargs):
+            out = settle(*args, **kwargs)
+            if not pushed:
+                v = out.velocities.copy()
+                v[1, ball, :] = [0.5, 0.0, 0.0, 0.0, 0.5 / r, 0.0]
+                pushed.append(True)
+                return dataclasses.replace(out, velocities=v)
+            return out
+
+        for t in (0.0, 0.1, 0.2, 0.3):
+            est.update(Frame(t, {}))
+            if t == 0.1:
+                monkeypatch.setattr(est.model, "settle", pushing_settle)
+        x = est.state.poses[:, ball, 0]
+    assert x[1] > 0.04, x
+    assert np.all(np.abs(x[[0, 2, 3]]) < 1e-3), x
+
+
 def test_a_ball_rolling_in_view_is_estimated_where_it_is_now_not_an_update_ahead():
     """The belief at t is the scene at t: a ball tracked rolling at 0.9 m/s is within 2 cm of its
     detection at t in every update (teleported to its detection and simulated on, it was 9 cm,

@@ -275,7 +275,7 @@ def test_held_target_adds_each_particles_offset_error_to_the_tracked_hand():
     model.memory.record(Frame(1.0, {}, {"human/right": [1.06, 0.0, 1.0]}))
     stale = model.memory.stale_in_hand(frame) & detected  # as the model's move computes them
     target, _, err = model.held_targets(frame, st.poses, modes, detected, detected, 0.1, np.random.default_rng(3),
-                                        before, None, None, model.memory.detections_now(stale), stale)
+                                        before, None, None, model.memory.detections_now(stale, frame.t), stale)
     np.testing.assert_allclose(err[:, CUP], expect)
     np.testing.assert_allclose(target[:, CUP, :3], np.array([1.03, 0.0, 0.95]) + expect)
 

@@ -13,12 +13,12 @@ from physics.scene import scene_from_dict
 TABLE, CUP, BALL = range(3)
 
 
-def memory(follow_hands=True, reasoner=ReasonerConfig()):
+def memory(follow_hands=True, reasoner=ReasonerConfig(), from_onset=True):
     sc = scene_from_dict({"objects": [
         {"id": "table", "static": True, "box": {"size": [1.0, 1.0, 0.1]}, "pose": {"position": [0, 0, 0.05]}},
         {"id": "cup", "cylinder": {"radius": 0.03, "height": 0.08}, "pose": {"position": [0.3, 0.3, 0.14]}},
         {"id": "ball", "sphere": {"radius": 0.03}}]})
-    return PerceptionMemory(sc, initial_poses(sc)[0], reasoner, follow_hands)
+    return PerceptionMemory(sc, initial_poses(sc)[0], reasoner, follow_hands, from_onset)
 
 
 def det(p, q=None, std=None):
@@ -88,7 +88,7 @@ def test_a_detection_from_an_earlier_frame_is_carried_on_by_its_tracked_hand():
         mem.record(Frame(f / 30, {}, {"human/right": hand0 + f * step}))
     later = Frame(2 / 30, {}, {"human/right": hand0 + 2 * step})
     assert list(mem.stale_in_hand(later)) == [False, True, False]
-    at = mem.detections_now(mem.stale_in_hand(later))
+    at = mem.detections_now(mem.stale_in_hand(later), later.t)
     np.testing.assert_allclose(at[CUP, :3], hand0 + 2 * step - [0, 0, 0.2], atol=1e-12)
     np.testing.assert_allclose(at[BALL], mem.last_pose[BALL])  # no hand near it: at its detection
     np.testing.assert_allclose(at[CUP, 3:], mem.last_pose[CUP, 3:])
@@ -98,6 +98,28 @@ def test_a_detection_from_an_earlier_frame_is_carried_on_by_its_tracked_hand():
     mem.record(Frame(3 / 30, {"cup": det(mem.last_pose[CUP, :3] - [0, 0, 0.05])}, {"human/right": hand0 + 3 * step}))
     assert mem.tick_velocity()[CUP, 2] < -0.3 and mem.hold_hand[CUP] == "human/right"
     assert not mem.stale_in_hand(Frame(4 / 30, {}, {"human/right": hand0 + 4 * step})).any()
+
+
+def test_a_detection_from_an_earlier_frame_is_carried_on_at_its_velocity_when_seen_moving():
+    """An object seen moving, detected in an earlier frame of the update and not in its last one,
+    is carried on at its perceived velocity to the update's time (exact on uniform motion: a ball
+    rolling at 1 m/s, missed on one frame, is 3.3 cm on); one seen still stays at its detection, and
+    so does every object when ``aged`` is not given (the paper's pinning)."""
+    mem = memory()
+    v = np.array([-1.0, 0.0, 0.0])
+    for f in range(0, 5):  # the ball rolls in view; the cup lies still
+        mem.record(Frame(f / 30, {"ball": det(np.array([0.3, 0.0, 0.03]) + v * f / 30), "cup": det([0.0, 0.3, 0.05])}))
+    mem.record(Frame(5 / 30, {}))  # the last frame of the update shows neither
+    assert np.isfinite(mem.moving_since[BALL]) and np.isnan(mem.moving_since[CUP])
+    none = np.zeros(3, dtype=bool)
+    seen = np.array([False, True, True])
+    at = mem.detections_now(none, 5 / 30, seen)
+    np.testing.assert_allclose(at[BALL, :3], [0.3 - 5 / 30, 0.0, 0.03], atol=1e-9)
+    np.testing.assert_allclose(at[CUP], mem.last_pose[CUP])
+    np.testing.assert_allclose(mem.detections_now(none, 5 / 30), mem.last_pose)
+    # detected in the update's last frame: at its detection
+    mem.record(Frame(6 / 30, {"ball": det(np.array([0.3, 0.0, 0.03]) + v * 6 / 30)}))
+    np.testing.assert_allclose(mem.detections_now(none, 6 / 30, seen), mem.last_pose)
 
 
 def _frames(mem, positions, quats=None, hz=30.0):
@@ -223,6 +245,20 @@ def test_position_at_carries_the_last_detection_on_at_the_perceived_velocity():
     p = mem.position_at(0.0)
     assert p[CUP] == pytest.approx([0.3, 0.3, 0.14]) and mem.position_at(0.3)[CUP] == pytest.approx([0.6, 0.3, 0.14])
     assert np.all(p[BALL] == mem.last_pose[BALL, :3])  # never seen: where it is
+
+
+def test_perceived_velocity_starts_at_the_motion_onset():
+    """A ball still for 0.33 s, then flicked to 1 m/s: three frames later its perceived velocity is
+    the slope since its last still detection (exact), not a line through the still detections
+    before the flick too, which lags (half the speed here), and which the paper's mode keeps
+    (``from_onset=False``)."""
+    for from_onset, speed in ((True, 1.0), (False, 0.5)):
+        mem = memory(from_onset=from_onset)
+        for f in range(14):
+            t = f / 30
+            mem.record(Frame(t, {"ball": det([0.3 + max(0.0, t - 10 / 30), 0.0, 0.03])}))
+        assert mem.moving_since[BALL] == pytest.approx(10 / 30)
+        assert mem.perc_vel[BALL, :3] == pytest.approx([speed, 0.0, 0.0])
 
 
 def test_perceived_velocity_is_the_least_squares_slope_over_the_window_with_its_standard_error():
