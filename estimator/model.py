@@ -193,11 +193,11 @@ class SceneModel:
         start = mem.position_at(frame.t - dt) if cfg.moving_teleports else None
         fall_now, fall = None, np.zeros(self.M, dtype=bool)
         if cfg.moving_teleports and np.any(falling):  # ... falling, on the free fall through its
-            (z0, z1), (vz0, vz1), vz_std = mem.free_fall((frame.t - dt, frame.t), cfg.physics.gravity,
+            (z0, z1), (vz0, _), vz_std = mem.free_fall((frame.t - dt, frame.t), cfg.physics.gravity,
                                                          cfg.noise.position_std)  # last detections
             fall = falling & np.isfinite(z0) & ~following
             start[fall, 2], mem.perc_vel[fall, 2] = z0[fall], vz0[fall]
-            fall_now = Fall(fall, z1, vz1, (z1 - z0) / dt)
+            fall_now = Fall(fall, z1, (z1 - z0) / dt)
         if np.any(tele):
             jitter[:, tele] = self.teleport(poses, vel, np.flatnonzero(tele), newly_known, state.is_in, rng,
                                             spinning, start, prev_modes == HELD)
@@ -396,18 +396,14 @@ class SceneModel:
         if np.any(released):
             velocities = velocities.copy()
             self.roll_released(velocities, released, supported)
-            fell = np.zeros_like(released)
-            if move.fall is not None:  # let go falling: at the free fall's speed now
-                fell = released & move.fall.mask[None, :]
-                velocities[..., 2] = np.where(fell, move.fall.vz[None, :], velocities[..., 2])
-            # dropped from a hand, seen falling (the Release rule): at the speed of the free fall
-            # through its last detections, not the hand's (a ball seen falling for 0.2 s falls at
-            # 2 m/s; let go at rest, it would land an update late)
-            dropped = released & falling & ~fell
-            if cfg.moving_teleports and np.any(dropped):
+            # let go falling, off an edge (move.fall) or from a hand (the Release rule): at the speed
+            # of the free fall through its last detections now, not the hand's (a ball seen falling
+            # for 0.2 s falls at 2 m/s; let go at rest, it would land an update late)
+            fell = released & (falling | (False if move.fall is None else move.fall.mask[None, :]))
+            if cfg.moving_teleports and np.any(fell):
                 vz_now = mem.free_fall((t,), cfg.physics.gravity, cfg.noise.position_std)[1][0]
-                dropped &= np.isfinite(vz_now)[None, :]
-                velocities[..., 2] = np.where(dropped, vz_now[None, :], velocities[..., 2])
+                fell &= np.isfinite(vz_now)[None, :]
+                velocities[..., 2] = np.where(fell, vz_now[None, :], velocities[..., 2])
         return Settled(out.poses, velocities, ev.modes, on_top, is_in, supported, ev.codes, vel, ev.holds,
                        ev.times)
 

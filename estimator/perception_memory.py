@@ -191,13 +191,15 @@ class PerceptionMemory:
         """Least-squares line through object m's detections over the :data:`VELOCITY_WINDOW` up to its
         latest one at ``t`` (s), since its segment started and (``from_onset``) since it started
         moving (its last still detection on: a line through the still ones before a flick lags it):
-        the slope ``(3,)`` (m/s), the spread of
-        the detection times ``sxx`` (s^2), the line's horizontal position at ``t`` ``(2,)`` (m) and
+        the slope ``(3,)`` (m/s), the spread of the detection times ``sxx`` (s^2), the line's
+        horizontal position at ``t`` ``(2,)`` (m) and
         the detections' horizontal scatter about it (m, RMS per axis over ``n - 2`` degrees of
         freedom; NaN under three detections); for fewer than two detections
         ``(0, 0, the latest detection, NaN)``."""
-        onset = self.moving_since[m] if self.from_onset else math.nan
-        since = max(t - VELOCITY_WINDOW, self._segment_start[m], onset if np.isfinite(onset) else -np.inf) - 1e-9
+        since = max(t - VELOCITY_WINDOW, self._segment_start[m])
+        if self.from_onset and np.isfinite(self.moving_since[m]):
+            since = max(since, self.moving_since[m])
+        since -= 1e-9
         pts = [(h[0], h[1]) for h in self._history[m] if h[0] >= since]
         latest = np.asarray(self._history[m][-1][1][:2], dtype=float)
         if len(pts) < 2:

@@ -12,14 +12,13 @@ import numpy as np
 class Fall:
     """Objects ``mask (M,)`` perceived falling off an edge, on the free fall through their last
     detections (:meth:`~estimator.perception_memory.PerceptionMemory.free_fall`): height ``z (M,)``
-    (m) and vertical velocity ``vz (M,)`` (m/s) at the update's end, and ``mean_vz (M,)`` (m/s)
-    over the update (from where the fall had them at its start). Held objects are there (the
-    divergence test's target moving on a line at the mean velocity: the fall's own chord, not the
-    end velocity carried back), and those let go now keep ``vz``."""
+    (m) at the update's end and ``mean_vz (M,)`` (m/s) over the update (from where the fall had them
+    at its start). Held objects are there (the divergence test's target moving on a line at the mean
+    velocity: the fall's own chord, not the end velocity carried back); those let go now fall on at
+    the free fall's velocity then (:meth:`~estimator.model.SceneModel.settle`)."""
 
     mask: np.ndarray
     z: np.ndarray
-    vz: np.ndarray
     mean_vz: np.ndarray
 
 

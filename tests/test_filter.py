@@ -444,8 +444,7 @@ def test_a_ball_dropped_from_a_tracked_hand_falls_on_at_the_speed_it_was_seen_fa
     for the first 15 cm of its fall, then no more (no camera: nothing says where it went), the hand
     still. Let go where it was last seen, it falls on at the free fall's speed there (1.7 m/s), and
     lands when the truth does: from the second update after its last detection on, its height is
-    within 2 cm of the truth's. Let go at rest (the hand's speed), it landed an update late, 10 cm
-    high then."""
+    within 2 cm of the truth's. Let go at rest (the hand's speed), it landed an update late."""
     r, drop, g = 0.03, 0.3, 9.81
     scene = table_scene({"id": "ball", "sphere": {"radius": r}, "mass": 0.05, "restitution": 0.0,
                          "pose": {"position": [0.0, 0.0, TABLE_TOP + r]}})
