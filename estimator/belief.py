@@ -11,9 +11,11 @@ two coincide.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
+from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.stats import chi2, f as f_dist
 
 from actions.events import EventRecord
 from actions.modes import HELD
@@ -49,7 +51,9 @@ class ObjectBelief:
     agrees on the support). ``orientation (4,)`` x,y,z,w and ``angular_std`` rad (weighted RMS
     angle to it) are the weighted chordal mean over all particles. ``mean_position`` ``None``
     (objects built by hand) means ``position``. ``person`` (only when the scene names a person):
-    ``{"id", "p_visible", "p_reachable"}`` (:mod:`estimator.person`).
+    ``{"id", "p_visible", "p_reachable"}`` (:mod:`estimator.person`). ``position_dof``: the
+    position is a multivariate Student-t with these degrees of freedom and covariance
+    ``position_cov`` (``inf``: Gaussian); :meth:`region` gives its ellipsoids.
     """
 
     position: np.ndarray
@@ -63,6 +67,13 @@ class ObjectBelief:
     mean_position: np.ndarray | None = None
     mean_position_cov: np.ndarray | None = None
     person: dict | None = None
+    position_dof: float = math.inf
+
+    def region(self, level: float) -> float:
+        """Squared Mahalanobis radius ``r2`` (with respect to ``position_cov``) of the ellipsoid
+        ``(x - position)^T position_cov^-1 (x - position) <= r2`` that holds the object with
+        probability ``level`` (in (0, 1)) under the reported distribution."""
+        return float(region_radius_sq(level, self.position_dof))
 
     def to_json(self) -> dict:
         mean = self.position if self.mean_position is None else self.mean_position
@@ -72,7 +83,8 @@ class ObjectBelief:
                "mean_position": _r(mean), "mean_position_cov": [_r(row, 8) for row in mean_cov],
                "angular_std": round(float(self.angular_std), 6), "perceived": bool(self.perceived),
                "p_plausible": round(float(self.p_plausible), 4), "p_held": round(float(self.p_held), 4),
-               "hypotheses": [h.to_json() for h in self.hypotheses]}
+               "hypotheses": [h.to_json() for h in self.hypotheses],
+               "position_dof": None if math.isinf(self.position_dof) else round(float(self.position_dof), 4)}
         if self.person is not None:
             out["person"] = self.person
         return out
@@ -115,6 +127,48 @@ class Belief:
             if h.relation == relation and h.support == support:
                 return float(h.p)
         return 0.0
+
+
+def headline_positions(belief: Belief) -> np.ndarray:
+    """Headline positions ``(M, 3)`` m of ``belief`` in ``belief.object_ids`` order (NaN for objects
+    it leaves out)."""
+    out = np.full((len(belief.object_ids), 3), np.nan)
+    for m, oid in enumerate(belief.object_ids):
+        if oid in belief.objects:
+            out[m] = belief.objects[oid].position
+    return out
+
+
+def with_added_variance(belief: Belief, variance: np.ndarray) -> Belief:
+    """``belief`` with ``variance (M,)`` m^2 (``belief.object_ids`` order) added to the diagonal of
+    each object's ``position_cov`` and ``mean_position_cov`` (0 leaves it as it is)."""
+    variance = np.asarray(variance, float)
+    if variance.shape != (len(belief.object_ids),) or not np.all(np.isfinite(variance) & (variance >= 0)):
+        raise ValueError(f"variance must be ({len(belief.object_ids)},), finite and >= 0, got {variance!r}")
+    objects = dict(belief.objects)
+    for m, oid in enumerate(belief.object_ids):
+        if oid in objects and variance[m] > 0:
+            o = objects[oid]
+            add = variance[m] * np.eye(3)
+            mean_cov = o.position_cov if o.mean_position_cov is None else o.mean_position_cov
+            objects[oid] = replace(o, position_cov=o.position_cov + add, mean_position_cov=mean_cov + add)
+    return replace(belief, objects=objects)
+
+
+def region_radius_sq(level, dof, dim: int = 3):
+    """Squared Mahalanobis radius of the ``level`` region of a ``dim``-variate Student-t with
+    ``dof`` degrees of freedom (> 2; ``inf``: Gaussian), measured with its covariance (not its scale
+    matrix, which is ``cov * (dof - 2) / dof``). ``level`` and ``dof`` broadcast; returns an array
+    (a float for scalars). For a Gaussian it is ``chi2.ppf(level, dim)``; for a t it is
+    ``dim * (dof - 2) / dof * F.ppf(level, dim, dof)``, the distance over the scale matrix being
+    ``dim`` times an F(dim, dof) variable."""
+    level, dof = np.broadcast_arrays(np.asarray(level, float), np.asarray(dof, float))
+    if np.any((level <= 0) | (level >= 1)) or np.any(~(dof > 2)):
+        raise ValueError(f"region_radius_sq: level must be in (0, 1) and dof > 2, got {level!r}, {dof!r}")
+    finite = np.isfinite(dof)
+    d = np.where(finite, dof, 3.0)
+    out = np.where(finite, dim * (d - 2.0) / d * f_dist.ppf(level, dim, d), chi2.ppf(level, dim))
+    return out[()] if out.ndim == 0 else out
 
 
 def _r(values, digits: int = 6) -> list[float]:
@@ -185,13 +239,15 @@ def _group_stats(positions: np.ndarray, weights: np.ndarray, members: np.ndarray
 def compute_belief(t: float, object_ids, known: np.ndarray, perceived: np.ndarray, poses: np.ndarray,
                    weights: np.ndarray, modes: np.ndarray, on_top: np.ndarray, is_in: np.ndarray,
                    events: list[EventRecord], ess: float, static: np.ndarray, min_p: float = 0.02,
-                   keep_particles: bool = True, cov_floor: float = 0.0) -> Belief:
+                   keep_particles: bool = True, cov_floor: float | np.ndarray = 0.0,
+                   dof: float = math.inf) -> Belief:
     """Assemble a :class:`Belief` from particle arrays (K particles, M objects).
 
     ``poses (K, M, 7)``, ``weights (K,)`` normalised, ``modes (K, M)``, ``on_top (K, M, M+1)``,
     ``is_in (K, M, M)``; ``known``, ``perceived``, ``static`` ``(M,)`` bool. Unknown objects are left
-    out; static objects get their fixed pose and no hypotheses. ``cov_floor`` (m^2) is added to the
-    diagonal of the position covariances of dynamic objects. A hypothesis is a support label
+    out; static objects get their fixed pose and no hypotheses. ``cov_floor`` (m^2, a scalar or one
+    per object ``(M,)``) is added to the diagonal of the position covariances of dynamic objects,
+    whose positions are then Student-t with ``dof`` degrees of freedom (``inf``: Gaussian). A hypothesis is a support label
     (:func:`support_labels`); the headline position and covariance are those of the heaviest one
     (see :class:`ObjectBelief`), the first of ``hypotheses``.
     """
@@ -211,6 +267,7 @@ def compute_belief(t: float, object_ids, known: np.ndarray, perceived: np.ndarra
     objects = {}
     means, covs, quats, angs = pose_stats(poses, weights)
     eye = np.eye(3)
+    floor = np.broadcast_to(np.asarray(cov_floor, float), (m_count,))
     for m, oid in enumerate(object_ids):
         if not known[m]:
             continue
@@ -220,8 +277,8 @@ def compute_belief(t: float, object_ids, known: np.ndarray, perceived: np.ndarra
             pos, pos_cov = mean, cov
         else:
             pos, pos_cov = _group_stats(poses[:, m, :3], weights, labels[:, m] == top)
-        if not static[m] and cov_floor > 0:
-            cov, pos_cov = cov + cov_floor * eye, pos_cov + cov_floor * eye
+        if not static[m] and floor[m] > 0:
+            cov, pos_cov = cov + floor[m] * eye, pos_cov + floor[m] * eye
         p_held = float(p_held_all[m])
         p_plausible = 1.0 - p_held if perceived[m] else 1.0
         hyps = []
@@ -232,7 +289,7 @@ def compute_belief(t: float, object_ids, known: np.ndarray, perceived: np.ndarra
                 hyps.append(Hypothesis(p, rel, sup, pos_lab[m, lab] / p if p > 0 else pos_lab[m, lab]))
             hyps.sort(key=lambda h: -h.p)
         objects[oid] = ObjectBelief(pos, q, pos_cov, ang, bool(perceived[m]), p_plausible, p_held, tuple(hyps),
-                                    mean, cov)
+                                    mean, cov, position_dof=math.inf if static[m] else float(dof))
     p_on = np.tensordot(weights, on_top.astype(float), axes=1)
     p_in = np.tensordot(weights, is_in.astype(float), axes=1) if is_in.any() else np.zeros(is_in.shape[1:])
     relations = relation_list(None, None, object_ids, p_on, p_in, threshold=min_p)

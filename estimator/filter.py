@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 
 import numpy as np
 
@@ -31,7 +32,7 @@ from actions.events import recent_events, record_event_times
 from actions.modes import FREE, HELD
 from physics.scene import Scene
 
-from .belief import Belief, compute_belief
+from .belief import Belief, compute_belief, headline_positions, with_added_variance
 from .config import EstimatorConfig, reasoning_due
 from .holding import hidden_places, lowest_hidden_place, resting_place
 from .likelihood import held_unseen_in_view
@@ -113,6 +114,7 @@ class SceneEstimator:
         self.last_belief: Belief | None = None
         self.t_frame: float | None = None
         self.t_tick: float | None = None
+        self._headline: np.ndarray | None = None  # (M, 3) the last update's headline positions
         self._detected_since_tick = np.zeros(M, dtype=bool)
         self._cameras_since_tick: dict | None = None  # cameras of the frames since the last update
         self._scene_camera_since_tick = False  # a frame without cameras (the scene's) since then
@@ -169,6 +171,20 @@ class SceneEstimator:
         belief = self._tick(frame, detected, cameras)
         self.last_belief = belief
         return belief
+
+    def _with_speed_variance(self, belief: Belief, detected: np.ndarray, dt: float) -> Belief:
+        """The belief with ``(covariance_speed_time * speed)**2`` added to the position variance of
+        every dynamic object not detected in this update, ``speed`` (m/s) being how far its headline
+        position moved since the last update over ``dt`` (s) (NoiseConfig); remembers the headline
+        positions for the next update."""
+        c = self.config.noise.covariance_speed_time
+        now = headline_positions(belief)
+        prev, self._headline = self._headline, now
+        if c <= 0 or prev is None or dt <= 0:
+            return belief
+        moved = np.linalg.norm(now - prev, axis=1)
+        ok = np.isfinite(moved) & self.dynamic & ~np.asarray(detected, bool)
+        return with_added_variance(belief, np.where(ok, (c * np.where(ok, moved, 0.0) / dt) ** 2, 0.0))
 
     def _with_person(self, belief: Belief, poses: np.ndarray, weights: np.ndarray) -> Belief:
         """The belief with P(visible to) and P(reachable by) the scene's person for every known
@@ -239,7 +255,9 @@ class SceneEstimator:
                                     threshold=cfg.hypothesis_min_p, push_decided=self.state.push_decided)
         belief = compute_belief(t, self.object_ids, self.known, perceived, settled.poses, weights, settled.modes,
                                 settled.on_top, settled.is_in, step_events, ess, self.static, cfg.hypothesis_min_p,
-                                cov_floor=cfg.noise.covariance_floor_std ** 2)
+                                cov_floor=cfg.noise.covariance_floor_std ** 2,
+                                dof=cfg.noise.position_dof or math.inf)
+        belief = self._with_speed_variance(belief, detected, dt)
         if self.scene.person is not None:
             belief = self._with_person(belief, settled.poses, weights)
         self._update_timeline(t, belief)

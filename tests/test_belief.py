@@ -1,9 +1,11 @@
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
 
 from actions.modes import FREE, HELD
-from estimator.belief import compute_belief, pose_stats, support_labels
+from estimator.belief import (compute_belief, headline_positions, pose_stats, region_radius_sq, support_labels,
+                              with_added_variance)
 
 
 def test_pose_stats_match_direct_formulas():
@@ -114,3 +116,47 @@ def test_a_one_mode_belief_is_its_mean():
                          modes[:1], on_top[:1], is_in[:1], [], 1.0, np.array([True, False]))
     assert np.array_equal(one.objects["cup"].position, poses[0, 1, :3])
     assert np.all(one.objects["cup"].position_cov == 0) and np.all(one.objects["cup"].mean_position_cov == 0)
+
+
+def test_region_radius_is_chi2_for_a_gaussian_and_holds_its_level_for_a_student_t():
+    assert region_radius_sq(0.9, np.inf) == pytest.approx(chi2.ppf(0.9, 3))
+    assert np.allclose(region_radius_sq([0.5, 0.9], np.inf), chi2.ppf([0.5, 0.9], 3))
+    # a t of covariance C: a Gaussian of covariance C (nu - 2) / nu over sqrt(chi2(nu) / nu)
+    rng = np.random.default_rng(11)
+    n, nu = 40000, 3.0
+    cov = np.array([[4e-4, 1e-4, 0.0], [1e-4, 1e-4, 0.0], [0.0, 0.0, 1e-5]])
+    z = rng.multivariate_normal(np.zeros(3), cov * (nu - 2) / nu, size=n)
+    x = z / np.sqrt(rng.chisquare(nu, size=n) / nu)[:, None]
+    m2 = np.einsum("ni,ij,nj->n", x, np.linalg.inv(cov), x)
+    for level in (0.5, 0.9, 0.99):
+        assert np.mean(m2 <= region_radius_sq(level, nu)) == pytest.approx(level, abs=4 * np.sqrt(level * (1 - level) / n))
+    # of the same covariance, its 50 % and 90 % regions are narrower than the Gaussian's, its 99 % wider
+    assert region_radius_sq(0.5, nu) < chi2.ppf(0.5, 3) and region_radius_sq(0.9, nu) < chi2.ppf(0.9, 3)
+    assert region_radius_sq(0.99, nu) > chi2.ppf(0.99, 3)
+    for bad in ((0.5, 2.0), (1.0, 3.0), (0.0, np.inf)):
+        with pytest.raises(ValueError):
+            region_radius_sq(*bad)
+
+
+def test_beliefs_report_the_degrees_of_freedom_and_take_added_variance():
+    rng = np.random.default_rng(5)
+    poses, w, modes, on_top, is_in, floor = _cup_held_or_fallen(rng)
+    b = compute_belief(2.0, ["table", "cup"], np.ones(2, bool), np.zeros(2, bool), poses, w, modes, on_top,
+                       is_in, [], 100.0, np.array([True, False]), cov_floor=np.array([0.0, 1e-6]), dof=3.0)
+    cup, table = b.objects["cup"], b.objects["table"]
+    assert cup.position_dof == 3.0 and np.isinf(table.position_dof)  # static objects: no spread at all
+    assert cup.to_json()["position_dof"] == 3.0 and table.to_json()["position_dof"] is None
+    assert cup.region(0.9) == pytest.approx(region_radius_sq(0.9, 3.0))
+    gauss = compute_belief(2.0, ["table", "cup"], np.ones(2, bool), np.zeros(2, bool), poses, w, modes, on_top,
+                           is_in, [], 100.0, np.array([True, False]), cov_floor=1e-6)
+    assert np.array_equal(gauss.objects["cup"].position_cov, cup.position_cov)  # a per-object floor as a scalar one
+    assert gauss.objects["cup"].to_json()["position_dof"] is None
+    assert np.array_equal(headline_positions(b), np.stack([table.position, cup.position]))
+    more = with_added_variance(b, np.array([0.0, 4e-4]))
+    assert np.allclose(more.objects["cup"].position_cov, cup.position_cov + 4e-4 * np.eye(3))
+    assert np.allclose(more.objects["cup"].mean_position_cov, cup.mean_position_cov + 4e-4 * np.eye(3))
+    assert np.array_equal(more.objects["table"].position_cov, table.position_cov)
+    assert np.array_equal(more.objects["cup"].position, cup.position)
+    for bad in (np.array([0.0]), np.array([0.0, -1.0]), np.array([0.0, np.nan])):
+        with pytest.raises(ValueError):
+            with_added_variance(b, bad)

@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 import pytest
-from scipy.stats import multivariate_normal
+from scipy.stats import multivariate_normal, multivariate_t
 
 from experiments.evaluation import metrics as M
 
@@ -167,6 +167,34 @@ def test_coverage_of_a_calibrated_gaussian_is_its_level():
     # an overconfident estimate (covariance 100 times too small) covers much less
     tight = M.coverage(mean, np.broadcast_to(cov / 100, (n, 3, 3)), x, floor_std=0.0)
     assert tight[0.9] < 0.1
+
+
+def test_student_t_nll_and_coverage_take_the_degrees_of_freedom():
+    mean = np.array([0.1, 0.2, 0.7])
+    cov = np.array([[4e-4, 1e-4, 0], [1e-4, 9e-4, 0], [0, 0, 1e-4]])
+    xs = np.array([[0.12, 0.17, 0.71], [0.1, 0.2, 0.7], [0.3, 0.0, 0.6]])
+    nu = 3.0
+    floored = cov + M.COV_FLOOR_STD ** 2 * np.eye(3)
+    # the t of that covariance has the scale matrix cov (nu - 2) / nu
+    expected = -multivariate_t(mean, floored * (nu - 2) / nu, df=nu).logpdf(xs)
+    got = M.gaussian_nll(np.broadcast_to(mean, xs.shape), np.broadcast_to(cov, (3, 3, 3)), xs, dof=nu)
+    assert got == pytest.approx(expected, rel=1e-10)
+    # inf entries are Gaussian, per sample
+    mixed = M.gaussian_nll(np.broadcast_to(mean, xs.shape), np.broadcast_to(cov, (3, 3, 3)), xs,
+                           dof=np.array([nu, math.inf, nu]))
+    assert mixed[1] == pytest.approx(-multivariate_normal(mean, floored).logpdf(xs[1]), rel=1e-10)
+    assert mixed[0] == pytest.approx(expected[0], rel=1e-10)
+    # coverage of t samples under their own t regions is the level (binomial 4 sigma at n = 20000)
+    rng = np.random.default_rng(8)
+    n = 20000
+    c = np.diag([0.02, 0.05, 0.01]) ** 2
+    x = multivariate_t(np.zeros(3), c * (nu - 2) / nu, df=nu).rvs(n, random_state=rng)
+    cov_t = M.coverage(np.zeros((n, 3)), np.broadcast_to(c, (n, 3, 3)), x, floor_std=0.0, dof=nu)
+    cov_g = M.coverage(np.zeros((n, 3)), np.broadcast_to(c, (n, 3, 3)), x, floor_std=0.0)
+    for level in (0.5, 0.9):
+        assert cov_t[level] == pytest.approx(level, abs=4 * math.sqrt(level * (1 - level) / n))
+    # read as a Gaussian of the same covariance, the same samples over-fill its 50 % region
+    assert cov_g[0.5] > 0.5 + 4 * math.sqrt(0.25 / n)
 
 
 def test_brier_and_ece_known_values():

@@ -1,11 +1,14 @@
 """The physics-aware Kalman tracker: equivalence with plain filterpy, consistency (NEES), gating,
 feedback from a belief, time checks."""
+import dataclasses
+import math
+
 import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter
 from scipy.stats import chi2
 
-from estimator.belief import Belief, ObjectBelief
+from estimator.belief import Belief, ObjectBelief, region_radius_sq
 from estimator.observations import Detection, Frame
 from estimator.tracker import H_POS, PhysicsAwareTracker, TrackerConfig, process_noise, transition
 
@@ -193,6 +196,25 @@ def test_config_is_checked():
     with pytest.raises(ValueError, match="gate_probability"):
         TrackerConfig(gate_probability=1.0)
     assert TrackerConfig().gate == pytest.approx(11.3449, abs=1e-3)
+
+
+def test_a_student_t_belief_is_taken_as_the_gaussian_of_its_90_percent_region():
+    trk = PhysicsAwareTracker(TrackerConfig(pseudo_fusion="replace"), object_ids=("cup", "ball"))
+    trk.update(frame(0.0))
+    cov = np.diag([4e-4, 1e-4, 9e-4])
+    t3 = ObjectBelief(np.array([0.5, 0.0, 0.9]), np.array([0, 0, 0, 1.0]), cov, 0.0, False, 1.0, 0.0,
+                      mean_position_cov=cov, position_dof=3.0)
+    gauss = dataclasses.replace(t3, position_dof=math.inf)
+    trk.feedback(Belief(0.0, {"cup": t3, "ball": gauss}, [], [], 1.0))
+    floor = trk.config.pseudo_std_floor ** 2 * np.eye(3)
+    got = trk.tracks["cup"].position_cov - floor
+    # the Gaussian's 90 % ellipsoid is the t's: same axes, the chi2 radius over this covariance
+    # equals the t's radius over the belief's
+    np.testing.assert_allclose(got * chi2.ppf(0.9, 3), cov * region_radius_sq(0.9, 3.0), rtol=1e-12)
+    assert np.all(np.diag(got) < np.diag(cov))  # narrower than the moments: 0.86 of them
+    np.testing.assert_allclose(trk.tracks["ball"].position_cov - floor, cov, rtol=1e-12)  # a Gaussian as it is
+    with pytest.raises(ValueError, match="pseudo_region"):
+        TrackerConfig(pseudo_region=1.0)
 
 
 def test_pseudo_measurement_is_the_whole_beliefs_moments_not_its_main_hypothesis():

@@ -1,11 +1,13 @@
 """``scene-estimator fit-priors``: the held-object priors fitted on simulated scenarios
-(:func:`experiments.evaluation.fit_priors.fit_priors`), printed as JSON."""
+(:func:`experiments.evaluation.fit_priors.fit_priors`), or with ``--regions`` the reported position
+distribution (:func:`experiments.evaluation.fit_regions.fit_regions`), printed as JSON."""
 from __future__ import annotations
 
 import argparse
 import json
 
 from experiments.evaluation.fit_priors import FIT_SEEDS, fit_priors
+from experiments.evaluation.fit_regions import collect_region_samples, fit_regions, region_config
 
 
 def seed_range(text: str) -> range:
@@ -25,10 +27,25 @@ def add_fit_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seeds", default=f"{FIT_SEEDS.start}-{FIT_SEEDS.stop - 1}",
                    help="seed range FIRST-LAST (default 100-119: the evaluation uses 0-19)")
     p.add_argument("--scenarios", default="all",
-                   help="'all' (every built-in scenario with tracked hands) or comma-separated names")
+                   help="'all' (every built-in scenario with tracked hands; with --regions, every one) or "
+                        "comma-separated names")
+    p.add_argument("--regions", action="store_true",
+                   help="fit the position regions instead (covariance floor, speed term, Student-t degrees of "
+                        "freedom): runs the particle estimator on every scenario x seed")
+    p.add_argument("--particles", type=int, default=64, help="particles of the --regions runs (default 64)")
+    p.add_argument("--workers", type=int, default=1, help="processes of the --regions runs (default 1)")
 
 
 def run_fit(args) -> int:
     names = None if args.scenarios == "all" else [s.strip() for s in args.scenarios.split(",") if s.strip()]
+    if args.regions:
+        if args.particles < 1 or args.workers < 1:
+            raise ValueError(f"--particles and --workers must be >= 1, got {args.particles}, {args.workers}")
+        samples = collect_region_samples(names, seed_range(args.seeds), args.particles, args.workers)
+        fit = fit_regions(samples)
+        fit.update(config=region_config(fit), scenarios=list(samples.scenarios),
+                   seeds=[int(s) for s in seed_range(args.seeds)], particles=args.particles)
+        print(json.dumps(fit, indent=1))
+        return 0
     print(json.dumps(fit_priors(names, seed_range(args.seeds)), indent=1))
     return 0

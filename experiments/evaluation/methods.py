@@ -148,7 +148,9 @@ class StepEstimate:
     * ``top (M,)`` the most probable ``(relation, support)`` of each object (``relation`` in isIn,
       isOnTop, held, none; ``support`` an object id, ``"floor"`` or ``None``);
     * ``relations``: ``{(subject, predicate, object): p}`` for every listed relation;
-    * ``particles (K, M, 3)`` and ``weights (K,)``: the particle cloud, kept only when asked for.
+    * ``particles (K, M, 3)`` and ``weights (K,)``: the particle cloud, kept only when asked for;
+    * ``dof (M,)``: degrees of freedom of each position's Student-t (``inf``: Gaussian; ``None``:
+      every position Gaussian).
     """
 
     t: float
@@ -160,6 +162,7 @@ class StepEstimate:
     relations: dict[tuple[str, str, str], float]
     particles: np.ndarray | None = None
     weights: np.ndarray | None = None
+    dof: np.ndarray | None = None
 
 
 @dataclass
@@ -184,6 +187,7 @@ def step_from_belief(belief: Belief, object_ids, keep_particles: bool = False) -
     cov = np.zeros((m, 3, 3))
     p_pl = np.ones(m)
     p_held = np.zeros(m)
+    dof = np.full(m, np.inf)
     top: list[tuple[str, str | None]] = []
     for i, oid in enumerate(object_ids):
         ob = belief.objects.get(oid)
@@ -192,6 +196,7 @@ def step_from_belief(belief: Belief, object_ids, keep_particles: bool = False) -
             continue
         pos[i] = ob.position
         cov[i] = ob.position_cov
+        dof[i] = ob.position_dof
         p_pl[i] = ob.p_plausible
         p_held[i] = ob.p_held
         top.append((ob.hypotheses[0].relation, ob.hypotheses[0].support) if ob.hypotheses else ("none", None))
@@ -200,7 +205,7 @@ def step_from_belief(belief: Belief, object_ids, keep_particles: bool = False) -
     if keep_particles and belief.particles is not None:
         parts = np.asarray(belief.particles)[..., :3].copy()
         weights = np.asarray(belief.weights).copy()
-    return StepEstimate(float(belief.t), pos, cov, p_pl, p_held, top, rel, parts, weights)
+    return StepEstimate(float(belief.t), pos, cov, p_pl, p_held, top, rel, parts, weights, dof)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -388,6 +393,7 @@ class TrackerMethod:
             track = self.tracker.tracks.get(oid)
             step.positions[i] = np.nan if track is None else track.position
             step.covariances[i] = 0.0 if track is None else track.position_cov
+        step.dof = None  # the tracker's positions are Gaussian
         return step
 
 

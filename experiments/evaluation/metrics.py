@@ -30,9 +30,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import gammaln
 
 from actions.modes import EVENT_NAMES
+from estimator.belief import region_radius_sq
 
 SUCCESS_DISTANCE = 0.05
 """Success needs the final position error below this (m)."""
@@ -190,26 +191,39 @@ def mahalanobis_sq(mean: np.ndarray, cov: np.ndarray, x: np.ndarray, floor_std: 
     return np.sum(d * sol, axis=-1)
 
 
-def gaussian_nll(mean: np.ndarray, cov: np.ndarray, x: np.ndarray, floor_std: float = COV_FLOOR_STD
-                 ) -> np.ndarray:
+def gaussian_nll(mean: np.ndarray, cov: np.ndarray, x: np.ndarray, floor_std: float = COV_FLOOR_STD,
+                 dof=math.inf) -> np.ndarray:
     """Negative log density (nats, with positions in m) of ``x`` under N(``mean``, ``cov`` +
-    floor^2 I); shapes as :func:`mahalanobis_sq`. Returns ``(...)``."""
+    floor^2 I); shapes as :func:`mahalanobis_sq`. Returns ``(...)``. With finite ``dof`` (> 2, a
+    scalar or ``(...)``, ``inf`` entries Gaussian), under the multivariate Student-t of that
+    covariance and those degrees of freedom instead (:func:`estimator.belief.region_radius_sq`)."""
     c = _floored(cov, floor_std)
     dim = c.shape[-1]
     _sign, logdet = np.linalg.slogdet(c)
-    return 0.5 * (mahalanobis_sq(mean, cov, x, floor_std) + logdet + dim * math.log(2 * math.pi))
+    m2 = mahalanobis_sq(mean, cov, x, floor_std)
+    gauss = 0.5 * (m2 + logdet + dim * math.log(2 * math.pi))
+    dof = np.broadcast_to(np.asarray(dof, float), np.shape(gauss))
+    if np.all(np.isinf(dof)):
+        return gauss
+    nu = np.where(np.isfinite(dof), dof, 3.0)
+    # scale matrix S = cov (nu - 2) / nu: x^T S^-1 x = m2 nu / (nu - 2), log|S| = logdet + d log((nu - 2) / nu)
+    shrink = (nu - 2.0) / nu
+    t = (gammaln(nu / 2) - gammaln((nu + dim) / 2) + 0.5 * dim * np.log(nu * math.pi)
+         + 0.5 * (logdet + dim * np.log(shrink)) + 0.5 * (nu + dim) * np.log1p(m2 / (shrink * nu)))
+    return np.where(np.isfinite(dof), t, gauss)
 
 
 def coverage(mean: np.ndarray, cov: np.ndarray, x: np.ndarray, levels=(0.5, 0.9),
-             floor_std: float = COV_FLOOR_STD) -> dict[float, float]:
+             floor_std: float = COV_FLOOR_STD, dof=math.inf) -> dict[float, float]:
     """Fraction of the rows of ``x`` ``(N, d)`` inside the ``level`` credible ellipsoid of
-    N(``mean (N, d)``, ``cov (N, d, d)`` + floor^2 I), per level. A calibrated estimate covers
-    about ``level``. NaN for empty input."""
+    N(``mean (N, d)``, ``cov (N, d, d)`` + floor^2 I), per level; with finite ``dof`` (a scalar or
+    ``(N,)``), of the Student-t of that covariance (:func:`estimator.belief.region_radius_sq`). A
+    calibrated estimate covers about ``level``. NaN for empty input."""
     m2 = mahalanobis_sq(mean, cov, x, floor_std)
     dim = np.asarray(x).shape[-1]
     if m2.size == 0:
         return {lv: math.nan for lv in levels}
-    return {lv: float(np.mean(m2 <= chi2.ppf(lv, dim))) for lv in levels}
+    return {lv: float(np.mean(m2 <= region_radius_sq(lv, dof, dim))) for lv in levels}
 
 
 def brier_score(p: np.ndarray, y: np.ndarray) -> float:

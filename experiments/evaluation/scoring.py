@@ -5,8 +5,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.stats import chi2
 
+from estimator.belief import region_radius_sq
 from experiments.evaluation import metrics as M
 from experiments.evaluation.methods import MethodRun
 
@@ -122,15 +122,18 @@ def score_run(scene, truth: list[dict], true_events: list[dict], run: MethodRun,
                     f"{a}_latency": sc["latency_median"], f"{a}_true": sc["n_true"], f"{a}_est": sc["n_est"],
                     f"{a}_matched": sc["n_matched"]})
     # calibration of the position
+    # (each position's Student-t degrees of freedom: inf for Gaussian ones)
     ok = np.isfinite(est).all(axis=-1)
-    nll = np.where(ok, M.gaussian_nll(np.where(ok[..., None], est, 0.0), cov, tru), np.nan)
+    dof = np.array([np.full(len(dyn), np.inf) if s.dof is None else np.asarray(s.dof, float)[dyn]
+                    for s in steps]).reshape(T, D)
+    nll = np.where(ok, M.gaussian_nll(np.where(ok[..., None], est, 0.0), cov, tru, dof=dof), np.nan)
     m2 = np.where(ok, M.mahalanobis_sq(np.where(ok[..., None], est, 0.0), cov, tru), np.nan)
     for suffix, mask in (("", ok), ("_hidden", ok & hidden)):
         v = nll[mask]
         out[f"nll{suffix}"] = float(np.mean(v)) if v.size else math.nan
         out[f"nll{suffix}_median"] = float(np.median(v)) if v.size else math.nan
         for level in (0.5, 0.9):
-            out[f"cover{int(level * 100)}{suffix}"] = (float(np.mean(m2[mask] <= chi2.ppf(level, 3)))
+            out[f"cover{int(level * 100)}{suffix}"] = (float(np.mean(m2[mask] <= region_radius_sq(level, dof[mask])))
                                                        if v.size else math.nan)
     # calibration of the probabilities
     rel = {}
