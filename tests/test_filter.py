@@ -425,7 +425,8 @@ def test_an_undetected_moving_object_gets_the_speed_term_and_nothing_else_change
     c = 0.1
     runs = []
     for speed_time in (0.0, c):
-        cfg = EstimatorConfig(particles=8, noise=NoiseConfig(rolling_friction_scale=None, covariance_speed_time=speed_time))
+        noise = NoiseConfig(rolling_friction_scale=None, covariance_speed_time=speed_time)
+        cfg = EstimatorConfig(particles=8, noise=noise)
         with SceneEstimator(scene, cfg, np.random.default_rng(6)) as est:
             runs.append(est.run(frs))
     plain, wide = runs

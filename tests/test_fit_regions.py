@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from experiments.cli.fit import run_fit
+from physics.errors import InputError
 from experiments.evaluation.fit_regions import (LEVELS, RegionSamples, collect_region_samples, fit_regions,
                                                 region_config, region_coverage)
 
@@ -88,7 +89,9 @@ def test_collected_samples_are_the_hidden_ones_of_a_run_whatever_the_workers():
     assert 0 < np.mean(one.speed > 0.05) < 1
 
 
-def test_the_command_rejects_bad_counts():
+def test_the_command_rejects_bad_counts_and_unknown_scenarios_before_running():
     args = SimpleNamespace(scenarios="all", seeds="100-100", regions=True, particles=0, workers=1)
     with pytest.raises(ValueError, match="--particles"):
         run_fit(args)
+    with pytest.raises(InputError, match="no_such_scenario"):
+        collect_region_samples(["cup_falls_behind_box", "no_such_scenario"], [100], particles=4, workers=2)

@@ -46,8 +46,8 @@ def main(argv: list[str] | None = None) -> int:
             ("bench", "update time against bare pybullet stepping", add_bench_arguments, run_bench),
             ("track", "Kalman pose tracker over a stream, kept alive by the estimator with --feedback",
              add_track_arguments, run_track),
-            ("fit-priors", "fit the held-object priors (or, with --regions, the position regions) on simulated scenarios (seeds 100-119)", add_fit_arguments,
-             run_fit),
+            ("fit-priors", "fit the held-object priors (with --regions: the position regions) on simulated "
+             "scenarios (seeds 100-119)", add_fit_arguments, run_fit),
             ("search", "where to look first for a hidden object: ranked places and a look plan",
              add_search_arguments, run_search),
             ("search-eval", "the search experiment: a simulated robot camera looks for hidden objects, by method",

@@ -74,9 +74,9 @@ def collect_region_samples(scenarios: list[str] | None = None, seeds=FIT_SEEDS, 
     """Run the particle estimator (``particles`` per world set, the fitted terms off: :data:`OFF`) on
     ``scenarios`` (default every built-in one) x ``seeds`` and gather the hidden samples
     (:class:`RegionSamples`). ``workers`` processes; the result does not depend on their number."""
-    from experiments.scenarios import list_scenarios
+    from experiments.scenarios import list_scenarios, resolve_scenarios
 
-    names = list(scenarios or list_scenarios())
+    names = resolve_scenarios(list(scenarios)) if scenarios else list_scenarios()  # checked before anything runs
     jobs = [(name, int(seed), particles) for name in names for seed in seeds]
     if workers > 1:
         import multiprocessing as mp
