@@ -95,3 +95,26 @@ def test_the_command_rejects_bad_counts_and_unknown_scenarios_before_running():
         run_fit(args)
     with pytest.raises(InputError, match="no_such_scenario"):
         collect_region_samples(["cup_falls_behind_box", "no_such_scenario"], [100], particles=4, workers=2)
+
+
+def test_samples_saved_are_read_back_and_the_command_refits_from_them_without_running(tmp_path, capsys):
+    import json
+
+    samples = _samples(np.random.default_rng(9), 3000, floor=0.003, speed_time=0.05, dof=3.0)
+    path = tmp_path / "samples.npz"
+    samples.save(path)
+    back = RegionSamples.load(path)
+    for a, b in ((samples.residual, back.residual), (samples.cov, back.cov), (samples.speed, back.speed),
+                 (samples.scenario, back.scenario)):
+        assert np.array_equal(a, b)
+    assert back.scenarios == samples.scenarios and not (tmp_path / "samples.npz.tmp.npz").exists()
+    # an existing file is fitted as it is: no scenario is run (an unknown name would fail if one were)
+    args = SimpleNamespace(scenarios="no_such_scenario", seeds="100-100", regions=True, particles=4, workers=1,
+                           samples=str(path))
+    assert run_fit(args) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["samples"] == 3000 and out["samples_file"] == str(path) and "seeds" not in out
+    assert out["position_dof"] == fit_regions(samples)["position_dof"]
+    (tmp_path / "bad.npz").write_bytes(b"not an npz")
+    with pytest.raises(InputError, match="bad.npz"):
+        RegionSamples.load(tmp_path / "bad.npz")

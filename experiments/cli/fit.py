@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 
 from experiments.evaluation.fit_priors import FIT_SEEDS, fit_priors
-from experiments.evaluation.fit_regions import collect_region_samples, fit_regions, region_config
+from experiments.evaluation.fit_regions import RegionSamples, collect_region_samples, fit_regions, region_config
 
 
 def seed_range(text: str) -> range:
@@ -34,6 +35,9 @@ def add_fit_arguments(p: argparse.ArgumentParser) -> None:
                         "freedom): runs the particle estimator on every scenario x seed")
     p.add_argument("--particles", type=int, default=64, help="particles of the --regions runs (default 64)")
     p.add_argument("--workers", type=int, default=1, help="processes of the --regions runs (default 1)")
+    p.add_argument("--samples", default=None,
+                   help="with --regions: an .npz of the collected samples; read if it exists (no runs: re-fit "
+                        "only), else written once collected")
 
 
 def run_fit(args) -> int:
@@ -41,10 +45,20 @@ def run_fit(args) -> int:
     if args.regions:
         if args.particles < 1 or args.workers < 1:
             raise ValueError(f"--particles and --workers must be >= 1, got {args.particles}, {args.workers}")
-        samples = collect_region_samples(names, seed_range(args.seeds), args.particles, args.workers)
+        cached = getattr(args, "samples", None)
+        loaded = bool(cached) and os.path.exists(cached)
+        if loaded:
+            samples = RegionSamples.load(cached)
+        else:
+            samples = collect_region_samples(names, seed_range(args.seeds), args.particles, args.workers)
+            if cached:
+                samples.save(cached)
         fit = fit_regions(samples)
-        fit.update(config=region_config(fit), scenarios=list(samples.scenarios),
-                   seeds=[int(s) for s in seed_range(args.seeds)], particles=args.particles)
+        fit.update(config=region_config(fit), scenarios=list(samples.scenarios))
+        if loaded:
+            fit.update(samples_file=cached)  # collected by an earlier run: its seeds and K are that run's
+        else:
+            fit.update(seeds=[int(s) for s in seed_range(args.seeds)], particles=args.particles)
         print(json.dumps(fit, indent=1))
         return 0
     print(json.dumps(fit_priors(names, seed_range(args.seeds)), indent=1))

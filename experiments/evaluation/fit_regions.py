@@ -68,6 +68,30 @@ class RegionSamples:
             raise ValueError(f"RegionSamples: inconsistent shapes {self.residual.shape}, {self.cov.shape}, "
                              f"{self.speed.shape}, {self.scenario.shape}")
 
+    def save(self, path) -> None:
+        """Write the samples to ``path`` (``.npz``), through a temporary file renamed into place (an
+        interrupted write leaves no partial file)."""
+        import os
+
+        path = os.fspath(path)
+        tmp = path + ".tmp.npz"
+        np.savez(tmp, residual=self.residual, cov=self.cov, speed=self.speed, scenario=self.scenario,
+                 scenarios=np.array(self.scenarios, dtype=str))
+        os.replace(tmp, path)
+
+    @classmethod
+    def load(cls, path) -> "RegionSamples":
+        """Samples written by :meth:`save`; a missing or malformed file is an
+        :class:`~physics.errors.InputError` naming it."""
+        from physics.errors import InputError
+
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                return cls(z["residual"], z["cov"], z["speed"], z["scenario"].astype(int),
+                           tuple(str(n) for n in z["scenarios"]))
+        except (OSError, KeyError, ValueError) as e:
+            raise InputError(f"{path}: not a file of region samples ({e})") from None
+
 
 def collect_region_samples(scenarios: list[str] | None = None, seeds=FIT_SEEDS, particles: int = 64,
                            workers: int = 1) -> RegionSamples:
