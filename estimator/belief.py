@@ -239,15 +239,13 @@ def _group_stats(positions: np.ndarray, weights: np.ndarray, members: np.ndarray
 def compute_belief(t: float, object_ids, known: np.ndarray, perceived: np.ndarray, poses: np.ndarray,
                    weights: np.ndarray, modes: np.ndarray, on_top: np.ndarray, is_in: np.ndarray,
                    events: list[EventRecord], ess: float, static: np.ndarray, min_p: float = 0.02,
-                   keep_particles: bool = True, cov_floor: float | np.ndarray = 0.0,
-                   dof: float = math.inf) -> Belief:
+                   keep_particles: bool = True, cov_floor: float = 0.0, dof: float = math.inf) -> Belief:
     """Assemble a :class:`Belief` from particle arrays (K particles, M objects).
 
     ``poses (K, M, 7)``, ``weights (K,)`` normalised, ``modes (K, M)``, ``on_top (K, M, M+1)``,
     ``is_in (K, M, M)``; ``known``, ``perceived``, ``static`` ``(M,)`` bool. Unknown objects are left
-    out; static objects get their fixed pose and no hypotheses. ``cov_floor`` (m^2, a scalar or one
-    per object ``(M,)``) is added to the diagonal of the position covariances of dynamic objects,
-    whose positions are then Student-t with ``dof`` degrees of freedom (``inf``: Gaussian). A
+    out; static objects get their fixed pose and no hypotheses. ``cov_floor`` (m^2) is added to the
+    diagonal of the position covariances of dynamic objects, whose positions are then Student-t with ``dof`` degrees of freedom (``inf``: Gaussian). A
     hypothesis is a support label (:func:`support_labels`); the headline position and covariance are
     those of the heaviest one (see :class:`ObjectBelief`), the first of ``hypotheses``.
     """
@@ -267,7 +265,6 @@ def compute_belief(t: float, object_ids, known: np.ndarray, perceived: np.ndarra
     objects = {}
     means, covs, quats, angs = pose_stats(poses, weights)
     eye = np.eye(3)
-    floor = np.broadcast_to(np.asarray(cov_floor, float), (m_count,))
     for m, oid in enumerate(object_ids):
         if not known[m]:
             continue
@@ -277,8 +274,8 @@ def compute_belief(t: float, object_ids, known: np.ndarray, perceived: np.ndarra
             pos, pos_cov = mean, cov
         else:
             pos, pos_cov = _group_stats(poses[:, m, :3], weights, labels[:, m] == top)
-        if not static[m] and floor[m] > 0:
-            cov, pos_cov = cov + floor[m] * eye, pos_cov + floor[m] * eye
+        if not static[m] and cov_floor > 0:
+            cov, pos_cov = cov + cov_floor * eye, pos_cov + cov_floor * eye
         p_held = float(p_held_all[m])
         p_plausible = 1.0 - p_held if perceived[m] else 1.0
         hyps = []

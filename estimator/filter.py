@@ -178,13 +178,15 @@ class SceneEstimator:
         position moved since the last update over ``dt`` (s) (NoiseConfig); remembers the headline
         positions for the next update."""
         c = self.config.noise.covariance_speed_time
+        if c <= 0:  # off (the fitted default): nothing to remember either
+            return belief
         now = headline_positions(belief)
         prev, self._headline = self._headline, now
-        if c <= 0 or prev is None or dt <= 0:
+        if prev is None or dt <= 0:
             return belief
         moved = np.linalg.norm(now - prev, axis=1)
         ok = np.isfinite(moved) & self.dynamic & ~np.asarray(detected, bool)
-        return with_added_variance(belief, np.where(ok, (c * np.where(ok, moved, 0.0) / dt) ** 2, 0.0))
+        return with_added_variance(belief, (c * np.where(ok, moved, 0.0) / dt) ** 2)
 
     def _with_person(self, belief: Belief, poses: np.ndarray, weights: np.ndarray) -> Belief:
         """The belief with P(visible to) and P(reachable by) the scene's person for every known

@@ -69,8 +69,8 @@ class TrackerConfig:
             belief's times ``region_radius_sq(pseudo_region, dof) / chi2.ppf(pseudo_region, 3)`` (0.86
             at 0.9 and 3 degrees of freedom), so that the two agree on the 90 % region. Matching the
             moments instead lets the t's tails, which reach beyond any error the fit saw, widen the
-            Gaussian's core (in evaluation the tracker's NEES while hidden fell to 2.5, under its band).
-            A Gaussian belief is taken as it is.
+            Gaussian's core (the tracker's NEES while hidden fell under its band). A Gaussian belief is
+            taken as it is.
         pseudo_std_floor: added in quadrature to the estimator's covariance of a pseudo-measurement
             (m), so that a belief with zero covariance (the paper's one-world reasoner) still gives an
             invertible ``R``.
@@ -118,7 +118,7 @@ class TrackerConfig:
         return float(chi2.ppf(self.gate_probability, 3))
 
 
-def moments(ob, region: float = 0.9) -> tuple[np.ndarray, np.ndarray]:
+def moments(ob, region: float) -> tuple[np.ndarray, np.ndarray]:
     """Mean ``(3,)`` and covariance ``(3, 3)`` of an object's whole belief (all its hypotheses: the
     moment-matched Gaussian a Kalman filter can take), from an
     :class:`~estimator.belief.ObjectBelief` (its ``position`` is the most probable hypothesis's).
@@ -126,9 +126,8 @@ def moments(ob, region: float = 0.9) -> tuple[np.ndarray, np.ndarray]:
     so that the Gaussian's ``region`` ellipsoid is the t's (``TrackerConfig.pseudo_region``)."""
     mean = ob.position if ob.mean_position is None else ob.mean_position
     cov = np.asarray(ob.position_cov if ob.mean_position_cov is None else ob.mean_position_cov, float)
-    dof = getattr(ob, "position_dof", math.inf)
-    if math.isfinite(dof):
-        cov = cov * (region_radius_sq(region, dof) / chi2.ppf(region, 3))
+    if math.isfinite(ob.position_dof):
+        cov = cov * (region_radius_sq(region, ob.position_dof) / chi2.ppf(region, 3))
     return np.asarray(mean, float).reshape(3), cov.reshape(3, 3)
 
 

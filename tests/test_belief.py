@@ -143,14 +143,14 @@ def test_beliefs_report_the_degrees_of_freedom_and_take_added_variance():
     rng = np.random.default_rng(5)
     poses, w, modes, on_top, is_in, floor = _cup_held_or_fallen(rng)
     b = compute_belief(2.0, ["table", "cup"], np.ones(2, bool), np.zeros(2, bool), poses, w, modes, on_top,
-                       is_in, [], 100.0, np.array([True, False]), cov_floor=np.array([0.0, 1e-6]), dof=3.0)
+                       is_in, [], 100.0, np.array([True, False]), cov_floor=1e-6, dof=3.0)
     cup, table = b.objects["cup"], b.objects["table"]
     assert cup.position_dof == 3.0 and np.isinf(table.position_dof)  # static objects: no spread at all
     assert cup.to_json()["position_dof"] == 3.0 and table.to_json()["position_dof"] is None
     assert cup.region(0.9) == pytest.approx(region_radius_sq(0.9, 3.0))
     gauss = compute_belief(2.0, ["table", "cup"], np.ones(2, bool), np.zeros(2, bool), poses, w, modes, on_top,
                            is_in, [], 100.0, np.array([True, False]), cov_floor=1e-6)
-    assert np.array_equal(gauss.objects["cup"].position_cov, cup.position_cov)  # a per-object floor as a scalar one
+    assert np.array_equal(gauss.objects["cup"].position_cov, cup.position_cov)  # the dof leaves the covariance
     assert gauss.objects["cup"].to_json()["position_dof"] is None
     assert np.array_equal(headline_positions(b), np.stack([table.position, cup.position]))
     more = with_added_variance(b, np.array([0.0, 4e-4]))

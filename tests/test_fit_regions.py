@@ -6,6 +6,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from estimator.config import config_from_dict
 from experiments.cli.fit import run_fit
 from physics.errors import InputError
 from experiments.evaluation.fit_regions import (LEVELS, RegionSamples, collect_region_samples, fit_regions,
@@ -48,8 +49,10 @@ def test_the_fit_recovers_the_model_the_samples_come_from(dof):
     # without the three terms a t's residuals over-fill the 50 % region of the particles' Gaussian
     if math.isfinite(dof):
         assert fit["before"]["90"] < 0.9 - band[1]
-    assert region_config(fit) == {"noise": {k: fit[k] for k in ("covariance_floor_std", "covariance_speed_time",
-                                                                   "position_dof")}}
+    # the fragment is a configuration the estimator takes, with the fitted values
+    noise = config_from_dict(region_config(fit)).noise
+    assert (noise.covariance_floor_std, noise.covariance_speed_time, noise.position_dof) == \
+        (fit["covariance_floor_std"], fit["covariance_speed_time"], fit["position_dof"])
 
 
 def test_a_scenario_below_the_minimum_is_avoided_when_the_grid_allows():
@@ -90,7 +93,7 @@ def test_collected_samples_are_the_hidden_ones_of_a_run_whatever_the_workers():
 
 
 def test_the_command_rejects_bad_counts_and_unknown_scenarios_before_running():
-    args = SimpleNamespace(scenarios="all", seeds="100-100", regions=True, particles=0, workers=1)
+    args = SimpleNamespace(scenarios="all", seeds="100-100", regions=True, particles=0, workers=1, samples=None)
     with pytest.raises(ValueError, match="--particles"):
         run_fit(args)
     with pytest.raises(InputError, match="no_such_scenario"):

@@ -45,7 +45,7 @@ def run_fit(args) -> int:
     if args.regions:
         if args.particles < 1 or args.workers < 1:
             raise ValueError(f"--particles and --workers must be >= 1, got {args.particles}, {args.workers}")
-        cached = getattr(args, "samples", None)
+        cached = args.samples
         loaded = bool(cached) and os.path.exists(cached)
         if loaded:
             samples = RegionSamples.load(cached)

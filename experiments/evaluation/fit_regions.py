@@ -123,7 +123,7 @@ def _trial_samples(job: tuple[str, int, int]) -> tuple[np.ndarray, np.ndarray, n
     from estimator.observations import parse_frame
 
     from experiments.evaluation.methods import run_method
-    from experiments.evaluation.scoring import _truth_rows_at, dynamic_objects
+    from experiments.evaluation.scoring import position_arrays
     from experiments.evaluation.trials import _simulation, trial_rng
 
     name, seed, particles = job
@@ -131,18 +131,9 @@ def _trial_samples(job: tuple[str, int, int]) -> tuple[np.ndarray, np.ndarray, n
     scene = sim.scene
     frames = [parse_frame(f, known_ids=scene.object_ids) for f in sim.observations]
     run = run_method("particles", scene, frames, particles, trial_rng(seed, "particles"), config=json.dumps(OFF))
-    dyn = dynamic_objects(scene)
-    ids = list(scene.object_ids)
-    steps = run.steps
-    T, D = len(steps), len(dyn)
-    if T == 0 or D == 0:
-        return np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0)
-    rows = _truth_rows_at(sim.truth, [s.t for s in steps])
-    est = np.array([s.positions[dyn] for s in steps]).reshape(T, D, 3)
-    cov = np.array([s.covariances[dyn] for s in steps]).reshape(T, D, 3, 3)
-    tru = np.array([[r["objects"][ids[i]]["position"] for i in dyn] for r in rows]).reshape(T, D, 3)
-    vis = np.array([[r["objects"][ids[i]]["visible"] for i in dyn] for r in rows], bool).reshape(T, D)
-    times = np.array([s.t for s in steps])
+    est, cov, _dof, tru, vis, _held, _rows = position_arrays(scene, sim.truth, run.steps)
+    T, D = vis.shape
+    times = np.array([s.t for s in run.steps])
     speed = np.zeros((T, D))
     if T > 1:
         gaps = np.diff(times)[:, None]
@@ -159,9 +150,8 @@ def region_coverage(samples: RegionSamples, floor_std: float, speed_time: float,
     scenario without samples), the covariance being the particles' + ``floor_std^2`` +
     ``(speed_time * speed)^2`` (+ ``score_floor_std^2``, the evaluation's) times I."""
     var = floor_std ** 2 + score_floor_std ** 2 + (speed_time * samples.speed) ** 2
-    cov = samples.cov + var[:, None, None] * np.eye(3)
     r = samples.residual
-    m2 = np.einsum("ni,ni->n", r, np.linalg.solve(cov, r[..., None])[..., 0])
+    m2 = M.mahalanobis_sq(np.zeros_like(r), samples.cov + var[:, None, None] * np.eye(3), r, floor_std=0.0)
     inside = np.stack([m2 <= region_radius_sq(lv, dof) for lv in LEVELS], axis=-1)
     pooled = inside.mean(axis=0) if len(m2) else np.full(len(LEVELS), np.nan)
     per = np.full((len(samples.scenarios), len(LEVELS)), np.nan)

@@ -34,6 +34,26 @@ def _truth_rows_at(truth: list[dict], times: list[float]) -> list[dict]:
     return out
 
 
+def position_arrays(scene, truth: list[dict], steps) -> tuple[np.ndarray, ...]:
+    """The positions a run's ``steps`` (:class:`~experiments.evaluation.methods.StepEstimate`) give
+    for the scene's dynamic objects, beside the truth at each step: ``est (T, D, 3)`` m (NaN where
+    unknown), ``cov (T, D, 3, 3)`` m^2, ``dof (T, D)`` (inf: Gaussian), ``tru (T, D, 3)`` m,
+    ``vis (T, D)`` and ``held (T, D)`` bool, and the truth rows ``(T,)`` themselves."""
+    ids = list(scene.object_ids)
+    dyn = dynamic_objects(scene)
+    dyn_ids = [ids[i] for i in dyn]
+    T, D = len(steps), len(dyn)
+    rows = _truth_rows_at(truth, [s.t for s in steps])
+    est = np.array([s.positions[dyn] for s in steps]).reshape(T, D, 3)
+    cov = np.array([s.covariances[dyn] for s in steps]).reshape(T, D, 3, 3)
+    dof = np.array([np.full(D, np.inf) if s.dof is None else np.asarray(s.dof, float)[dyn]
+                    for s in steps]).reshape(T, D)
+    tru = np.array([[r["objects"][o]["position"] for o in dyn_ids] for r in rows]).reshape(T, D, 3)
+    vis = np.array([[r["objects"][o]["visible"] for o in dyn_ids] for r in rows], bool).reshape(T, D)
+    held = np.array([[r["objects"][o]["held"] for o in dyn_ids] for r in rows], bool).reshape(T, D)
+    return est, cov, dof, tru, vis, held, rows
+
+
 def score_run(scene, truth: list[dict], true_events: list[dict], run: MethodRun, frames=None) -> dict:
     """Metrics of one method run against the ground truth (a flat dict plus ``"reliability"``).
 
@@ -53,13 +73,8 @@ def score_run(scene, truth: list[dict], true_events: list[dict], run: MethodRun,
     names = ids + ["floor"]
     steps = run.steps
     T, D, Mo = len(steps), len(dyn), len(ids)
-    rows = _truth_rows_at(truth, [s.t for s in steps])
-    est = np.array([s.positions[dyn] for s in steps]).reshape(T, D, 3)
-    cov = np.array([s.covariances[dyn] for s in steps]).reshape(T, D, 3, 3)
+    est, cov, dof, tru, vis, held, rows = position_arrays(scene, truth, steps)
     p_pl = np.array([s.p_plausible[dyn] for s in steps]).reshape(T, D)
-    tru = np.array([[r["objects"][o]["position"] for o in dyn_ids] for r in rows]).reshape(T, D, 3)
-    vis = np.array([[r["objects"][o]["visible"] for o in dyn_ids] for r in rows], bool).reshape(T, D)
-    held = np.array([[r["objects"][o]["held"] for o in dyn_ids] for r in rows], bool).reshape(T, D)
 
     # relations as (T, D, Mo + 1) / (T, D, Mo) arrays of probabilities and truths
     col = {n: j for j, n in enumerate(names)}
@@ -122,10 +137,8 @@ def score_run(scene, truth: list[dict], true_events: list[dict], run: MethodRun,
                     f"{a}_latency": sc["latency_median"], f"{a}_true": sc["n_true"], f"{a}_est": sc["n_est"],
                     f"{a}_matched": sc["n_matched"]})
     # calibration of the position
-    # (each position's Student-t degrees of freedom: inf for Gaussian ones)
+    # (each position with its own distribution: dof inf for Gaussian ones)
     ok = np.isfinite(est).all(axis=-1)
-    dof = np.array([np.full(len(dyn), np.inf) if s.dof is None else np.asarray(s.dof, float)[dyn]
-                    for s in steps]).reshape(T, D)
     nll = np.where(ok, M.gaussian_nll(np.where(ok[..., None], est, 0.0), cov, tru, dof=dof), np.nan)
     m2 = np.where(ok, M.mahalanobis_sq(np.where(ok[..., None], est, 0.0), cov, tru), np.nan)
     for suffix, mask in (("", ok), ("_hidden", ok & hidden)):
