@@ -4,7 +4,8 @@ Subcommands: ``run`` (estimate a recorded stream), ``config`` (the configuration
 ``demo`` (the built-in example), ``simulate``
 (scenario simulator), ``evaluate`` (statistics over scenarios, seeds and methods), ``bench`` (speed
 against bare pybullet stepping), ``track`` (a Kalman pose tracker, fed back by the estimator),
-``search`` (where to look first for a hidden object), ``search-eval`` (the search experiment).
+``search`` (where to look first for a hidden object), ``search-eval`` (the search experiment),
+``predictability`` (which scenarios allow a 5 cm answer at all).
 """
 from __future__ import annotations
 
@@ -34,6 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     from experiments.cli.bench import add_bench_arguments, run_bench
     from experiments.cli.evaluate import add_evaluate_arguments, run_evaluate
     from experiments.cli.fit import add_fit_arguments, run_fit
+    from experiments.cli.predictability import add_predictability_arguments, run_predictability
     from experiments.cli.search import add_search_arguments, run_search
     from experiments.cli.search_eval import add_search_eval_arguments, run_search_eval
     from experiments.cli.simulate import add_simulate_arguments, run_simulate
@@ -48,6 +50,8 @@ def main(argv: list[str] | None = None) -> int:
              add_track_arguments, run_track),
             ("fit-priors", "fit the held-object priors (with --regions: the position regions) on simulated "
              "scenarios (seeds 100-119)", add_fit_arguments, run_fit),
+            ("predictability", "which scenarios let anyone say where their objects end, to 5 cm (twins a "
+             "millimetre and a percent away)", add_predictability_arguments, run_predictability),
             ("search", "where to look first for a hidden object: ranked places and a look plan",
              add_search_arguments, run_search),
             ("search-eval", "the search experiment: a simulated robot camera looks for hidden objects, by method",

@@ -117,3 +117,40 @@ def sample_variant(scenario: Scenario, seed: int) -> Variant:
     sampled = {"objects": sampled_objects, "timing": timing}
     return Variant(scenario=scenario, seed=int(seed), scene=scenario.scene.with_objects(objects),
                    script=script, sampled=sampled)
+
+
+TWIN_PARAMETERS = ("mass", "friction", "rolling_friction", "spinning_friction", "restitution")
+"""The physical parameters a twin perturbs (those the variant sets)."""
+
+
+def twin_variant(variant: Variant, rng: np.random.Generator, position_std: float,
+                 param_scale: float) -> Variant:
+    """A twin of ``variant``: the same scene and hand script, with every dynamic object's horizontal
+    starting position moved by Gaussian noise of ``position_std`` (m, per axis) and each of its
+    physical parameters the variant sets (:data:`TWIN_PARAMETERS`; a URDF's own mass is left alone)
+    multiplied by a uniform factor in ``[1 - param_scale, 1 + param_scale]``. Draws, from ``rng``, in
+    scene order: x, y offsets, then the factors in :data:`TWIN_PARAMETERS` order. Static objects and
+    the hand do not change.
+
+    A twin differs from its variant by far less than a camera can see: where twins end far apart,
+    no estimator can say where the object ends (:mod:`experiments.evaluation.predictability`)."""
+    if not (position_std >= 0 and math.isfinite(position_std)):
+        raise ValueError(f"position_std must be finite and >= 0, got {position_std}")
+    if not (0 <= param_scale < 1):
+        raise ValueError(f"param_scale must be in [0, 1), got {param_scale}")
+    objects = []
+    for spec in variant.scene.objects:
+        if spec.static:
+            objects.append(spec)
+            continue
+        kw: dict[str, Any] = {}
+        dx, dy = (float(v) for v in rng.normal(0.0, 1.0, 2) * position_std)
+        if spec.position is not None:
+            kw["position"] = (spec.position[0] + dx, spec.position[1] + dy, spec.position[2])
+        for key in TWIN_PARAMETERS:
+            factor = float(rng.uniform(1.0 - param_scale, 1.0 + param_scale))
+            value = getattr(spec, key)
+            if value is not None:
+                kw[key] = value * factor
+        objects.append(replace(spec, **kw))
+    return replace(variant, scene=variant.scene.with_objects(objects))

@@ -1,0 +1,67 @@
+"""``scene-estimator predictability``: which scenarios let anyone say where their objects end, to
+5 cm: each (scenario, seed) of the evaluation run again as twins a millimetre and a percent away
+(:mod:`experiments.evaluation.predictability`); with ``--evaluation DIR``, each method's success
+beside it and pooled over the predictable scenarios.
+
+    scene-estimator predictability --seeds 20 --workers 2 --out results/ --evaluation results/
+
+Interrupted, the same command continues where it stopped (``OUT/twins.jsonl``)."""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+
+def add_predictability_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``predictability``."""
+    from experiments.evaluation.predictability import TwinConfig
+
+    d = TwinConfig()
+    p.add_argument("--scenarios", default="all", help="'all' or comma-separated scenario names (default all)")
+    p.add_argument("--seeds", type=int, default=20, help="seeds 0 .. N-1, the evaluation's (default 20)")
+    p.add_argument("--twins", type=int, default=d.twins, help=f"twins per scenario and seed (default {d.twins})")
+    p.add_argument("--position-std", type=float, default=d.position_std,
+                   help=f"std (m) of the twins' horizontal starting offsets (default {d.position_std:g})")
+    p.add_argument("--param-scale", type=float, default=d.param_scale,
+                   help=f"twins' physical parameters x U(1 - s, 1 + s) (default {d.param_scale:g})")
+    p.add_argument("--threshold", type=float, default=d.threshold,
+                   help=f"agreement below which a scenario is unpredictable to 5 cm (default {d.threshold:g})")
+    p.add_argument("--workers", type=int, default=1, help="processes (default 1); results do not depend on it")
+    p.add_argument("--out", default="results", help="output folder: twins.jsonl, predictability.md/.csv")
+    p.add_argument("--evaluation", default=None,
+                   help="an evaluate output folder (its trials.jsonl): methods' success beside the agreement")
+    p.add_argument("--quiet", action="store_true", help="no progress, no report on stdout")
+
+
+def run_predictability(args) -> int:
+    from experiments.evaluation.predictability import TwinConfig, read_rows, run_twins, write_report
+    from experiments.scenarios import resolve_scenarios
+
+    config = TwinConfig(twins=args.twins, position_std=args.position_std, param_scale=args.param_scale,
+                        threshold=args.threshold)
+    if args.seeds < 1 or args.workers < 1:
+        raise ValueError(f"--seeds and --workers must be >= 1, got {args.seeds}, {args.workers}")
+    trials = []
+    if args.evaluation is not None:
+        path = os.path.join(args.evaluation, "trials.jsonl")
+        if not os.path.exists(path):
+            raise ValueError(f"--evaluation: no trials.jsonl in {args.evaluation}")
+        trials = read_rows(path)
+    names = resolve_scenarios([s.strip() for s in args.scenarios.split(",") if s.strip()])
+    total = len(names) * args.seeds
+    count = [0]
+
+    def progress(row):
+        count[0] += 1
+        if not args.quiet:
+            print(f"\r{count[0]} runs of twins done", end="", file=sys.stderr, flush=True)
+
+    rows = run_twins(names, range(args.seeds), config, args.out, args.workers, progress)
+    if not args.quiet and count[0]:
+        print(file=sys.stderr)
+    text = write_report(args.out, rows, trials, config)
+    if not args.quiet:
+        print(text)
+        print(f"{total} (scenario, seed) pairs; written to {args.out}/", file=sys.stderr)
+    return 0

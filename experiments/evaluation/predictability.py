@@ -1,0 +1,327 @@
+"""Which scenarios let anyone say where their objects end, to 5 cm (``scene-estimator predictability``).
+
+The evaluation counts a final estimate a success when it is within 5 cm of the truth, on the right
+support. Where an object falls off a table and rolls across the floor, no estimator can do that: the
+outcome hangs on details no camera measures. This module measures it rather than asserting it.
+
+For every (scenario, seed) of the evaluation, the scenario's variant (:func:`sample_variant`) is run
+again as ``twins`` *twins* (:func:`~experiments.simulation.variants.twin_variant`): each dynamic
+object starts up to a millimetre away horizontally (``position_std``) and with its physical parameters
+changed by up to a percent (``param_scale``), the hand's script unchanged. A twin *agrees* on an
+object when its final position is within :data:`~experiments.evaluation.metrics.SUCCESS_DISTANCE` of
+the truth's and its final support is one of the truth's (:func:`~experiments.evaluation.metrics.truth_supports`).
+The *agreement* of a trial is the fraction of (twin, dynamic object) pairs that agree, averaged as the
+evaluation averages success: over the scene's dynamic objects, then over trials. It is the success of
+an estimator that knew the scene to a millimetre and a percent and simulated it exactly (one of the
+twins, drawn at random); a scenario whose agreement is below ``threshold`` is *unpredictable to 5 cm*:
+its success measures luck, and its regions' coverage is what to read.
+
+With an evaluation's ``trials.jsonl``, :func:`report` puts each method's success beside the
+agreement, and pools success over the predictable scenarios only.
+
+Rows are written to ``twins.jsonl`` as each (scenario, seed) ends; a run that is interrupted keeps
+them and a rerun with the same settings starts from there. Each row depends only on its key: the
+twins' generator is seeded from (scenario, seed), whatever the number of workers.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import zlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from experiments.evaluation import metrics as M
+from experiments.evaluation.stats import bootstrap_ci
+
+TWINS_FILE = "twins.jsonl"
+REPORT_FILE = "predictability.md"
+CSV_FILE = "predictability.csv"
+
+
+@dataclass(frozen=True)
+class TwinConfig:
+    """How twins differ from the truth, and how many.
+
+    * ``twins``: twins per (scenario, seed) (default 10).
+    * ``position_std`` (m): Gaussian noise on each dynamic object's horizontal starting position,
+      per axis (default 1 mm, a third of the simulated tracker's noise).
+    * ``param_scale``: each physical parameter the variant sets is multiplied by a uniform factor in
+      ``[1 - param_scale, 1 + param_scale]`` (default 0.01).
+    * ``threshold``: a scenario whose mean agreement is below this is unpredictable to 5 cm (default
+      0.85, the issue's floor on any one scenario's success).
+    """
+
+    twins: int = 10
+    position_std: float = 0.001
+    param_scale: float = 0.01
+    threshold: float = 0.85
+
+    def __post_init__(self):
+        if not (isinstance(self.twins, int) and self.twins >= 1):
+            raise ValueError(f"twins must be an integer >= 1, got {self.twins!r}")
+        if not (self.position_std >= 0 and math.isfinite(self.position_std)):
+            raise ValueError(f"position_std must be finite and >= 0, got {self.position_std}")
+        if not (0 <= self.param_scale < 1):
+            raise ValueError(f"param_scale must be in [0, 1), got {self.param_scale}")
+        if not (0 < self.threshold <= 1):
+            raise ValueError(f"threshold must be in (0, 1], got {self.threshold}")
+
+    def key(self, scenario: str, seed: int) -> str:
+        """Identity of a (scenario, seed) row under these settings (``threshold`` is not part of it)."""
+        return f"{scenario}__s{seed}__n{self.twins}__p{self.position_std:g}__q{self.param_scale:g}"
+
+
+def twin_rng(scenario: str, seed: int) -> np.random.Generator:
+    """The twins' only generator for (scenario, seed): the same in every process."""
+    return np.random.default_rng(np.random.SeedSequence([int(seed), zlib.crc32(f"twins:{scenario}".encode())]))
+
+
+def _final(variant, duration: float, seed: int) -> dict:
+    """The truth row at the end of a run of ``variant`` (as the simulator records it)."""
+    from experiments.simulation.ground_truth import GroundTruth
+
+    with GroundTruth(variant) as gt:
+        result = gt.run(duration, np.random.default_rng([int(seed), 1]))
+    return result.truth[-1]
+
+
+def agreement(base: dict, twin: dict, object_ids: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """Per object of ``object_ids``: whether ``twin``'s final truth row agrees with ``base``'s (within
+    :data:`~experiments.evaluation.metrics.SUCCESS_DISTANCE`, a support in common) ``(D,)`` bool, and
+    the distance between their final positions ``(D,)`` m."""
+    ok, dist = [], []
+    for o in object_ids:
+        a, b = base["objects"][o], twin["objects"][o]
+        d = float(np.linalg.norm(np.asarray(a["position"], float) - np.asarray(b["position"], float)))
+        sa = M.truth_supports(base["relations"], o, bool(a["held"]))
+        sb = M.truth_supports(twin["relations"], o, bool(b["held"]))
+        ok.append(d < M.SUCCESS_DISTANCE and bool(sa & sb))
+        dist.append(d)
+    return np.array(ok, bool), np.array(dist)
+
+
+def twin_row(job: tuple[str, int, TwinConfig]) -> dict:
+    """Run one (scenario, seed): its truth and ``config.twins`` twins. Returns the row: ``key``,
+    ``scenario``, ``seed``, ``objects`` (dynamic ids), per object ``agree`` (fraction of twins that
+    agree) and ``distance_median`` (m), ``agreement`` (mean over objects) and the settings."""
+    from experiments.scenarios import load_scenario
+    from experiments.simulation.variants import sample_variant, twin_variant
+
+    name, seed, cfg = job
+    scenario = load_scenario(name)
+    variant = sample_variant(scenario, seed)
+    ids = [o.id for o in variant.scene.objects if not o.static]
+    base = _final(variant, scenario.duration, seed)
+    rng = twin_rng(name, seed)
+    ok = np.zeros((cfg.twins, len(ids)), bool)
+    dist = np.zeros((cfg.twins, len(ids)))
+    for k in range(cfg.twins):
+        twin = twin_variant(variant, rng, cfg.position_std, cfg.param_scale)
+        ok[k], dist[k] = agreement(base, _final(twin, scenario.duration, seed), ids)
+    agree = ok.mean(axis=0)
+    return {"key": cfg.key(name, seed), "scenario": name, "seed": int(seed), "objects": ids,
+            "agree": [float(a) for a in agree], "distance_median": [float(d) for d in np.median(dist, axis=0)],
+            "agreement": float(agree.mean()) if ids else math.nan,
+            "twins": cfg.twins, "position_std": cfg.position_std, "param_scale": cfg.param_scale}
+
+
+def read_rows(path: str) -> list[dict]:
+    """The rows of a ``twins.jsonl`` or ``trials.jsonl`` (none if it does not exist). A line cut short
+    by an interruption (the last one) is skipped; a malformed line elsewhere is an error naming it."""
+    if not os.path.exists(path):
+        return []
+    rows = []
+    with open(path) as fh:
+        lines = fh.read().split("\n")
+    for n, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            rows.append(json.loads(line))
+        except json.JSONDecodeError as exc:
+            if n >= len(lines) - 1:  # the last line, unfinished when the run was stopped
+                continue
+            raise ValueError(f"{path}, line {n}: not a JSON row ({exc.msg})") from None
+    return rows
+
+
+def _drop_unfinished_line(path: str) -> None:
+    """Cut a last line without its newline (a row being written when the run was stopped) off
+    ``path``, so that the rows appended next start on their own line."""
+    if not os.path.exists(path):
+        return
+    with open(path, "rb+") as fh:
+        data = fh.read()
+        if data and not data.endswith(b"\n"):
+            fh.truncate(data.rfind(b"\n") + 1)
+
+
+def run_twins(names: list[str], seeds, config: TwinConfig, out_dir: str, workers: int = 1,
+              progress=None) -> list[dict]:
+    """Twin rows for ``names`` x ``seeds``, appended to ``out_dir/twins.jsonl`` as each ends; rows
+    already there (same key) are not run again. Returns the rows of these jobs, in job order.
+    ``progress``: called with each finished row."""
+    os.makedirs(out_dir, exist_ok=True)
+    path = os.path.join(out_dir, TWINS_FILE)
+    done = {r["key"]: r for r in read_rows(path) if "key" in r}
+    _drop_unfinished_line(path)
+    jobs = [(n, int(s), config) for n in names for s in seeds]
+    todo = [j for j in jobs if config.key(j[0], j[1]) not in done]
+    if todo:
+        with open(path, "a") as fh:
+            def keep(row):
+                fh.write(json.dumps(row) + "\n")
+                fh.flush()
+                done[row["key"]] = row
+                if progress is not None:
+                    progress(row)
+            if workers > 1:
+                import multiprocessing as mp
+                with mp.get_context("spawn").Pool(workers) as pool:
+                    for row in pool.imap_unordered(twin_row, todo, chunksize=1):
+                        keep(row)
+            else:
+                for job in todo:
+                    keep(twin_row(job))
+    return [done[config.key(n, s)] for n, s, _ in jobs]
+
+
+# --------------------------------------------------------------------------------------------------
+# the report
+
+
+def _ci(values, rng) -> str:
+    iv = bootstrap_ci(values, rng)
+    if not math.isfinite(iv.estimate):
+        return "–"
+    if not math.isfinite(iv.low):
+        return f"{100 * iv.estimate:.0f}"
+    return f"{100 * iv.estimate:.0f} [{100 * iv.low:.0f}, {100 * iv.high:.0f}]"
+
+
+def summarise(twins: list[dict], trials: list[dict], threshold: float) -> dict:
+    """Per scenario: ``agreement`` (per seed), whether it is ``predictable`` (mean agreement at least
+    ``threshold``), per seed the largest of its objects' median twin distances (m); per method of ``trials`` (the evaluation's rows), its
+    success per seed and its hidden 50 % / 90 % coverage per seed. Pooled, per method: success over
+    the trials of predictable scenarios only (``pooled``) and the lowest predictable scenario's mean.
+    Plain data (see :func:`report`)."""
+    scen: dict[str, dict] = {}
+    pairs = set()
+    for r in twins:
+        s = scen.setdefault(r["scenario"], {"agreement": [], "distance": [], "methods": {}})
+        s["agreement"].append(r["agreement"])
+        s["distance"].append(max(r["distance_median"], default=math.nan))
+        pairs.add((r["scenario"], r["seed"]))
+    for s in scen.values():
+        s["predictable"] = bool(np.mean(s["agreement"]) >= threshold)
+    methods: list[str] = []
+    for r in trials:
+        if (r.get("scenario"), r.get("seed")) not in pairs:  # only the (scenario, seed) pairs twinned
+            continue
+        s = scen[r["scenario"]]
+        label = r["method"] if r.get("particles", 0) <= 1 else f"{r['method']} (K={r['particles']})"
+        if label not in methods:
+            methods.append(label)
+        m = s["methods"].setdefault(label, {"success": [], "cover50": [], "cover90": []})
+        m["success"].append(r.get("success_end"))
+        m["cover50"].append(r.get("cover50_hidden"))
+        m["cover90"].append(r.get("cover90_hidden"))
+    pooled = {}
+    for label in methods:
+        vals, means = [], {}
+        for name, s in scen.items():
+            m = s["methods"].get(label)
+            if m is None or not s["predictable"]:
+                continue
+            v = [x for x in m["success"] if x is not None and math.isfinite(x)]
+            vals += v
+            if v:
+                means[name] = float(np.mean(v))
+        lowest = min(means, key=means.get) if means else None
+        pooled[label] = {"success": vals, "lowest": lowest, "lowest_success": means.get(lowest, math.nan)}
+    return {"threshold": threshold, "scenarios": scen, "methods": methods, "pooled": pooled}
+
+
+def report(twins: list[dict], trials: list[dict], config: TwinConfig) -> tuple[str, list[dict]]:
+    """The markdown report and the CSV rows (one per scenario) of :func:`summarise`. Intervals: 95 %
+    bootstrap over seeds (fixed resampling seed: the same input gives the same report)."""
+    s = summarise(twins, trials, config.threshold)
+    rng = np.random.default_rng(0)
+    n_tw = sorted({r["twins"] for r in twins})
+    lines = [
+        "# Predictability to 5 cm",
+        "",
+        f"{len(twins)} (scenario, seed) pairs, {', '.join(map(str, n_tw))} twins each: the same scene and hand "
+        f"script, each dynamic object started {1000 * config.position_std:g} mm (std, horizontally) away and "
+        f"its physical parameters changed by up to {100 * config.param_scale:g} %. Agreement: twins whose "
+        "object ends within 5 cm of the truth, on one of its supports (mean over objects, then seeds "
+        "[95 % bootstrap interval]); distance: median over seeds of the median twin distance of the "
+        "scene's most spread object. Below "
+        f"{100 * config.threshold:.0f} % a scenario is unpredictable to 5 cm: success there is luck, "
+        "and its regions' coverage is what to read.",
+        "",
+    ]
+    head = ["scenario", "n", "twin agreement (%)", "twin distance, most spread object (cm)", "predictable"]
+    for label in s["methods"]:
+        head.append(f"{label} success (%)")
+    head += [f"{label} 50% / 90% coverage, hidden" for label in s["methods"] if "K=" in label]
+    lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    csv_rows = []
+    for name in sorted(s["scenarios"]):
+        sc = s["scenarios"][name]
+        row = [name, str(len(sc["agreement"])), _ci(sc["agreement"], rng),
+               f"{100 * float(np.median(sc['distance'])):.1f}" if sc["distance"] else "–",
+               "yes" if sc["predictable"] else "**no**"]
+        csv = {"scenario": name, "n": len(sc["agreement"]), "agreement": float(np.mean(sc["agreement"])),
+               "distance_most_spread_m": float(np.median(sc["distance"])) if sc["distance"] else math.nan,
+               "predictable": sc["predictable"]}
+        for label in s["methods"]:
+            m = sc["methods"].get(label)
+            row.append(_ci([x for x in m["success"] if x is not None], rng) if m else "–")
+            if m:
+                csv[f"{label} success"] = float(np.nanmean([x for x in m["success"] if x is not None]))
+        for label in s["methods"]:
+            if "K=" not in label:
+                continue
+            m = sc["methods"].get(label)
+            cov = "–"
+            if m:
+                c50 = [x for x in m["cover50"] if x is not None and math.isfinite(x)]
+                c90 = [x for x in m["cover90"] if x is not None and math.isfinite(x)]
+                if c50 and c90:
+                    cov = f"{np.mean(c50):.2f} / {np.mean(c90):.2f}"
+                    csv[f"{label} cover50"], csv[f"{label} cover90"] = float(np.mean(c50)), float(np.mean(c90))
+            row.append(cov)
+        lines.append("| " + " | ".join(row) + " |")
+        csv_rows.append(csv)
+    if s["methods"]:
+        unpredictable = sorted(n for n, sc in s["scenarios"].items() if not sc["predictable"])
+        lines += ["", "## Success over the predictable scenarios", "",
+                  "Pooled over their trials [95 % bootstrap interval]; left out: "
+                  + (", ".join(f"`{n}`" for n in unpredictable) if unpredictable else "none") + ".", "",
+                  "| method | trials | success (%) | lowest scenario | its success (%) |", "|---|---|---|---|---|"]
+        for label in s["methods"]:
+            p = s["pooled"][label]
+            low = p["lowest"] or "–"
+            low_s = f"{100 * p['lowest_success']:.0f}" if math.isfinite(p["lowest_success"]) else "–"
+            lines.append(f"| {label} | {len(p['success'])} | {_ci(p['success'], rng)} | {low} | {low_s} |")
+    return "\n".join(lines) + "\n", csv_rows
+
+
+def write_report(out_dir: str, twins: list[dict], trials: list[dict], config: TwinConfig) -> str:
+    """Write ``predictability.md`` and ``predictability.csv`` in ``out_dir``; returns the markdown."""
+    import csv
+
+    text, rows = report(twins, trials, config)
+    with open(os.path.join(out_dir, REPORT_FILE), "w") as fh:
+        fh.write(text)
+    if rows:
+        fields = list(dict.fromkeys(k for r in rows for k in r))
+        with open(os.path.join(out_dir, CSV_FILE), "w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=fields)
+            w.writeheader()
+            w.writerows(rows)
+    return text
