@@ -81,9 +81,25 @@ def test_samples_are_checked_and_an_empty_fit_is_an_error():
         fit_regions(empty)
 
 
-def test_collected_samples_are_the_hidden_ones_of_a_run_whatever_the_workers():
-    one = collect_region_samples(["cup_falls_behind_box"], [100], particles=4, workers=1)
+def test_collected_samples_are_the_hidden_ones_of_a_run_whatever_the_workers(tmp_path, monkeypatch):
+    import experiments.evaluation.fit_regions as fit_module
+
+    parts = tmp_path / "parts"
+    one = collect_region_samples(["cup_falls_behind_box"], [100], particles=4, workers=1, parts_dir=str(parts))
     two = collect_region_samples(["cup_falls_behind_box"], [100], particles=4, workers=2)
+    # each trial's samples were kept as it ended: collected again, they are read back, not run
+    part = parts / "cup_falls_behind_box__s100__K4.npz"
+    assert part.exists()
+
+    def no_run(job):
+        raise AssertionError(f"trial {job} ran again")
+
+    monkeypatch.setattr(fit_module, "_trial_samples", no_run)
+    again = collect_region_samples(["cup_falls_behind_box"], [100], particles=4, workers=1, parts_dir=str(parts))
+    assert np.array_equal(again.residual, one.residual) and np.array_equal(again.cov, one.cov)
+    part.write_bytes(b"cut short")
+    with pytest.raises(InputError, match="s100__K4"):
+        collect_region_samples(["cup_falls_behind_box"], [100], particles=4, workers=1, parts_dir=str(parts))
     assert len(one.residual) > 10 and one.scenarios == ("cup_falls_behind_box",)
     for a, b in ((one.residual, two.residual), (one.cov, two.cov), (one.speed, two.speed)):
         assert np.array_equal(a, b)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 
 from experiments.evaluation.fit_priors import FIT_SEEDS, fit_priors
 from experiments.evaluation.fit_regions import RegionSamples, collect_region_samples, fit_regions, region_config
@@ -37,7 +38,8 @@ def add_fit_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=int, default=1, help="processes of the --regions runs (default 1)")
     p.add_argument("--samples", default=None,
                    help="with --regions: an .npz of the collected samples; read if it exists (no runs: re-fit "
-                        "only), else written once collected")
+                        "only), else written once collected (each trial's samples go to FILE.parts/ as it "
+                        "ends: an interrupted collection resumes from them)")
 
 
 def run_fit(args) -> int:
@@ -50,9 +52,11 @@ def run_fit(args) -> int:
         if loaded:
             samples = RegionSamples.load(cached)
         else:
-            samples = collect_region_samples(names, seed_range(args.seeds), args.particles, args.workers)
+            parts = cached + ".parts" if cached else None  # each trial's samples, kept if interrupted
+            samples = collect_region_samples(names, seed_range(args.seeds), args.particles, args.workers, parts)
             if cached:
                 samples.save(cached)
+                shutil.rmtree(parts, ignore_errors=True)
         fit = fit_regions(samples)
         fit.update(config=region_config(fit), scenarios=list(samples.scenarios))
         if loaded:

@@ -94,28 +94,77 @@ class RegionSamples:
 
 
 def collect_region_samples(scenarios: list[str] | None = None, seeds=FIT_SEEDS, particles: int = 64,
-                           workers: int = 1) -> RegionSamples:
+                           workers: int = 1, parts_dir: str | None = None) -> RegionSamples:
     """Run the particle estimator (``particles`` per world set, the fitted terms off: :data:`OFF`) on
     ``scenarios`` (default every built-in one) x ``seeds`` and gather the hidden samples
-    (:class:`RegionSamples`). ``workers`` processes; the result does not depend on their number."""
+    (:class:`RegionSamples`). ``workers`` processes; the result does not depend on their number.
+
+    ``parts_dir``: each trial's samples are also written there (``<scenario>__s<seed>__K<k>.npz``) as
+    the trial ends, and trials whose file is already there are read back, not run: an interrupted
+    collection keeps what it had done."""
+    import os
+
     from experiments.scenarios import list_scenarios, resolve_scenarios
 
     names = resolve_scenarios(list(scenarios)) if scenarios else list_scenarios()  # checked before anything runs
     jobs = [(name, int(seed), particles) for name in names for seed in seeds]
-    if workers > 1:
+    parts: dict[tuple, tuple] = {}
+    if parts_dir is not None:
+        os.makedirs(parts_dir, exist_ok=True)
+        for job in jobs:
+            path = _part_path(parts_dir, job)
+            if os.path.exists(path):
+                parts[job] = _read_part(path)
+    todo = [j for j in jobs if j not in parts]
+
+    def keep(job, part):
+        parts[job] = part
+        if parts_dir is not None:
+            _write_part(_part_path(parts_dir, job), part)
+
+    if workers > 1 and todo:
         import multiprocessing as mp
         with mp.get_context("spawn").Pool(workers) as pool:
-            parts = pool.map(_trial_samples, jobs, chunksize=1)
+            for job, part in zip(todo, pool.imap(_trial_samples, todo, chunksize=1)):
+                keep(job, part)
     else:
-        parts = [_trial_samples(j) for j in jobs]
+        for job in todo:
+            keep(job, _trial_samples(job))
     res, cov, spd, scen = [], [], [], []
-    for (name, _seed, _k), (r, c, s) in zip(jobs, parts):
+    for job in jobs:
+        r, c, s = parts[job]
         res.append(r)
         cov.append(c)
         spd.append(s)
-        scen.append(np.full(len(r), names.index(name)))
+        scen.append(np.full(len(r), names.index(job[0])))
     return RegionSamples(np.concatenate(res).reshape(-1, 3), np.concatenate(cov).reshape(-1, 3, 3),
                          np.concatenate(spd), np.concatenate(scen).astype(int), tuple(names))
+
+
+def _part_path(parts_dir: str, job: tuple[str, int, int]) -> str:
+    import os
+
+    name, seed, particles = job
+    return os.path.join(parts_dir, f"{name}__s{seed}__K{particles}.npz")
+
+
+def _write_part(path: str, part: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+    """One trial's samples, through a temporary file renamed into place."""
+    import os
+
+    tmp = path + ".tmp.npz"
+    np.savez(tmp, residual=part[0], cov=part[1], speed=part[2])
+    os.replace(tmp, path)
+
+
+def _read_part(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    from physics.errors import InputError
+
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return z["residual"], z["cov"], z["speed"]
+    except (OSError, KeyError, ValueError) as e:
+        raise InputError(f"{path}: not a trial's region samples ({e}); delete it to run the trial again") from None
 
 
 def _trial_samples(job: tuple[str, int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

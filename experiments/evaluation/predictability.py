@@ -229,6 +229,7 @@ def summarise(twins: list[dict], trials: list[dict], threshold: float) -> dict:
         m["success"].append(r.get("success_end"))
         m["cover50"].append(r.get("cover50_hidden"))
         m["cover90"].append(r.get("cover90_hidden"))
+    methods.sort()  # the same report whatever order the trials ended in
     pooled = {}
     for label in methods:
         vals, means = [], {}
