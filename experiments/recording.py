@@ -12,7 +12,7 @@ Entity paths (object ids are escaped as entity path parts; M objects)::
     world/perceived/objects             pink boxes: the detections of the last frame
     world/perceived/hands               pink points: tracked hands
     world/belief/consensus              green boxes: consensus poses of the dynamic objects
-    world/belief/uncertainty            green ellipsoids: n-sigma position uncertainty
+    world/belief/uncertainty            green ellipsoids: each position's 90 % region
     world/belief/particles/<id>         the particle cloud of each object, dark = heavy
     world/belief/hypotheses             orange points labelled "cup: isOnTop table 0.81"
     world/belief/trajectories           line strips of the consensus positions so far
@@ -66,8 +66,10 @@ class RecorderOptions:
     """What a :class:`Recorder` logs per estimator update.
 
     ``max_particles_logged``: particles drawn per object (the heaviest ones when K is larger; 0 logs no
-    particle cloud). ``trail_length``: consensus positions kept per trajectory. ``sigma``: the
-    uncertainty ellipsoids span this many standard deviations. ``particle_radius``,
+    particle cloud). ``trail_length``: consensus positions kept per trajectory. ``region``: the
+    uncertainty ellipsoids are each position's region of this probability under its own distribution
+    (a Student-t's is wider than a Gaussian's of the same covariance:
+    :meth:`~estimator.belief.ObjectBelief.region`). ``particle_radius``,
     ``box_line_radius``: drawing sizes in metres. ``floor_half_size``: half extent (m) of the floor
     square drawn at z = 0. ``batch``: drawings and plot values are buffered and written as columns
     every this many ``log_*`` calls; :meth:`Recorder.flush` and :meth:`Recorder.close` write the rest.
@@ -75,7 +77,7 @@ class RecorderOptions:
 
     max_particles_logged: int = 256
     trail_length: int = 200
-    sigma: float = 2.0
+    region: float = 0.9
     particle_radius: float = 0.003
     box_line_radius: float = 0.001
     floor_half_size: float = 1.5
@@ -88,8 +90,8 @@ class RecorderOptions:
             raise ValueError(f"trail_length must be >= 2, got {self.trail_length}")
         if self.batch < 1:
             raise ValueError(f"batch must be >= 1, got {self.batch}")
-        if not self.sigma > 0:
-            raise ValueError(f"sigma must be > 0, got {self.sigma}")
+        if not 0 < self.region < 1:
+            raise ValueError(f"region must be in (0, 1), got {self.region}")
 
 
 def path(*parts: str) -> str:
@@ -320,8 +322,9 @@ class Recorder:
         pos = np.array([b.position for b in obs], float).reshape(-1, 3)
         orn = np.array([b.orientation for b in obs], float).reshape(-1, 4)
         self._boxes("/world/belief/consensus", t, ids, pos, orn, GREEN, FillMode.MajorWireframe)
-        half, quat = covariance_ellipsoids(np.array([b.position_cov for b in obs], float).reshape(-1, 3, 3),
-                                           opts.sigma)
+        r2 = np.array([b.region(opts.region) for b in obs], float)  # squared Mahalanobis radii
+        half, quat = covariance_ellipsoids(np.array([b.position_cov for b in obs], float).reshape(-1, 3, 3)
+                                           * r2[:, None, None], 1.0)
         self._rows_of("/world/belief/uncertainty", rr.Ellipsoids3D,
                       fill_mode=FillMode.TransparentFillMajorWireframe).add(
             t, n, half_sizes=half, quaternions=quat, centers=pos, colors=np.full(n, _packed(GREEN_SHADE)))

@@ -1,11 +1,14 @@
 """Rerun recordings: read back with rerun's own reader (entity paths, time points, values), static
 scene, particles, two recorders in one process, and ``simulate --rerun``."""
 import argparse
+import math
 from collections import defaultdict
 
 import numpy as np
 import pytest
 from rerun.chunk import RrdReader
+from scipy.stats import chi2
+from scipy.stats import f as f_dist
 
 from estimator.config import EstimatorConfig, NoiseConfig
 from estimator.filter import SceneEstimator
@@ -148,7 +151,14 @@ def test_consensus_uncertainty_and_particles(recorded):
     assert np.allclose(cons["Boxes3D:centers"][0], last.objects["box"].position, atol=1e-6)
     assert np.allclose(cons["Boxes3D:half_sizes"], [[0.03, 0.03, 0.03], [0.03, 0.03, 0.04]], atol=1e-6)
     _t, ell = data["/world/belief/uncertainty"]["rows"][-1]
-    half, _q = covariance_ellipsoids(last.objects["box"].position_cov[None], 2.0)
+    box = last.objects["box"]
+    # the 90 % region of the box's own distribution, a Student-t: with nu dof and covariance C, its
+    # squared Mahalanobis distance over C is 3 (nu - 2) / nu times an F(3, nu) variable
+    nu = box.position_dof
+    assert math.isfinite(nu)
+    r = math.sqrt(3 * (nu - 2) / nu * f_dist.ppf(0.9, 3, nu))
+    assert abs(r - math.sqrt(chi2.ppf(0.9, 3))) > 0.1  # not the Gaussian's
+    half, _q = covariance_ellipsoids(box.position_cov[None], r)
     assert half[0].max() > 1e-3  # the particles do spread
     assert np.allclose(sorted(ell["Ellipsoids3D:half_sizes"][0]), sorted(half[0]), rtol=1e-5, atol=1e-7)
     _t, pts = data["/world/belief/particles/box"]["rows"][-1]
