@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from experiments.cli import main
-from experiments.evaluation.predictability import (TWINS_FILE, TwinConfig, agreement, read_rows, report, run_twins,
-                                                   summarise, twin_row)
+from experiments.evaluation.predictability import (TWINS_FILE, TwinConfig, agreement, last_sightings, read_rows,
+                                                   report, run_twins, summarise, twin_row)
+from experiments.simulation.ground_truth import GroundTruth
 from experiments.scenarios import load_scenario
 from experiments.simulation.variants import TWIN_PARAMETERS, sample_variant, twin_variant
 
@@ -43,6 +44,41 @@ def test_a_twin_moves_dynamic_objects_horizontally_and_scales_their_parameters_w
     assert twin_variant(variant, np.random.default_rng(5), 0.0, 0.0).scene == variant.scene
 
 
+def test_a_perturbation_moves_a_free_object_or_the_hand_that_holds_one():
+    """GroundTruth.perturb: a free object is moved, its velocity kept; an object in the hand is not
+    moved itself, the hand's path is shifted, and the object follows it: the ball that the hand of
+    ball_dropped_into_box carries is 2 cm further along x just before it is let go."""
+    scenario = load_scenario("ball_dropped_into_box")
+    variant = sample_variant(scenario, 0)
+    ball = variant.scene.index("ball")
+    release = next(w.t for w in variant.script if w.release == "ball")
+
+    def run(perturbations):
+        with GroundTruth(variant) as gt:
+            truth = gt.run(release - 0.05, np.random.default_rng([0, 1]), perturbations).truth
+            return np.array(truth[-1]["objects"]["ball"]["position"]), gt.dt, gt.hand_shift
+
+    base, dt, shift = run(None)
+    assert np.all(shift == 0)
+    moved, _dt, shift = run({int(round(0.5 / dt)): [(ball, np.array([0.02, 0.0, 0.0]))]})
+    assert np.allclose(shift, [0.02, 0.0, 0.0])
+    assert moved[0] - base[0] == pytest.approx(0.02, abs=0.003) and abs(moved[1] - base[1]) < 0.003
+    with GroundTruth(variant) as gt:  # free: the object itself moves, at once
+        gt.settle()
+        box = variant.scene.index("box")
+        before = gt.world.get_poses([box])[0, :3]
+        gt.perturb(box, [0.01, -0.02, 0.0])
+        assert np.allclose(gt.world.get_poses([box])[0, :3] - before, [0.01, -0.02, 0.0], atol=1e-9)
+
+
+def test_last_sightings_are_the_last_visible_frames_or_the_start():
+    rows = [{"t": t, "objects": {"a": {"visible": v, "held": h}, "b": {"visible": False, "held": False},
+                                 "c": {"visible": True, "held": False}}}
+            for t, v, h in ((0.1, True, False), (0.2, True, True), (0.3, False, True))]
+    got = last_sightings(rows, ["a", "b", "c"], dt=0.01)
+    assert got == {"a": (20, True), "b": (1, False), "c": None}
+
+
 @pytest.mark.parametrize("kwargs", [dict(position_std=-0.001, param_scale=0.01),
                                     dict(position_std=math.nan, param_scale=0.01),
                                     dict(position_std=0.001, param_scale=1.0)])
@@ -55,7 +91,7 @@ def test_bad_twin_sizes_are_refused(kwargs):
 
 
 def test_twin_config_checks_its_fields():
-    for bad in (dict(twins=0), dict(twins=2.5), dict(threshold=0.0), dict(threshold=1.5)):
+    for bad in (dict(twins=0), dict(twins=2.5), dict(threshold=0.0), dict(threshold=1.5), dict(at="end")):
         with pytest.raises(ValueError):
             TwinConfig(**bad)
 
@@ -79,12 +115,13 @@ def test_agreement_needs_5_cm_and_a_common_support():
     assert ok.tolist() == [False, True]  # the same place, not in the bin: a different outcome
 
 
-def test_a_resting_scene_is_predictable_and_a_cup_rolling_on_the_floor_is_not():
-    cfg = TwinConfig(twins=3)
+@pytest.mark.parametrize("at", ["last_seen", "start"])
+def test_a_resting_scene_is_predictable_and_a_cup_rolling_on_the_floor_is_not(at):
+    cfg = TwinConfig(twins=3, at=at, position_std=None if at == "last_seen" else 0.001)
     rest = twin_row(("static_floating", 0, cfg))
     assert rest["agreement"] == 1.0 and max(rest["distance_median"]) < 0.01
-    # the cup falls off the table behind the box and rolls on the floor: a millimetre and a percent
-    # send it centimetres away; the box it passed stays put
+    # the cup falls off the table behind the box and rolls on the floor: the tracker's 3 mm where it
+    # was last seen (or a millimetre at the start) send it centimetres away; the box stays put
     falls = [twin_row(("cup_falls_behind_box", seed, cfg)) for seed in (0, 1)]
     cup = [r["objects"].index("cup") for r in falls]
     assert all(r["agree"][r["objects"].index("box")] == 1.0 for r in falls)

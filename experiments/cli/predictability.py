@@ -1,6 +1,7 @@
 """``scene-estimator predictability``: which scenarios let anyone say where their objects end, to
-5 cm: each (scenario, seed) of the evaluation run again as twins a millimetre and a percent away
-(:mod:`experiments.evaluation.predictability`); with ``--evaluation DIR``, each method's success
+5 cm: each (scenario, seed) of the evaluation run again as twins that differ from the truth by what
+the robot could not know (each object moved by the tracker's noise at its last sighting;
+:mod:`experiments.evaluation.predictability`); with ``--evaluation DIR``, each method's success
 beside it and pooled over the predictable scenarios.
 
     scene-estimator predictability --seeds 20 --workers 2 --out results/ --evaluation results/
@@ -15,14 +16,17 @@ import sys
 
 def add_predictability_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``predictability``."""
-    from experiments.evaluation.predictability import TwinConfig
+    from experiments.evaluation.predictability import AT, TwinConfig
 
     d = TwinConfig()
     p.add_argument("--scenarios", default="all", help="'all' or comma-separated scenario names (default all)")
     p.add_argument("--seeds", type=int, default=20, help="seeds 0 .. N-1, the evaluation's (default 20)")
     p.add_argument("--twins", type=int, default=d.twins, help=f"twins per scenario and seed (default {d.twins})")
+    p.add_argument("--at", choices=AT, default=d.at,
+                   help="perturb each object at its last sighting (default) or every object at the start")
     p.add_argument("--position-std", type=float, default=d.position_std,
-                   help=f"std (m) of the twins' horizontal starting offsets (default {d.position_std:g})")
+                   help="std (m) per axis of the perturbation (default: the scenario's tracker noise, its "
+                        "position_std, and hand_std for an object in the hand)")
     p.add_argument("--param-scale", type=float, default=d.param_scale,
                    help=f"twins' physical parameters x U(1 - s, 1 + s) (default {d.param_scale:g})")
     p.add_argument("--threshold", type=float, default=d.threshold,
@@ -38,7 +42,7 @@ def run_predictability(args) -> int:
     from experiments.evaluation.predictability import TwinConfig, read_rows, run_twins, write_report
     from experiments.scenarios import resolve_scenarios
 
-    config = TwinConfig(twins=args.twins, position_std=args.position_std, param_scale=args.param_scale,
+    config = TwinConfig(twins=args.twins, at=args.at, position_std=args.position_std, param_scale=args.param_scale,
                         threshold=args.threshold)
     if args.seeds < 1 or args.workers < 1:
         raise ValueError(f"--seeds and --workers must be >= 1, got {args.seeds}, {args.workers}")

@@ -5,16 +5,27 @@ support. Where an object falls off a table and rolls across the floor, no estima
 outcome hangs on details no camera measures. This module measures it rather than asserting it.
 
 For every (scenario, seed) of the evaluation, the scenario's variant (:func:`sample_variant`) is run
-again as ``twins`` *twins* (:func:`~experiments.simulation.variants.twin_variant`): each dynamic
-object starts up to a millimetre away horizontally (``position_std``) and with its physical parameters
-changed by up to a percent (``param_scale``), the hand's script unchanged. A twin *agrees* on an
-object when its final position is within :data:`~experiments.evaluation.metrics.SUCCESS_DISTANCE` of
-the truth's and its final support is one of the truth's (:func:`~experiments.evaluation.metrics.truth_supports`).
-The *agreement* of a trial is the fraction of (twin, dynamic object) pairs that agree, averaged as the
-evaluation averages success: over the scene's dynamic objects, then over trials. It is the success of
-an estimator that knew the scene to a millimetre and a percent and simulated it exactly (one of the
-twins, drawn at random); a scenario whose agreement is below ``threshold`` is *unpredictable to 5 cm*:
-its success measures luck, and its regions' coverage is what to read.
+again as ``twins`` *twins*, each differing from the truth by what the robot could not have known:
+
+* ``at="last_seen"`` (default): the run is the truth's until each dynamic object's last sighting (the
+  last frame the camera saw it; the start if never), where the object is moved by Gaussian noise of
+  the scenario's own tracker (``perception.position_std`` per horizontal axis; an object in the
+  hand then moves with the hand, whose path is shifted by ``perception.hand_std`` per axis: the hand
+  tracker's noise). What the camera saw last is known to that noise; what happened after, unseen, is
+  physics.
+* ``at="start"``: each dynamic object starts moved horizontally (:func:`~experiments.simulation.variants.twin_variant`):
+  a test of chaos (with ``position_std`` 1 mm: does a millimetre change the outcome?).
+
+``position_std`` (m), when given, replaces both noises; ``param_scale`` also multiplies each physical
+parameter the variant sets by a uniform factor in ``[1 - param_scale, 1 + param_scale]``. A twin
+*agrees* on an object when its final position is within
+:data:`~experiments.evaluation.metrics.SUCCESS_DISTANCE` of the truth's and its final support is one of
+the truth's (:func:`~experiments.evaluation.metrics.truth_supports`). The *agreement* of a trial is the
+fraction of (twin, dynamic object) pairs that agree, averaged as the evaluation averages success: over
+the scene's dynamic objects, then over trials. It is the success of an estimator that knew everything
+up to what the twins change and simulated it exactly (one twin drawn at random); a scenario whose
+agreement is below ``threshold`` is *unpredictable to 5 cm*: its success measures luck, and its
+regions' coverage is what to read.
 
 With an evaluation's ``trials.jsonl``, :func:`report` puts each method's success beside the
 agreement, and pools success over the predictable scenarios only.
@@ -41,13 +52,19 @@ REPORT_FILE = "predictability.md"
 CSV_FILE = "predictability.csv"
 
 
+AT = ("last_seen", "start")
+"""Where twins are perturbed (see the module's docstring)."""
+
+
 @dataclass(frozen=True)
 class TwinConfig:
     """How twins differ from the truth, and how many.
 
     * ``twins``: twins per (scenario, seed) (default 10).
-    * ``position_std`` (m): Gaussian noise on each dynamic object's horizontal starting position,
-      per axis (default 1 mm, a third of the simulated tracker's noise).
+    * ``at``: ``"last_seen"`` (each object at its last sighting, default) or ``"start"``.
+    * ``position_std`` (m): the noise of the perturbation, per axis; ``None`` (default): the
+      scenario's tracker noise (``perception.position_std`` for a free object, ``perception.hand_std``
+      for one in the hand).
     * ``param_scale``: each physical parameter the variant sets is multiplied by a uniform factor in
       ``[1 - param_scale, 1 + param_scale]`` (default 0.01).
     * ``threshold``: a scenario whose mean agreement is below this is unpredictable to 5 cm (default
@@ -55,14 +72,17 @@ class TwinConfig:
     """
 
     twins: int = 10
-    position_std: float = 0.001
+    at: str = "last_seen"
+    position_std: float | None = None
     param_scale: float = 0.01
     threshold: float = 0.85
 
     def __post_init__(self):
         if not (isinstance(self.twins, int) and self.twins >= 1):
             raise ValueError(f"twins must be an integer >= 1, got {self.twins!r}")
-        if not (self.position_std >= 0 and math.isfinite(self.position_std)):
+        if self.at not in AT:
+            raise ValueError(f"at must be one of {AT}, got {self.at!r}")
+        if self.position_std is not None and not (self.position_std >= 0 and math.isfinite(self.position_std)):
             raise ValueError(f"position_std must be finite and >= 0, got {self.position_std}")
         if not (0 <= self.param_scale < 1):
             raise ValueError(f"param_scale must be in [0, 1), got {self.param_scale}")
@@ -71,7 +91,8 @@ class TwinConfig:
 
     def key(self, scenario: str, seed: int) -> str:
         """Identity of a (scenario, seed) row under these settings (``threshold`` is not part of it)."""
-        return f"{scenario}__s{seed}__n{self.twins}__p{self.position_std:g}__q{self.param_scale:g}"
+        p = "scene" if self.position_std is None else f"{self.position_std:g}"
+        return f"{scenario}__s{seed}__n{self.twins}__{self.at}__p{p}__q{self.param_scale:g}"
 
 
 def twin_rng(scenario: str, seed: int) -> np.random.Generator:
@@ -79,13 +100,46 @@ def twin_rng(scenario: str, seed: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([int(seed), zlib.crc32(f"twins:{scenario}".encode())]))
 
 
-def _final(variant, duration: float, seed: int) -> dict:
-    """The truth row at the end of a run of ``variant`` (as the simulator records it)."""
+def _run(variant, duration: float, seed: int, perturbations=None) -> tuple[list[dict], float]:
+    """The truth rows of a run of ``variant`` (as the simulator records them, with
+    ``perturbations``, see :meth:`GroundTruth.run`) and its time step (s)."""
     from experiments.simulation.ground_truth import GroundTruth
 
     with GroundTruth(variant) as gt:
-        result = gt.run(duration, np.random.default_rng([int(seed), 1]))
-    return result.truth[-1]
+        result = gt.run(duration, np.random.default_rng([int(seed), 1]), perturbations)
+        return result.truth, gt.dt
+
+
+def last_sightings(truth: list[dict], object_ids: list[str], dt: float) -> dict[str, tuple[int, bool] | None]:
+    """Per object: the simulation step (1-based) of the last frame in which it was visible, and whether
+    it was in the hand then; the first step if it never was; ``None`` if it is visible in the last
+    frame (nothing unseen to perturb)."""
+    out: dict[str, tuple[int, bool] | None] = {}
+    for o in object_ids:
+        seen = [r for r in truth if r["objects"][o]["visible"]]
+        if seen and seen[-1] is truth[-1]:
+            out[o] = None
+        elif seen:
+            out[o] = (max(1, int(round(seen[-1]["t"] / dt))), bool(seen[-1]["objects"][o]["held"]))
+        else:
+            out[o] = (1, bool(truth[0]["objects"][o]["held"]) if truth else False)
+    return out
+
+
+def _perturbations(sightings: dict, index: dict[str, int], object_std: float, hand_std: float,
+                   rng: np.random.Generator) -> dict[int, list[tuple[int, np.ndarray]]]:
+    """One twin's moves at the last sightings: per object (in ``sightings`` order) three normal draws;
+    a free object moves horizontally by ``object_std`` times the first two, one in the hand moves
+    the hand by ``hand_std`` times all three."""
+    out: dict[int, list[tuple[int, np.ndarray]]] = {}
+    for o, when in sightings.items():
+        z = rng.normal(0.0, 1.0, 3)
+        if when is None:
+            continue
+        step, held = when
+        offset = z * hand_std if held else np.array([z[0], z[1], 0.0]) * object_std
+        out.setdefault(step, []).append((index[o], offset))
+    return out
 
 
 def agreement(base: dict, twin: dict, object_ids: list[str]) -> tuple[np.ndarray, np.ndarray]:
@@ -114,18 +168,29 @@ def twin_row(job: tuple[str, int, TwinConfig]) -> dict:
     scenario = load_scenario(name)
     variant = sample_variant(scenario, seed)
     ids = [o.id for o in variant.scene.objects if not o.static]
-    base = _final(variant, scenario.duration, seed)
+    index = {o: variant.scene.index(o) for o in ids}
+    truth, dt = _run(variant, scenario.duration, seed)
+    base = truth[-1]
+    noise = scenario.perception
+    object_std = noise.position_std if cfg.position_std is None else cfg.position_std
+    hand_std = noise.hand_std if cfg.position_std is None else cfg.position_std
+    sightings = last_sightings(truth, ids, dt)
     rng = twin_rng(name, seed)
     ok = np.zeros((cfg.twins, len(ids)), bool)
     dist = np.zeros((cfg.twins, len(ids)))
     for k in range(cfg.twins):
-        twin = twin_variant(variant, rng, cfg.position_std, cfg.param_scale)
-        ok[k], dist[k] = agreement(base, _final(twin, scenario.duration, seed), ids)
+        if cfg.at == "start":
+            twin, moves = twin_variant(variant, rng, object_std, cfg.param_scale), None
+        else:
+            twin = twin_variant(variant, rng, 0.0, cfg.param_scale)
+            moves = _perturbations(sightings, index, object_std, hand_std, rng)
+        ok[k], dist[k] = agreement(base, _run(twin, scenario.duration, seed, moves)[0][-1], ids)
     agree = ok.mean(axis=0)
     return {"key": cfg.key(name, seed), "scenario": name, "seed": int(seed), "objects": ids,
             "agree": [float(a) for a in agree], "distance_median": [float(d) for d in np.median(dist, axis=0)],
-            "agreement": float(agree.mean()) if ids else math.nan,
-            "twins": cfg.twins, "position_std": cfg.position_std, "param_scale": cfg.param_scale}
+            "agreement": float(agree.mean()) if ids else math.nan, "twins": cfg.twins, "at": cfg.at,
+            "position_std": cfg.position_std, "param_scale": cfg.param_scale,
+            "last_seen_s": {o: (None if w is None else round(w[0] * dt, 4)) for o, w in sightings.items()}}
 
 
 def read_rows(path: str) -> list[dict]:
@@ -252,12 +317,17 @@ def report(twins: list[dict], trials: list[dict], config: TwinConfig) -> tuple[s
     s = summarise(twins, trials, config.threshold)
     rng = np.random.default_rng(0)
     n_tw = sorted({r["twins"] for r in twins})
+    size = ("the scenario's tracker noise (its position_std; hand_std for an object in the hand)"
+            if config.position_std is None else f"{1000 * config.position_std:g} mm (std per axis)")
+    where = ("the run is the truth's until each dynamic object's last sighting, where the object (or, in "
+             f"the hand, the hand) is moved by {size}" if config.at == "last_seen" else
+             f"each dynamic object starts moved horizontally by {size}")
     lines = [
         "# Predictability to 5 cm",
         "",
         f"{len(twins)} (scenario, seed) pairs, {', '.join(map(str, n_tw))} twins each: the same scene and hand "
-        f"script, each dynamic object started {1000 * config.position_std:g} mm (std, horizontally) away and "
-        f"its physical parameters changed by up to {100 * config.param_scale:g} %. Agreement: twins whose "
+        f"script; {where}; its physical parameters changed by up to {100 * config.param_scale:g} %. "
+        "Agreement: twins whose "
         "object ends within 5 cm of the truth, on one of its supports (mean over objects, then seeds "
         "[95 % bootstrap interval]); distance: median over seeds of the median twin distance of the "
         "scene's most spread object. Below "

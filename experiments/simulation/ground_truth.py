@@ -53,6 +53,7 @@ class GroundTruth:
         self.events: list[tuple[int, dict]] = []  # (step, event)
         self.pushes = PushTracker(int(round(PUSH_GAP / self.dt)))
         self.warnings: list[str] = []
+        self.hand_shift = np.zeros(3)  # m, added to the hand's scripted path (see :meth:`perturb`)
         try:
             self._build_hand()
             self._build_torso()
@@ -248,9 +249,23 @@ class GroundTruth:
 
     def _drive_hand(self, t: float) -> None:
         p, q = self.segment.at(t)
+        p = p + self.hand_shift
         pb.changeConstraint(self.hand_constraint, jointChildPivot=p.tolist(),
                             jointChildFrameOrientation=q.tolist(), maxForce=self.scenario.hand.max_force,
                             physicsClientId=self.world.client)
+
+    def perturb(self, index: int, offset) -> None:
+        """Move object ``index`` by ``offset (3,)`` m now, its velocity kept; an object in the hand
+        moves with the hand instead: the hand's path is shifted by ``offset`` from now on (what a
+        twin of the run, :mod:`experiments.evaluation.predictability`, changes at an object's last
+        sighting)."""
+        offset = np.asarray(offset, dtype=float)
+        if index in self.held:
+            self.hand_shift = self.hand_shift + offset
+            return
+        pose = self.world.get_poses([index])
+        pose[0, :3] += offset
+        self.world.set_poses(pose, [index])
 
     # -- the run ------------------------------------------------------------------------------------
     def settle(self) -> None:
@@ -290,8 +305,11 @@ class GroundTruth:
             return np.ones(self.world.num_objects)
         return self.camera.visible_fractions(poses)
 
-    def run(self, duration: float, perception_rng: np.random.Generator) -> "SimulationResult":
-        """Settle, then simulate ``duration`` seconds; returns the recorded streams."""
+    def run(self, duration: float, perception_rng: np.random.Generator,
+            perturbations: dict[int, list[tuple[int, np.ndarray]]] | None = None) -> "SimulationResult":
+        """Settle, then simulate ``duration`` seconds; returns the recorded streams.
+        ``perturbations``: ``{step: [(object index, offset (3,) m), ...]}`` applied by :meth:`perturb`
+        after that simulation step (1-based) and the script's waypoints due then."""
         cfg = self.scenario.perception
         world = self.world
         self.settle()
@@ -325,6 +343,9 @@ class GroundTruth:
             if self.hand_uid >= 0:
                 self._advance_script(t, step)
                 self._track_pushes(step)
+            if perturbations and step in perturbations:
+                for index, offset in perturbations[step]:
+                    self.perturb(index, offset)
             is_frame = step in frame_of_step
             if not is_frame and step not in captures:
                 continue

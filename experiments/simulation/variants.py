@@ -132,8 +132,8 @@ def twin_variant(variant: Variant, rng: np.random.Generator, position_std: float
     scene order: x, y offsets, then the factors in :data:`TWIN_PARAMETERS` order. Static objects and
     the hand do not change.
 
-    A twin differs from its variant by far less than a camera can see: where twins end far apart,
-    no estimator can say where the object ends (:mod:`experiments.evaluation.predictability`)."""
+    Where twins a millimetre apart end far apart, the scene is chaotic: no estimator can say where
+    its objects end (:mod:`experiments.evaluation.predictability`, ``at="start"``)."""
     if not (position_std >= 0 and math.isfinite(position_std)):
         raise ValueError(f"position_std must be finite and >= 0, got {position_std}")
     if not (0 <= param_scale < 1):
