@@ -317,8 +317,12 @@ def report(twins: list[dict], trials: list[dict], config: TwinConfig) -> tuple[s
     s = summarise(twins, trials, config.threshold)
     rng = np.random.default_rng(0)
     n_tw = sorted({r["twins"] for r in twins})
-    size = ("the scenario's tracker noise (its position_std; hand_std for an object in the hand)"
-            if config.position_std is None else f"{1000 * config.position_std:g} mm (std per axis)")
+    if config.position_std is not None:
+        size = f"{1000 * config.position_std:g} mm (std per axis)"
+    elif config.at == "last_seen":
+        size = "the scenario's tracker noise (its position_std; hand_std for an object in the hand)"
+    else:
+        size = "the scenario's tracker noise (its position_std)"
     where = ("the run is the truth's until each dynamic object's last sighting, where the object (or, in "
              f"the hand, the hand) is moved by {size}" if config.at == "last_seen" else
              f"each dynamic object starts moved horizontally by {size}")
