@@ -245,9 +245,10 @@ def compute_belief(t: float, object_ids, known: np.ndarray, perceived: np.ndarra
     ``poses (K, M, 7)``, ``weights (K,)`` normalised, ``modes (K, M)``, ``on_top (K, M, M+1)``,
     ``is_in (K, M, M)``; ``known``, ``perceived``, ``static`` ``(M,)`` bool. Unknown objects are left
     out; static objects get their fixed pose and no hypotheses. ``cov_floor`` (m^2) is added to the
-    diagonal of the position covariances of dynamic objects, whose positions are then Student-t with ``dof`` degrees of freedom (``inf``: Gaussian). A
-    hypothesis is a support label (:func:`support_labels`); the headline position and covariance are
-    those of the heaviest one (see :class:`ObjectBelief`), the first of ``hypotheses``.
+    diagonal of the position covariances of dynamic objects, whose positions are then Student-t with
+    ``dof`` degrees of freedom (``inf``: Gaussian). A hypothesis is a support label
+    (:func:`support_labels`); the headline position and covariance are those of the heaviest one (see
+    :class:`ObjectBelief`), the first of ``hypotheses``.
     """
     object_ids = tuple(object_ids)
     k, m_count = modes.shape

@@ -39,7 +39,8 @@ def add_predictability_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run_predictability(args) -> int:
-    from experiments.evaluation.predictability import TwinConfig, read_rows, run_twins, write_report
+    from experiments.evaluation.predictability import TwinConfig, run_twins, write_report
+    from experiments.evaluation.sweep import read_rows
     from experiments.scenarios import resolve_scenarios
 
     config = TwinConfig(twins=args.twins, at=args.at, position_std=args.position_std, param_scale=args.param_scale,

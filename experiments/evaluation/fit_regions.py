@@ -32,8 +32,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator.belief import region_radius_sq
-
 from experiments.evaluation import metrics as M
 from experiments.evaluation.fit_priors import FIT_SEEDS
 
@@ -71,26 +69,38 @@ class RegionSamples:
     def save(self, path) -> None:
         """Write the samples to ``path`` (``.npz``), through a temporary file renamed into place (an
         interrupted write leaves no partial file)."""
-        import os
-
-        path = os.fspath(path)
-        tmp = path + ".tmp.npz"
-        np.savez(tmp, residual=self.residual, cov=self.cov, speed=self.speed, scenario=self.scenario,
-                 scenarios=np.array(self.scenarios, dtype=str))
-        os.replace(tmp, path)
+        _save_npz(path, residual=self.residual, cov=self.cov, speed=self.speed, scenario=self.scenario,
+                  scenarios=np.array(self.scenarios, dtype=str))
 
     @classmethod
     def load(cls, path) -> "RegionSamples":
         """Samples written by :meth:`save`; a missing or malformed file is an
         :class:`~physics.errors.InputError` naming it."""
-        from physics.errors import InputError
+        z = _load_npz(path, ("residual", "cov", "speed", "scenario", "scenarios"), "not a file of region samples")
+        return cls(z["residual"], z["cov"], z["speed"], z["scenario"].astype(int),
+                   tuple(str(n) for n in z["scenarios"]))
 
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                return cls(z["residual"], z["cov"], z["speed"], z["scenario"].astype(int),
-                           tuple(str(n) for n in z["scenarios"]))
-        except (OSError, KeyError, ValueError) as e:
-            raise InputError(f"{path}: not a file of region samples ({e})") from None
+
+def _save_npz(path, **arrays) -> None:
+    """``np.savez`` through a temporary file renamed into place."""
+    import os
+
+    path = os.fspath(path)
+    tmp = path + ".tmp.npz"
+    np.savez(tmp, **arrays)
+    os.replace(tmp, path)
+
+
+def _load_npz(path, keys: tuple[str, ...], what: str) -> dict[str, np.ndarray]:
+    """The arrays ``keys`` of the ``.npz`` at ``path``; a missing or malformed file is an
+    :class:`~physics.errors.InputError` naming it, ``what`` saying what it is not."""
+    from physics.errors import InputError
+
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in keys}
+    except (OSError, KeyError, ValueError) as e:
+        raise InputError(f"{path}: {what} ({e})") from None
 
 
 def collect_region_samples(scenarios: list[str] | None = None, seeds=FIT_SEEDS, particles: int = 64,
@@ -149,22 +159,14 @@ def _part_path(parts_dir: str, job: tuple[str, int, int]) -> str:
 
 
 def _write_part(path: str, part: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
-    """One trial's samples, through a temporary file renamed into place."""
-    import os
-
-    tmp = path + ".tmp.npz"
-    np.savez(tmp, residual=part[0], cov=part[1], speed=part[2])
-    os.replace(tmp, path)
+    """One trial's samples (see :func:`collect_region_samples`)."""
+    _save_npz(path, residual=part[0], cov=part[1], speed=part[2])
 
 
 def _read_part(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    from physics.errors import InputError
-
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            return z["residual"], z["cov"], z["speed"]
-    except (OSError, KeyError, ValueError) as e:
-        raise InputError(f"{path}: not a trial's region samples ({e}); delete it to run the trial again") from None
+    z = _load_npz(path, ("residual", "cov", "speed"),
+                  "not a trial's region samples; delete it to run the trial again")
+    return z["residual"], z["cov"], z["speed"]
 
 
 def _trial_samples(job: tuple[str, int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -201,7 +203,7 @@ def region_coverage(samples: RegionSamples, floor_std: float, speed_time: float,
     var = floor_std ** 2 + score_floor_std ** 2 + (speed_time * samples.speed) ** 2
     r = samples.residual
     m2 = M.mahalanobis_sq(np.zeros_like(r), samples.cov + var[:, None, None] * np.eye(3), r, floor_std=0.0)
-    inside = np.stack([m2 <= region_radius_sq(lv, dof) for lv in LEVELS], axis=-1)
+    inside = M.in_regions(m2, LEVELS, dof)
     pooled = inside.mean(axis=0) if len(m2) else np.full(len(LEVELS), np.nan)
     per = np.full((len(samples.scenarios), len(LEVELS)), np.nan)
     for s in range(len(samples.scenarios)):

@@ -119,6 +119,12 @@ def effective_particles(name: str, particles: int) -> int:
     return int(particles) if spec.uses_particles else spec.config(1).particles
 
 
+def method_label(name: str, particles: int) -> str:
+    """How reports and figures name method ``name`` run with ``particles`` worlds: ``"particles (K=64)"``
+    for the methods whose K the sweep sets, the bare name for the others."""
+    return f"{name} (K={particles})" if get_method(name).uses_particles else name
+
+
 def method_config(name: str, particles: int, config: str | None = None) -> EstimatorConfig | None:
     """Estimator configuration of method ``name`` with ``particles`` worlds (``None`` for
     last-seen), with the fields of ``config`` (configuration data as JSON, see

@@ -213,17 +213,25 @@ def gaussian_nll(mean: np.ndarray, cov: np.ndarray, x: np.ndarray, floor_std: fl
     return np.where(np.isfinite(dof), t, gauss)
 
 
+def in_regions(m2: np.ndarray, levels=(0.5, 0.9), dof=math.inf, dim: int = 3) -> np.ndarray:
+    """Whether each squared Mahalanobis distance ``m2 (N,)`` (over the covariance) lies inside the
+    ``level`` region of its distribution, per level: ``(N, L)`` bool. ``dof`` (a scalar or ``(N,)``;
+    ``inf``: Gaussian) as in :func:`estimator.belief.region_radius_sq`."""
+    m2 = np.asarray(m2, float)
+    return np.stack([m2 <= region_radius_sq(lv, dof, dim) for lv in levels], axis=-1)
+
+
 def coverage(mean: np.ndarray, cov: np.ndarray, x: np.ndarray, levels=(0.5, 0.9),
              floor_std: float = COV_FLOOR_STD, dof=math.inf) -> dict[float, float]:
     """Fraction of the rows of ``x`` ``(N, d)`` inside the ``level`` credible ellipsoid of
     N(``mean (N, d)``, ``cov (N, d, d)`` + floor^2 I), per level; with finite ``dof`` (a scalar or
-    ``(N,)``), of the Student-t of that covariance (:func:`estimator.belief.region_radius_sq`). A
-    calibrated estimate covers about ``level``. NaN for empty input."""
+    ``(N,)``), of the Student-t of that covariance (:func:`in_regions`). A calibrated estimate covers
+    about ``level``. NaN for empty input."""
     m2 = mahalanobis_sq(mean, cov, x, floor_std)
-    dim = np.asarray(x).shape[-1]
     if m2.size == 0:
         return {lv: math.nan for lv in levels}
-    return {lv: float(np.mean(m2 <= region_radius_sq(lv, dof, dim))) for lv in levels}
+    inside = in_regions(m2, levels, dof, np.asarray(x).shape[-1])
+    return {lv: float(np.mean(inside[:, j])) for j, lv in enumerate(levels)}
 
 
 def brier_score(p: np.ndarray, y: np.ndarray) -> float:

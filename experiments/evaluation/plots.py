@@ -26,7 +26,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from experiments.evaluation.methods import METHODS, get_method  # noqa: E402
+from experiments.evaluation.methods import METHODS, get_method, method_label  # noqa: E402
 from experiments.evaluation.metrics import merge_bins  # noqa: E402
 
 PINK = "#e75480"
@@ -44,10 +44,6 @@ def method_color(method: str) -> str:
         return OTHER[method]
     names = [m for m in METHODS if m.startswith("particles-") and m not in OTHER]
     return ABLATION[names.index(method) % len(ABLATION)] if method in names else "#d62728"
-
-
-def _label(method: str, k: int) -> str:
-    return f"{method} (K={k})" if get_method(method).uses_particles else method
 
 
 def _interesting(trace: dict, limit: int = 3) -> list[int]:
@@ -96,7 +92,7 @@ def plot_views(traces: dict[str, dict], path: str | Path, title: str = "") -> Pa
                 main_m = m == main
                 ax.plot(est[:, a], est[:, b], "-", color=method_color(m), lw=2.0 if main_m else 1.0,
                         alpha=1.0 if main_m else 0.7,
-                        label=(f"estimate: {_label(m, trc['particles'])}" if n == 0 else None))
+                        label=(f"estimate: {method_label(m, trc['particles'])}" if n == 0 else None))
             if ref.get("cloud") is not None:
                 cloud = np.asarray(ref["cloud"], float)[:, i]
                 w = np.asarray(ref["cloud_weights"], float)
@@ -142,7 +138,7 @@ def plot_error_over_time(traces: dict[str, dict], path: str | Path, title: str =
             j = np.clip(np.searchsorted(tt, t + 1e-6, side="right") - 1, 0, len(tt) - 1)
             err = 100 * np.linalg.norm(np.asarray(trc["estimate"], float)[:, i] - truth[j, i], axis=-1)
             ax.plot(t, err, color=method_color(m), lw=1.8 if m == main else 1.0,
-                    label=_label(m, trc["particles"]))
+                    label=method_label(m, trc["particles"]))
             if get_method(m).uses_particles:
                 std = 100 * np.asarray(trc["std"], float)[:, i]
                 ax.fill_between(t, 0, 2 * std, color=method_color(m), alpha=0.18,
@@ -178,7 +174,7 @@ def plot_reliability(rows: list[dict], path: str | Path) -> Path:
             fy = np.asarray(bins["y_sum"])[ok] / n[ok]
             size = 10 + 60 * np.sqrt(n[ok] / n.max())
             ax.plot(mp, fy, "-", color=method_color(m), lw=1)
-            ax.scatter(mp, fy, s=size, color=method_color(m), label=_label(m, k), zorder=3)
+            ax.scatter(mp, fy, s=size, color=method_color(m), label=method_label(m, k), zorder=3)
         ax.set_xlim(-0.02, 1.02)
         ax.set_ylim(-0.02, 1.02)
         ax.set_xlabel(f"predicted P({kind})")
@@ -247,7 +243,7 @@ def plot_metrics(summary: list[dict], path: str | Path) -> Path:
                 lo.append(v * scale - (a * scale if a is not None and math.isfinite(a) else v * scale))
                 hi.append((b * scale if b is not None and math.isfinite(b) else v * scale) - v * scale)
             ax.bar(x + (j - (len(pairs) - 1) / 2) * width, vals, width, yerr=[lo, hi], capsize=2,
-                   color=method_color(m), label=_label(m, k))
+                   color=method_color(m), label=method_label(m, k))
         ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3, axis="y")
     axes[0].legend(fontsize=7)

@@ -45,7 +45,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from experiments.evaluation import metrics as M
+from experiments.evaluation.methods import method_label
 from experiments.evaluation.stats import bootstrap_ci
+from experiments.evaluation.sweep import read_rows
 
 TWINS_FILE = "twins.jsonl"
 REPORT_FILE = "predictability.md"
@@ -193,37 +195,6 @@ def twin_row(job: tuple[str, int, TwinConfig]) -> dict:
             "last_seen_s": {o: (None if w is None else round(w[0] * dt, 4)) for o, w in sightings.items()}}
 
 
-def read_rows(path: str) -> list[dict]:
-    """The rows of a ``twins.jsonl`` or ``trials.jsonl`` (none if it does not exist). A line cut short
-    by an interruption (the last one) is skipped; a malformed line elsewhere is an error naming it."""
-    if not os.path.exists(path):
-        return []
-    rows = []
-    with open(path) as fh:
-        lines = fh.read().split("\n")
-    for n, line in enumerate(lines, 1):
-        if not line.strip():
-            continue
-        try:
-            rows.append(json.loads(line))
-        except json.JSONDecodeError as exc:
-            if n >= len(lines) - 1:  # the last line, unfinished when the run was stopped
-                continue
-            raise ValueError(f"{path}, line {n}: not a JSON row ({exc.msg})") from None
-    return rows
-
-
-def _drop_unfinished_line(path: str) -> None:
-    """Cut a last line without its newline (a row being written when the run was stopped) off
-    ``path``, so that the rows appended next start on their own line."""
-    if not os.path.exists(path):
-        return
-    with open(path, "rb+") as fh:
-        data = fh.read()
-        if data and not data.endswith(b"\n"):
-            fh.truncate(data.rfind(b"\n") + 1)
-
-
 def run_twins(names: list[str], seeds, config: TwinConfig, out_dir: str, workers: int = 1,
               progress=None) -> list[dict]:
     """Twin rows for ``names`` x ``seeds``, appended to ``out_dir/twins.jsonl`` as each ends; rows
@@ -231,8 +202,7 @@ def run_twins(names: list[str], seeds, config: TwinConfig, out_dir: str, workers
     ``progress``: called with each finished row."""
     os.makedirs(out_dir, exist_ok=True)
     path = os.path.join(out_dir, TWINS_FILE)
-    done = {r["key"]: r for r in read_rows(path) if "key" in r}
-    _drop_unfinished_line(path)
+    done = {r["key"]: r for r in read_rows(path, repair=True)}  # a cut last line dropped
     jobs = [(n, int(s), config) for n in names for s in seeds]
     todo = [j for j in jobs if config.key(j[0], j[1]) not in done]
     if todo:
@@ -269,8 +239,9 @@ def _ci(values, rng) -> str:
 
 def summarise(twins: list[dict], trials: list[dict], threshold: float) -> dict:
     """Per scenario: ``agreement`` (per seed), whether it is ``predictable`` (mean agreement at least
-    ``threshold``), per seed the largest of its objects' median twin distances (m); per method of ``trials`` (the evaluation's rows), its
-    success per seed and its hidden 50 % / 90 % coverage per seed. Pooled, per method: success over
+    ``threshold``), per seed the largest of its objects' median twin distances (m); per method of
+    ``trials`` (the evaluation's rows), its success per seed and its hidden 50 % / 90 % coverage per
+    seed. Pooled, per method: success over
     the trials of predictable scenarios only (``pooled``) and the lowest predictable scenario's mean.
     Plain data (see :func:`report`)."""
     scen: dict[str, dict] = {}
@@ -287,7 +258,7 @@ def summarise(twins: list[dict], trials: list[dict], threshold: float) -> dict:
         if (r.get("scenario"), r.get("seed")) not in pairs:  # only the (scenario, seed) pairs twinned
             continue
         s = scen[r["scenario"]]
-        label = r["method"] if r.get("particles", 0) <= 1 else f"{r['method']} (K={r['particles']})"
+        label = method_label(r["method"], r["particles"])
         if label not in methods:
             methods.append(label)
         m = s["methods"].setdefault(label, {"success": [], "cover50": [], "cover90": []})

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Iterable
 
 
-from experiments.evaluation.methods import METHODS, get_method
+from experiments.evaluation.methods import METHODS, get_method, method_label
 from experiments.evaluation.metrics import ACTIONS, precision_recall_f1
 from experiments.evaluation.stats import bootstrap_ci, group_rng, paired_wilcoxon
 
@@ -159,10 +159,6 @@ def _cell(rec: dict, c: Column) -> str:
     return s
 
 
-def _method_label(m: str, k: int) -> str:
-    return f"{m} (K={k})" if get_method(m).uses_particles else m
-
-
 def markdown_summary(summary: list[dict], tests: list[dict], columns=SUMMARY_COLUMNS, title: bool = True) -> str:
     """The Markdown report: the main table (mean [95 % CI] over seeds), the paired tests and the
     calibration table."""
@@ -178,7 +174,7 @@ def markdown_summary(summary: list[dict], tests: list[dict], columns=SUMMARY_COL
     head = ["scenario", "method", "n"] + [c.header for c in columns]
     buf.write("| " + " | ".join(head) + " |\n|" + "|".join(["---"] * len(head)) + "|\n")
     for rec in summary:
-        cells = [rec["scenario"], _method_label(rec["method"], rec["particles"]), str(rec["n"])]
+        cells = [rec["scenario"], method_label(rec["method"], rec["particles"]), str(rec["n"])]
         cells += [_cell(rec, c) for c in columns]
         buf.write("| " + " | ".join(cells) + " |\n")
     if tests:
@@ -187,7 +183,7 @@ def markdown_summary(summary: list[dict], tests: list[dict], columns=SUMMARY_COL
         head = ["scenario", "method"] + [h for _f, h, _s in TEST_METRICS]
         buf.write("| " + " | ".join(head) + " |\n|" + "|".join(["---"] * len(head)) + "|\n")
         for t in tests:
-            cells = [t["scenario"], _method_label(t["method"], t["particles"])]
+            cells = [t["scenario"], method_label(t["method"], t["particles"])]
             for f, _h, s in TEST_METRICS:
                 d, p, n = t[f + ".median_diff"], t[f + ".p"], t[f + ".n"]
                 cells.append("–" if not (n and math.isfinite(d)) else
@@ -204,7 +200,7 @@ def markdown_summary(summary: list[dict], tests: list[dict], columns=SUMMARY_COL
     head = ["method"] + [c.header for c in calib]
     buf.write("| " + " | ".join(head) + " |\n|" + "|".join(["---"] * len(head)) + "|\n")
     for rec in pooled:
-        cells = [_method_label(rec["method"], rec["particles"]) + ("" if rec["scenario"] == ALL else
+        cells = [method_label(rec["method"], rec["particles"]) + ("" if rec["scenario"] == ALL else
                                                                    f" ({rec['scenario']})")]
         cells += [_cell(rec, c) if c.field in rec else "–" for c in calib]
         buf.write("| " + " | ".join(cells) + " |\n")
@@ -241,7 +237,7 @@ def markdown_event_section(rows: list[dict]) -> str:
     for c in counts:
         def f(v):
             return "–" if not math.isfinite(v) else f"{v:.2f}"
-        buf.write(f"| {_method_label(c['method'], c['particles'])} | {c['action']} | {c['n_true']} | "
+        buf.write(f"| {method_label(c['method'], c['particles'])} | {c['action']} | {c['n_true']} | "
                   f"{c['n_est']} | {c['n_matched']} | {f(c['precision'])} | {f(c['recall'])} | {f(c['f1'])} |\n")
     return buf.getvalue()
 

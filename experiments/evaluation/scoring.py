@@ -6,7 +6,6 @@ import math
 
 import numpy as np
 
-from estimator.belief import region_radius_sq
 from experiments.evaluation import metrics as M
 from experiments.evaluation.methods import MethodRun
 
@@ -140,14 +139,12 @@ def score_run(scene, truth: list[dict], true_events: list[dict], run: MethodRun,
     # (each position with its own distribution: dof inf for Gaussian ones)
     ok = np.isfinite(est).all(axis=-1)
     nll = np.where(ok, M.gaussian_nll(np.where(ok[..., None], est, 0.0), cov, tru, dof=dof), np.nan)
-    m2 = np.where(ok, M.mahalanobis_sq(np.where(ok[..., None], est, 0.0), cov, tru), np.nan)
     for suffix, mask in (("", ok), ("_hidden", ok & hidden)):
         v = nll[mask]
         out[f"nll{suffix}"] = float(np.mean(v)) if v.size else math.nan
         out[f"nll{suffix}_median"] = float(np.median(v)) if v.size else math.nan
-        for level in (0.5, 0.9):
-            out[f"cover{int(level * 100)}{suffix}"] = (float(np.mean(m2[mask] <= region_radius_sq(level, dof[mask])))
-                                                       if v.size else math.nan)
+        for level, c in M.coverage(est[mask], cov[mask], tru[mask], dof=dof[mask]).items():
+            out[f"cover{int(level * 100)}{suffix}"] = c
     # calibration of the probabilities
     rel = {}
     for name, p, y in (("plausible", p_pl.ravel(), ~held.ravel()), ("isIn", p_in.ravel(), y_in.ravel()),
