@@ -197,7 +197,7 @@ class NoiseConfig:
     covariance_speed_time: float = 0.0  # fitted, as the floor
     position_dof: float | None = 3.0  # fitted, as the floor
     held_drift_std: float = 0.05
-    held_offset_std: float = 0.0164  # fitted: scene-estimator fit-priors (seeds 100-119)
+    held_offset_std: float = 0.0101  # fitted: scene-estimator fit-priors (seeds 100-119)
     held_offset_time: float = 0.5
     friction_range: tuple[float, float] | None = (0.3, 1.0)
     rolling_friction_range: tuple[float, float] | None = None
@@ -256,6 +256,43 @@ class NoiseConfig:
 
 
 @dataclass(frozen=True)
+class HandConfig:
+    """How the positions of tracked hands, and the offsets of held objects to them, are read
+    (:mod:`estimator.hands`). A tracked hand (a skeleton tracker's wrist) is noisier than an
+    object's detection; the object a hand carries out of view is put at the hand plus its offset,
+    so both errors become the hidden object's.
+
+    * ``measurement_std`` (m per axis): noise of a tracked hand's position; fitted on the
+      simulator's scenarios (``scene-estimator fit-priors``: tracked minus true hand, RMS per axis).
+    * ``accel_std`` (m/s^2): white acceleration of each hand's constant-velocity Kalman filter;
+      the 99th percentile of held objects' accelerations in the scenarios, as the pose tracker's
+      (:attr:`~estimator.tracker.TrackerConfig.accel_std`): a hand moves what it holds.
+    * ``restart_gap`` (s): a hand not tracked for longer than this starts again at its next
+      position, at rest.
+    * ``offset_time`` (s): a held object's offset to its hand is the exponential average of
+      (detection - tracked hand) over the frames that show both, each new frame weighing
+      ``max(1 / n, 1 - exp(-dt / offset_time))`` (``n`` frames so far, ``dt`` since the last): the
+      grasp is steady over this long.
+    * ``offset_gate`` (m): a frame whose difference lies farther than this from the average starts
+      the average again (a new grasp, or a hand passing by an object it does not hold).
+    * ``filtered``: False reads each hand's latest raw position and each offset from the latest
+      frame alone (the estimator before hands were filtered).
+    """
+
+    measurement_std: float = 0.01  # fitted: scene-estimator fit-priors (seeds 100-119)
+    accel_std: float = 5.0
+    restart_gap: float = 0.5
+    offset_time: float = 0.5
+    offset_gate: float = 0.04
+    filtered: bool = True
+
+    def __post_init__(self):
+        _check_positive(self, "measurement_std", "accel_std", "restart_gap", "offset_time", "offset_gate")
+        if not isinstance(self.filtered, bool):
+            raise ValueError(f"HandConfig.filtered must be true or false, got {self.filtered!r}")
+
+
+@dataclass(frozen=True)
 class EstimatorConfig:
     """Everything the estimator needs besides the scene.
 
@@ -273,6 +310,7 @@ class EstimatorConfig:
       lose weight (needs a camera in the scene).
     * ``follow_hands``: a held object that is not detected follows the tracked hand nearest to it
       when last detected (the paper's reasoner ignores hands: off in paper mode).
+    * ``hands``: how tracked hands and held objects' offsets to them are read (:class:`HandConfig`).
     * ``lazy_checks``: test an object's divergence only when it could have crossed the threshold
       since the last test (see :func:`~estimator.propagate.propagate`); off in paper mode, which
       tests after every step. Reading poses back is most of the estimator's cost over bare stepping.
@@ -307,6 +345,7 @@ class EstimatorConfig:
     reasoner: ReasonerConfig = field(default_factory=ReasonerConfig)
     noise: NoiseConfig = field(default_factory=NoiseConfig.off)
     priors: ModePriors = field(default_factory=ModePriors)
+    hands: HandConfig = field(default_factory=HandConfig)
     relations: RelationConfig = field(default_factory=RelationConfig)
     physics: PhysicsSettings = field(default_factory=lambda: PhysicsSettings(
         solver_residual_threshold=1e-4, sleeping=True, collision_only=True))
@@ -353,7 +392,7 @@ class EstimatorConfig:
 
 
 SECTIONS: dict[str, type] = {"reasoner": ReasonerConfig, "noise": NoiseConfig, "priors": ModePriors,
-                             "relations": RelationConfig, "physics": PhysicsSettings}
+                             "hands": HandConfig, "relations": RelationConfig, "physics": PhysicsSettings}
 """The nested sections of :class:`EstimatorConfig`, by field name."""
 
 BASES = ("paper", "particles")

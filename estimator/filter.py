@@ -99,7 +99,7 @@ class SceneEstimator:
         self.pool = WorldPool(scene, K, cfg.workers, cfg.physics, cfg.worlds)
         try:
             self.memory = PerceptionMemory(scene, initial_poses(scene)[0], cfg.reasoner, cfg.follow_hands,
-                                           from_onset=cfg.moving_teleports)
+                                           from_onset=cfg.moving_teleports, hands=cfg.hands)
             self.model = SceneModel(scene, cfg, self.memory, self.pool.initial_params)
             self.state: ParticleState = self.model.initial_state(self.rng)
         except BaseException:

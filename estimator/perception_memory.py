@@ -3,7 +3,8 @@
 M objects; positions in metres, quaternions ``(x, y, z, w)``, times and durations in seconds,
 velocities in m/s. The memory holds the latest detection of each object (pose, time, std, and
 velocity: the least-squares line through its recent detections, with the slope's standard error),
-the tracked hand nearest to it, a short history of detections (for the Place rule and the line) and
+the tracked hand nearest to it and its offset to that hand (averaged over the frames that show both:
+:mod:`estimator.hands`), each tracked hand's filtered position, a short history of detections (for the Place rule and the line) and
 the perception at the previous reasoning step (for teleports and for the velocity over a reasoning
 period).
 """
@@ -16,13 +17,12 @@ import numpy as np
 
 from physics.scene import Scene
 
-from .config import RELEASE_DOWN_SPEED, ReasonerConfig
+from .config import RELEASE_DOWN_SPEED, HandConfig, ReasonerConfig
+from .hands import HandFilter, average_offset
 from .observations import Frame
 
 HAND_RADIUS = 0.3
 """A tracked hand within this distance (m) of a detected object is taken to be the one holding it."""
-HAND_SMOOTHING = 3
-"""Hand positions are averaged over this many latest frames before a displacement is measured."""
 MOTION_ONSET = 0.015
 """m: an object still until now starts moving when a detection lies this far from where it was still
 (the average of its still detections); it started at its last detection closer than that."""
@@ -46,6 +46,7 @@ class PerceptionMemory:
         follow_hands: whether held objects follow the tracked hand (:meth:`following_hand`).
         from_onset: whether the perceived velocity's line starts at the motion onset
             (``moving_since``); False: over the whole window (the paper's mode keeps it).
+        hands: how tracked hands and offsets to them are read (:class:`~estimator.config.HandConfig`).
 
     Arrays (all ``(M, ...)``): ``last_pose (M, 7)``, ``last_has_orientation`` bool, ``last_seen``
     (s; -inf: never), ``last_std`` (m; NaN: the detector gave none), ``perc_vel (M, 6)`` (linear part
@@ -54,18 +55,20 @@ class PerceptionMemory:
     standard error is the detection noise over its square root; 0: no slope), ``pose_at_tick (M, 7)`` (``last_pose`` at the
     previous reasoning step), ``perceived_prev`` bool (perceived at the previous step),
     ``hold_hand`` (name of the tracked hand near each object when last detected, or None),
-    ``hold_offset (M, 3)`` (object minus hand position then, m), ``still_position (M, 3)`` (m, average
+    ``hold_offset (M, 3)`` (object minus raw hand position, m, averaged over the frames that showed
+    both, :func:`~estimator.hands.average_offset`), ``still_position (M, 3)`` (m, average
     detection while the object is still; NaN: not seen still) and ``moving_since (M,)`` (s, the time
     a still object started moving, :data:`MOTION_ONSET`, until it is at rest again; NaN: still).
     """
 
     def __init__(self, scene: Scene, poses: np.ndarray, reasoner: ReasonerConfig, follow_hands: bool,
-                 from_onset: bool = True):
+                 from_onset: bool = True, hands: HandConfig | None = None):
         M = len(scene.objects)
         self.scene = scene
         self.reasoner = reasoner
         self.follow_hands = follow_hands
         self.from_onset = from_onset
+        self.hand_config = hands or HandConfig()
         self.static = np.array([o.static for o in scene.objects], dtype=bool)
         self.last_pose = poses.copy()
         self.last_has_orientation = np.zeros(M, dtype=bool)
@@ -81,8 +84,10 @@ class PerceptionMemory:
         self.perceived_prev = np.zeros(M, dtype=bool)
         self.hold_hand: list[str | None] = [None] * M
         self.hold_offset = np.zeros((M, 3))
+        self._offset_n = np.zeros(M, dtype=int)
+        self._offset_t = np.full(M, -np.inf)
         self.hold_hand_position = np.full((M, 3), np.nan)
-        self._hand_history: dict[str, deque] = {}
+        self._hands: dict[str, HandFilter] = {}
         self._prev_tick_vel = np.zeros((M, 3))
         self._t_seen_at_tick = np.full(M, -np.inf)
         self._history: list[deque] = [deque() for _ in range(M)]
@@ -121,8 +126,7 @@ class PerceptionMemory:
         detected = np.zeros(self.M, dtype=bool)
         hr = self.reasoner
         for name, p in frame.hands.items():
-            hist = self._hand_history.setdefault(name, deque(maxlen=HAND_SMOOTHING))
-            hist.append(np.asarray(p, dtype=float))
+            self._hands.setdefault(name, HandFilter(self.hand_config)).update(frame.t, p)
         for oid, det in frame.objects.items():
             try:
                 m = self.scene.index(oid)
@@ -235,7 +239,9 @@ class PerceptionMemory:
                 self.still_position[m] = still + max(1.0 / self._still_n[m], 1.0 / STILL_FRAMES) * (position - still)
 
     def _nearest_hand(self, frame: Frame, m: int) -> None:
-        """Remember the tracked hand nearest to object m (within :data:`HAND_RADIUS`) and the offset."""
+        """Remember the tracked hand nearest to object m (within :data:`HAND_RADIUS`) and the
+        offset, averaged while the same hand stays nearest (:func:`~estimator.hands.average_offset`)."""
+        before = self.hold_hand[m]
         self.hold_hand[m] = None
         if not frame.hands:
             return
@@ -244,19 +250,24 @@ class PerceptionMemory:
         d = np.linalg.norm(hp - self.last_pose[m, :3], axis=1)
         best = int(np.argmin(d))
         if d[best] < HAND_RADIUS:
-            self.hold_hand[m] = names[best]
-            self.hold_offset[m] = self.last_pose[m, :3] - hp[best]
-            self.hold_hand_position[m] = self.hand_position(names[best])
+            name = names[best]
+            n = self._offset_n[m] if name == before else 0
+            self.hold_offset[m], self._offset_n[m] = average_offset(
+                self.hold_offset[m], n, frame.t - self._offset_t[m], self.last_pose[m, :3] - hp[best],
+                self.hand_config)
+            self._offset_t[m] = frame.t
+            self.hold_hand[m] = name
+            self.hold_hand_position[m] = self.hand_position(name)
 
     def hand_position(self, name: str) -> np.ndarray:
-        """Position ``(3,)`` m of tracked hand ``name``: the mean of its last :data:`HAND_SMOOTHING`
-        frames (NaN if never tracked)."""
-        hist = self._hand_history.get(name)
-        return np.mean(np.array(hist), axis=0) if hist else np.full(3, np.nan)
+        """Position ``(3,)`` m of tracked hand ``name``, filtered (:class:`~estimator.hands.HandFilter`;
+        NaN if never tracked)."""
+        hand = self._hands.get(name)
+        return hand.position if hand is not None else np.full(3, np.nan)
 
     def hand_travel(self) -> np.ndarray:
         """Distance ``(M,)`` (m) the hand that held each object when it was last detected has moved
-        since then (smoothed positions, :meth:`hand_position`); NaN for objects without one."""
+        since then (filtered positions, :meth:`hand_position`); NaN for objects without one."""
         out = np.full(self.M, np.nan)
         for m, name in enumerate(self.hold_hand):
             if name is not None:
@@ -331,10 +342,12 @@ class PerceptionMemory:
         return np.array([h is not None and h in frame.hands for h in self.hold_hand])
 
     def hand_target(self, frame: Frame, m: int) -> np.ndarray | None:
-        """Where object m is, ``(3,)`` m, if it follows its tracked hand in ``frame``; else None."""
+        """Where object m is, ``(3,)`` m, if it follows its tracked hand in ``frame``: the hand's
+        filtered position (:meth:`hand_position`; ``frame`` recorded) plus the object's offset to it;
+        else None."""
         hand = self.hold_hand[m]
         if hand is not None and hand in frame.hands and self.follow_hands:
-            return np.asarray(frame.hands[hand]) + self.hold_offset[m]
+            return self.hand_position(hand) + self.hold_offset[m]
         return None
 
     def stale_in_hand(self, frame: Frame) -> np.ndarray:
@@ -348,7 +361,7 @@ class PerceptionMemory:
     def detections_now(self, stale: np.ndarray, t: float, aged: np.ndarray | None = None) -> np.ndarray:
         """The latest detections ``(M, 7)`` carried on to the update's frame at ``t`` (s): those of
         ``stale (M,)`` (:meth:`stale_in_hand`) with their hand (a cup carried at 1.3 m/s is 9 cm on
-        two frames after its last detection), by the hand's displacement since, between its smoothed
+        two frames after its last detection), by the hand's displacement since, between its filtered
         positions (:meth:`hand_position`, as :meth:`hand_travel`; a raw hand position is noisier
         than a detection); the other ``aged (M,)`` ones detected before ``t`` and seen moving at
         their perceived velocity (:meth:`position_at`: a ball flicked at 1 m/s is 3 cm on one frame

@@ -118,6 +118,7 @@ def test_held_targets_follow_the_tracked_hand_or_drift():
         model = make(EstimatorConfig(particles=3, noise=NoiseConfig(held_drift_std=0.05, held_offset_std=0.0),
                                      follow_hands=follow))
         st = model.initial_state(np.random.default_rng(0))
+        model.memory.record(frame)  # the hand's first position: the filter's
         model.memory.hold_hand[CUP] = "human/right"
         model.memory.hold_offset[CUP] = [0.0, 0.0, -0.05]
         modes = st.modes.copy()
@@ -250,6 +251,7 @@ def test_held_target_adds_each_particles_offset_error_to_the_tracked_hand():
     frame = Frame(1.0, {}, {"human/right": np.array([1.0, 0.0, 1.0])})
     model = make(EstimatorConfig(particles=3, noise=NoiseConfig(held_offset_std=0.02, held_offset_time=0.5)))
     st = model.initial_state(np.random.default_rng(0))
+    model.memory.record(frame)
     model.memory.hold_hand[CUP] = "human/right"
     model.memory.hold_offset[CUP] = [0.0, 0.0, -0.05]
     modes = st.modes.copy()
@@ -268,16 +270,20 @@ def test_held_target_adds_each_particles_offset_error_to_the_tracked_hand():
     model.memory.last_seen[CUP] = frame.t  # detected in this update's last frame
     _, _, err = model.held_targets(frame, st.poses, modes, detected, detected, 0.1, np.random.default_rng(3), before)
     assert np.all(err == 0)
-    # detected in an earlier frame of the update only: the hand has moved on since (its smoothed
+    # detected in an earlier frame of the update only: the hand has moved on since (its filtered
     # position, over the frames recorded since), and the object with it, plus each particle's error
     from estimator.observations import Detection
-    model.memory.record(Frame(0.9, {"cup": Detection(np.array([1.0, 0.0, 0.95]))}, {"human/right": [1.0, 0.0, 1.0]}))
-    model.memory.record(Frame(1.0, {}, {"human/right": [1.06, 0.0, 1.0]}))
-    stale = model.memory.stale_in_hand(frame) & detected  # as the model's move computes them
-    target, _, err = model.held_targets(frame, st.poses, modes, detected, detected, 0.1, np.random.default_rng(3),
-                                        before, None, None, model.memory.detections_now(stale, frame.t), stale)
+    mem = model.memory
+    mem.record(Frame(1.1, {"cup": Detection(np.array([1.0, 0.0, 0.95]))}, {"human/right": [1.0, 0.0, 1.0]}))
+    later = Frame(1.2, {}, {"human/right": [1.06, 0.0, 1.0]})
+    mem.record(later)
+    moved = mem.hand_position("human/right") - mem.hold_hand_position[CUP]
+    assert 0.0 < moved[0] <= 0.06 and np.allclose(moved[1:], 0.0)
+    stale = mem.stale_in_hand(later) & detected  # as the model's move computes them
+    target, _, err = model.held_targets(later, st.poses, modes, detected, detected, 0.1, np.random.default_rng(3),
+                                        before, None, None, mem.detections_now(stale, later.t), stale)
     np.testing.assert_allclose(err[:, CUP], expect)
-    np.testing.assert_allclose(target[:, CUP, :3], np.array([1.03, 0.0, 0.95]) + expect)
+    np.testing.assert_allclose(target[:, CUP, :3], np.array([1.0, 0.0, 0.95]) + moved + expect)
 
 
 def test_release_on_loss_depends_on_whether_the_tracked_hand_carried_the_object():

@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from estimator.config import ReasonerConfig
+from estimator.config import HandConfig, ReasonerConfig
 from estimator.model import initial_poses
 from estimator.observations import Detection, Frame
 from estimator.perception_memory import VELOCITY_WINDOW, PerceptionMemory
@@ -13,12 +13,12 @@ from physics.scene import scene_from_dict
 TABLE, CUP, BALL = range(3)
 
 
-def memory(follow_hands=True, reasoner=ReasonerConfig(), from_onset=True):
+def memory(follow_hands=True, reasoner=ReasonerConfig(), from_onset=True, hands=None):
     sc = scene_from_dict({"objects": [
         {"id": "table", "static": True, "box": {"size": [1.0, 1.0, 0.1]}, "pose": {"position": [0, 0, 0.05]}},
         {"id": "cup", "cylinder": {"radius": 0.03, "height": 0.08}, "pose": {"position": [0.3, 0.3, 0.14]}},
         {"id": "ball", "sphere": {"radius": 0.03}}]})
-    return PerceptionMemory(sc, initial_poses(sc)[0], reasoner, follow_hands, from_onset)
+    return PerceptionMemory(sc, initial_poses(sc)[0], reasoner, follow_hands, from_onset, hands)
 
 
 def det(p, q=None, std=None):
@@ -56,14 +56,15 @@ def test_perceived_within_t_perceived_and_jumps():
 
 
 def test_nearest_tracked_hand_within_30_cm():
-    mem = memory()
+    mem = memory(hands=HandConfig(filtered=False))
     hands = {"human/left": np.array([1.0, 0.0, 1.0]), "human/right": np.array([0.3, 0.3, 0.34])}
     mem.record(Frame(0.0, {"cup": det([0.3, 0.3, 0.14])}, hands))
     assert mem.hold_hand[CUP] == "human/right" and np.allclose(mem.hold_offset[CUP], [0, 0, -0.2])
     assert list(mem.following_hand(Frame(0.1, {}, hands))) == [False, True, False]
     assert list(mem.following_hand(Frame(0.1, {}, {"human/left": hands["human/left"]}))) == [False] * 3
-    assert np.allclose(mem.hand_target(Frame(0.1, {}, {"human/right": np.array([0.0, 0.0, 1.0])}), CUP),
-                       [0.0, 0.0, 0.8])
+    moved = Frame(0.1, {}, {"human/right": np.array([0.0, 0.0, 1.0])})
+    mem.record(moved)
+    assert np.allclose(mem.hand_target(moved, CUP), [0.0, 0.0, 0.8])
     mem.record(Frame(0.2, {"cup": det([0.3, 0.3, 0.14])}, {"human/right": np.array([0.3, 0.3, 0.45])}))
     assert mem.hold_hand[CUP] is None  # 31 cm away: not holding it
     off = memory(follow_hands=False)
@@ -74,13 +75,13 @@ def test_nearest_tracked_hand_within_30_cm():
 
 def test_a_detection_from_an_earlier_frame_is_carried_on_by_its_tracked_hand():
     """An object detected in an earlier frame of the update, not in the last one, has moved on with
-    its tracked hand: by the displacement of the hand's smoothed position since (exact on uniform
-    motion); one detected in the last frame, or without a tracked hand, is at its detection; not
+    its tracked hand: by the displacement of the hand's filtered position since (exact on uniform
+    motion, once the filter has caught up with it); one detected in the last frame, or without a tracked hand, is at its detection; not
     one seen falling (its hand let it go)."""
     mem = memory()
     step = np.array([0.0, 0.045, 0.0])  # 1.35 m/s
     hand0 = np.array([0.3, 0.3, 0.34])
-    for f in range(-2, 1):  # carried in view; the ball, far from the hand, lies still
+    for f in range(-40, 1):  # carried in view; the ball, far from the hand, lies still
         mem.record(Frame(f / 30, {"cup": det(hand0 + f * step - [0, 0, 0.2]), "ball": det([0.0, 0.0, 0.2])},
                          {"human/right": hand0 + f * step}))
     assert not mem.stale_in_hand(Frame(0.0, {}, {"human/right": hand0})).any()
@@ -89,7 +90,7 @@ def test_a_detection_from_an_earlier_frame_is_carried_on_by_its_tracked_hand():
     later = Frame(2 / 30, {}, {"human/right": hand0 + 2 * step})
     assert list(mem.stale_in_hand(later)) == [False, True, False]
     at = mem.detections_now(mem.stale_in_hand(later), later.t)
-    np.testing.assert_allclose(at[CUP, :3], hand0 + 2 * step - [0, 0, 0.2], atol=1e-12)
+    np.testing.assert_allclose(at[CUP, :3], hand0 + 2 * step - [0, 0, 0.2], atol=1e-6)
     np.testing.assert_allclose(at[BALL], mem.last_pose[BALL])  # no hand near it: at its detection
     np.testing.assert_allclose(at[CUP, 3:], mem.last_pose[CUP, 3:])
     assert not mem.stale_in_hand(Frame(2 / 30, {}, {})).any()  # the hand is not tracked now
@@ -178,22 +179,47 @@ def test_detections_and_hands_outside_the_workspace_are_rejected_and_counted():
 
 
 
-def test_hand_travel_is_the_smoothed_hand_displacement_since_the_object_was_last_seen():
-    """The hand's position is the mean of its last HAND_SMOOTHING frames, remembered at each
-    detection of the object it holds; hand_travel is the distance from there to the hand now
-    (NaN for objects no hand held)."""
-    from estimator.perception_memory import HAND_SMOOTHING
+def test_hand_travel_is_the_filtered_hand_displacement_since_the_object_was_last_seen():
+    """The hand's position is its filtered one (estimator.hands), remembered at each detection of
+    the object it holds; hand_travel is the distance from there to the hand now (NaN for objects
+    no hand held). Exact positions: a still hand is where it is; one that moved and stopped is,
+    after a second, where it stopped."""
     mem = memory()
-    hands = [np.array([0.3, 0.3, 0.25 + 0.01 * k]) for k in range(HAND_SMOOTHING)]
-    for k, h in enumerate(hands):
-        mem.record(Frame(0.1 * k, {"cup": det([0.3, 0.3, 0.14])}, {"human/right": h}))
-    at_seen = np.mean(hands, axis=0)
-    np.testing.assert_allclose(mem.hold_hand_position[CUP], at_seen)
+    a, b = np.array([0.3, 0.3, 0.25]), np.array([0.5, 0.3, 0.3])
+    for k in range(3):
+        mem.record(Frame(k / 30, {"cup": det([0.3, 0.3, 0.14])}, {"human/right": a}))
+    np.testing.assert_allclose(mem.hold_hand_position[CUP], a)
     assert mem.hand_travel()[CUP] == pytest.approx(0.0) and np.isnan(mem.hand_travel()[BALL])
-    later = [np.array([0.5, 0.3, 0.3])] * HAND_SMOOTHING
-    for k, h in enumerate(later):
-        mem.record(Frame(1.0 + 0.1 * k, {}, {"human/right": h}))
-    assert mem.hand_travel()[CUP] == pytest.approx(np.linalg.norm(later[0] - at_seen))
+    for k in range(3, 40):
+        mem.record(Frame(k / 30, {}, {"human/right": b}))
+    assert mem.hand_travel()[CUP] == pytest.approx(np.linalg.norm(b - a), abs=1e-3)
+
+
+def test_held_offset_is_averaged_over_the_frames_that_show_object_and_hand():
+    """A cup held 11 cm under a hand tracked 1 cm off per axis, both seen for 2 s: its offset is
+    the average of (detection - raw hand), within 3 standard deviations of the exponential
+    average's (sigma sqrt(a / (2 - a)), a the weight of a frame) on every axis, where one frame's
+    is sigma; unfiltered, the last frame's difference. A new grasp (a difference beyond the gate)
+    starts the average again; hand_target is the filtered hand plus the offset."""
+    offset = np.array([0.0, 0.0, -0.11])
+    rng = np.random.default_rng(5)
+    frames = []
+    for k in range(60):
+        hand = np.array([0.3 + 0.2 * k / 30, 0.3, 0.25])
+        frames.append(Frame(k / 30, {"cup": det(hand + offset)}, {"human/right": hand + rng.normal(0, 0.01, 3)}))
+    mem, raw = memory(), memory(hands=HandConfig(filtered=False))
+    for f in frames:
+        mem.record(f)
+        raw.record(f)
+    a = 1.0 - math.exp(-(1 / 30) / HandConfig().offset_time)
+    assert np.all(np.abs(mem.hold_offset[CUP] - offset) < 3 * 0.01 * math.sqrt(a / (2 - a)))
+    last = frames[-1]
+    np.testing.assert_allclose(raw.hold_offset[CUP], last.objects["cup"].position - last.hands["human/right"])
+    at = mem.hand_target(Frame(2.0, {}, last.hands), CUP)
+    np.testing.assert_allclose(at, mem.hand_position("human/right") + mem.hold_offset[CUP])
+    regrasp = np.array(last.hands["human/right"]) + [0.0, 0.06, -0.05]
+    mem.record(Frame(2.0, {"cup": det(regrasp)}, last.hands))
+    np.testing.assert_allclose(mem.hold_offset[CUP], regrasp - last.hands["human/right"])
 
 
 def test_motion_onset_is_the_last_still_detection_and_ends_when_still_again():

@@ -17,9 +17,14 @@ What is fitted (see :class:`actions.modes.ModePriors` and :class:`estimator.conf
 * ``put_down_touched``: of the stretches out of view in which an object held in truth rests on
   something and the tracked hand then rises more than ``carry_distance``, the fraction where the
   object was no longer held when the hand had risen; Laplace's rule.
-* ``held_offset_std``: over the frames where an object is held in truth and not detected, after a
-  detection with a tracked hand within that radius, the root-mean-square per axis of the true
-  position minus (the tracked hand + the object's offset to it at that detection).
+* ``held_offset_std``: the estimator's perception memory replayed on the stream (with the
+  ``EstimatorConfig.hands`` given: filtered hands, averaged offsets); over the frames where an
+  object is held in truth and not detected, after a detection with a tracked hand within that
+  radius, the root-mean-square per axis of the true position minus where the memory puts it (the
+  hand now plus the object's offset to it:
+  :meth:`~estimator.perception_memory.PerceptionMemory.hand_target`).
+* ``hand_std`` (:class:`~estimator.config.HandConfig` ``measurement_std``): over the frames with a
+  tracked hand, the root-mean-square per axis of the tracked minus the true hand.
 * ``held_out_of_reach``: over the frames with a tracked hand where an object is held in truth and
   detected, the fraction where its detection lies farther than
   :data:`~estimator.perception_memory.HAND_RADIUS` from every tracked hand; Laplace's rule.
@@ -52,10 +57,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from actions.modes import ModePriors
-from estimator.config import RELEASE_DOWN_SPEED, EstimatorConfig, ReasonerConfig, reasoning_due
+from estimator.config import RELEASE_DOWN_SPEED, EstimatorConfig, HandConfig, ReasonerConfig, reasoning_due
 from estimator.model import initial_poses
 from estimator.observations import parse_frame
-from estimator.perception_memory import HAND_RADIUS, HAND_SMOOTHING, PerceptionMemory
+from estimator.hands import filtered_track
+from estimator.perception_memory import HAND_RADIUS, PerceptionMemory
 from estimator.tracker import PhysicsAwareTracker, TrackerConfig
 from physics.visibility import Camera, local_sample_points, visible_fraction
 from physics.world import PhysicsSettings, World
@@ -105,33 +111,39 @@ def _hand_track(obs: list[dict]) -> list[np.ndarray | None]:
     return [None if not o.get("hands") else np.asarray(next(iter(o["hands"].values())), float) for o in obs]
 
 
-def _smoothed(hands: list[np.ndarray | None], f: int) -> np.ndarray | None:
-    """Mean of the last :data:`HAND_SMOOTHING` tracked hand positions up to frame ``f``."""
-    pts = [h for h in hands[max(0, f - 4 * HAND_SMOOTHING):f + 1] if h is not None][-HAND_SMOOTHING:]
-    return np.mean(pts, axis=0) if pts else None
+def _filtered(hands: list[np.ndarray | None], t_obs: np.ndarray, config: HandConfig) -> list[np.ndarray | None]:
+    """The hand as the estimator's memory reads it at each frame (:func:`~estimator.hands.filtered_track`:
+    its latest filtered position, None before the first)."""
+    raw = np.array([np.full(3, np.nan) if h is None else h for h in hands]).reshape(-1, 3)
+    track = filtered_track(t_obs, raw, config)
+    out, last = [], None
+    for row in track:
+        last = row if np.all(np.isfinite(row)) else last
+        out.append(last)
+    return out
 
 
 def count_losses(obs: list[dict], truth: list[dict], reasoner: ReasonerConfig, priors: ModePriors,
-                 carried: Counts, still: Counts, spread: Spread, hidden: Counts | None = None,
-                 put_down: Counts | None = None) -> None:
-    """Add the losses of held objects in one run (``obs``, ``truth``: the simulator's lines) and the
-    offset deviations of held, undetected objects to ``spread``; ``hidden``: of the carried losses
-    still held at the loss, those let go before the object was detected again (or the run ended);
-    ``put_down``: of those let go, the ones that came to rest at most ``push_lift`` below the height
-    they were let go at (put down, not dropped)."""
+                 carried: Counts, still: Counts, hidden: Counts | None = None,
+                 put_down: Counts | None = None, hands_config: HandConfig | None = None) -> None:
+    """Add the losses of held objects in one run (``obs``, ``truth``: the simulator's lines), the hand
+    read as the estimator reads it (``hands_config``, default :class:`~estimator.config.HandConfig`);
+    ``hidden``: of the carried losses still held at the loss, those let go before the object was
+    detected again (or the run ended); ``put_down``: of those let go, the ones that came to rest at
+    most ``push_lift`` below the height they were let go at (put down, not dropped)."""
     t_obs = np.array([o["t"] for o in obs])
     t_true = np.array([r["t"] for r in truth])
     hands = _hand_track(obs)
+    smooth = _filtered(hands, t_obs, hands_config or HandConfig())
     ids = set().union(*(o["objects"].keys() for o in obs)) if obs else set()
     for oid in sorted(ids):
         seen = [i for i, o in enumerate(obs) if oid in o["objects"]]
         for a, b in zip(seen, seen[1:] + [None]):
-            _add_spread(obs, truth, t_true, hands, oid, a, len(obs) if b is None else b, spread)
             t0 = t_obs[a]
             t_loss = t0 + reasoner.t_perceived
             if (b is not None and t_obs[b] <= t_loss + 1e-9) or t_loss > t_obs[-1]:
                 continue
-            hand0 = _smoothed(hands, a)
+            hand0 = smooth[a]
             pos0 = np.asarray(obs[a]["objects"][oid]["position"], float)
             i0 = _nearest(t_true, t0)
             if hand0 is None or hands[a] is None or np.linalg.norm(hands[a] - pos0) >= HAND_RADIUS:
@@ -139,7 +151,7 @@ def count_losses(obs: list[dict], truth: list[dict], reasoner: ReasonerConfig, p
             if not truth[i0]["objects"][oid].get("held"):
                 continue
             f_loss = int(np.searchsorted(t_obs, t_loss - 1e-9))
-            hand1 = _smoothed(hands, min(f_loss, len(obs) - 1))
+            hand1 = smooth[min(f_loss, len(obs) - 1)]
             if hand1 is None:
                 continue
             i1 = _nearest(t_true, t_loss)
@@ -155,39 +167,56 @@ def count_losses(obs: list[dict], truth: list[dict], reasoner: ReasonerConfig, p
                     put_down.add(bool(drop <= reasoner.push_lift))
 
 
-def _add_spread(obs, truth, t_true, hands, oid: str, a: int, b: int, spread: Spread) -> None:
-    """Deviations of ``oid`` in the frames ``a+1 .. b-1`` after its detection in frame ``a``."""
-    pos0 = np.asarray(obs[a]["objects"][oid]["position"], float)
-    if hands[a] is None or np.linalg.norm(hands[a] - pos0) >= HAND_RADIUS:
-        return
-    offset = pos0 - hands[a]
-    for f in range(a + 1, b):
-        i = _nearest(t_true, obs[f]["t"])
-        o = truth[i]["objects"][oid]
-        if hands[f] is None or not o.get("held"):
-            return
-        d = np.asarray(o["position"], float) - (hands[f] + offset)
-        spread.ss += float(d @ d)
-        spread.n += 1
+def count_offsets(result, config: EstimatorConfig, spread: Spread, hand_error: Spread | None = None) -> None:
+    """Add to ``spread`` the deviations of held, undetected objects from where the estimator's
+    perception memory (``config.reasoner``, ``config.hands``; replayed on the stream of ``result``,
+    the simulator's) puts them by their hand (:meth:`~estimator.perception_memory.PerceptionMemory.hand_target`),
+    one per frame while the truth holds them; to ``hand_error``, the tracked minus the true hand of
+    every frame with a tracked hand the truth also has."""
+    scene = result.scene
+    memory = PerceptionMemory(scene, initial_poses(scene)[0], config.reasoner, follow_hands=True,
+                              hands=config.hands)
+    t_true = np.array([r["t"] for r in result.truth])
+    ids = scene.object_ids
+    for line in result.observations:
+        frame = memory.admit(parse_frame(line, known_ids=ids))
+        detected = memory.record(frame)
+        row = result.truth[_nearest(t_true, frame.t)]
+        if hand_error is not None:
+            for name, p in frame.hands.items():
+                if name in (row.get("hands") or {}):
+                    d = np.asarray(p, float) - np.asarray(row["hands"][name], float)
+                    hand_error.ss += float(d @ d)
+                    hand_error.n += 1
+        for m, oid in enumerate(ids):
+            o = row["objects"].get(oid, {})
+            if detected[m] or not o.get("held"):
+                continue
+            at = memory.hand_target(frame, m)
+            if at is not None:
+                d = np.asarray(o["position"], float) - at
+                spread.ss += float(d @ d)
+                spread.n += 1
 
 
-def count_set_downs(obs: list[dict], truth: list[dict], priors: ModePriors, touched: Counts) -> None:
+def count_set_downs(obs: list[dict], truth: list[dict], priors: ModePriors, touched: Counts,
+                    hands_config: HandConfig | None = None) -> None:
     """Add the set-downs out of view of one run (``obs``, ``truth``: the simulator's lines): an object
     held in truth and not detected rests on something (a truth relation with it as subject) while
-    held, and then the tracked hand (smoothed as the estimator does) rises more than
-    ``carry_distance`` above its height at that moment, before the object is detected again: a hit
-    when the object is no longer held in truth then. One sample per such stretch out of view."""
+    held, and then the tracked hand (filtered as the estimator does, ``hands_config``) rises more
+    than ``carry_distance`` above its height at that moment, before the object is detected again: a
+    hit when the object is no longer held in truth then. One sample per such stretch out of view."""
     t_true = np.array([r["t"] for r in truth])
-    hands = _hand_track(obs)
+    hands = _filtered(_hand_track(obs), np.array([o["t"] for o in obs]), hands_config or HandConfig())
     ids = sorted({oid for r in truth for oid, o in r["objects"].items() if o.get("held")})
     for oid in ids:
-        touch_z = None  # the smoothed hand's height when the held object rested, out of view
+        touch_z = None  # the filtered hand's height when the held object rested, out of view
         for f, o in enumerate(obs):
             if oid in o["objects"]:
                 touch_z = None
                 continue
             row = truth[_nearest(t_true, o["t"])]
-            hand = _smoothed(hands, f)
+            hand = hands[f]
             if hand is None or touch_z is False:
                 continue
             if touch_z is None:
@@ -324,12 +353,13 @@ def fit_priors(scenarios: list[str] | None = None, seeds=FIT_SEEDS, config: Esti
 
     Returns ``{"release_on_loss_carried": p, "release_on_loss_still": p, "release_hidden": p, "put_down_hidden": p,
     "put_down_touched": p,
-    "held_out_of_reach": p, "hand_occlusion": p, "held_offset_std": m, "release_accel": m/s^2, "accel_std": m/s^2,
+    "held_out_of_reach": p, "hand_occlusion": p, "held_offset_std": m, "hand_std": m, "release_accel": m/s^2,
+    "accel_std": m/s^2,
     "counts": {name: [hits, n] (release_accel: errors, samples, extremes)}, "scenarios": [...],
     "seeds": [...]}``."""
     cfg = config or EstimatorConfig()
     names = [n for n in (scenarios or list_scenarios()) if load_scenario(n).perception.hands_tracked]
-    carried, still, hidden, occluded, spread = Counts(), Counts(), Counts(), Counts(), Spread()
+    carried, still, hidden, occluded, spread, hand_error = Counts(), Counts(), Counts(), Counts(), Spread(), Spread()
     put_down, touched = Counts(), Counts()
     reach, held_down, let_go_down, accels = Counts(), [], [], []
     for name in names:
@@ -337,9 +367,10 @@ def fit_priors(scenarios: list[str] | None = None, seeds=FIT_SEEDS, config: Esti
             result = simulate(name, int(seed))
             for filtered in (False, True):  # raw detections, and as the Kalman tracker filters them
                 count_descents(result, cfg.reasoner, held_down, let_go_down, filtered=filtered)
-            count_losses(result.observations, result.truth, cfg.reasoner, cfg.priors, carried, still, spread, hidden,
-                         put_down)
-            count_set_downs(result.observations, result.truth, cfg.priors, touched)
+            count_losses(result.observations, result.truth, cfg.reasoner, cfg.priors, carried, still, hidden,
+                         put_down, cfg.hands)
+            count_offsets(result, cfg, spread, hand_error)
+            count_set_downs(result.observations, result.truth, cfg.priors, touched, cfg.hands)
             count_hand_occlusion(result, cfg.visibility_threshold, occluded)
             count_out_of_reach(result.observations, result.truth, reach)
             count_accelerations(result.truth, accels)
@@ -349,11 +380,13 @@ def fit_priors(scenarios: list[str] | None = None, seeds=FIT_SEEDS, config: Esti
             "release_hidden": round(hidden.p, 3), "put_down_hidden": round(put_down.p, 3),
             "put_down_touched": round(touched.p, 3), "held_out_of_reach": float(f"{reach.p:.2g}"),
             "hand_occlusion": round(occluded.p, 3), "held_offset_std": round(spread.std, 4),
+            "hand_std": round(hand_error.std, 4),
             "release_accel": round(accel, 2),
             "accel_std": round(float(np.percentile(carry, 99)), 1) if carry.size else float("nan"),
             "counts": {"accel_std": {"samples": int(carry.size),
                                      "rms": round(float(np.sqrt(np.mean(carry ** 2))), 2) if carry.size else None},
                        "held_offset_std": [round(spread.ss, 6), spread.n],
+                       "hand_std": [round(hand_error.ss, 6), hand_error.n],
                        "release_on_loss_carried": [carried.hits, carried.n],
                        "release_on_loss_still": [still.hits, still.n], "release_hidden": [hidden.hits, hidden.n],
                        "put_down_hidden": [put_down.hits, put_down.n],
