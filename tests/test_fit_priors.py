@@ -90,6 +90,30 @@ def test_offsets_are_measured_where_the_estimators_memory_puts_held_objects():
     assert raw.std > 0.011 and filtered.std < 0.8 * raw.std
 
 
+def test_the_command_fits_with_the_configuration_it_is_given(tmp_path, capsys):
+    """``fit-priors --config FILE`` replays the estimator's memory with that file's hands: raw hands
+    and one-frame offsets put a carried cup farther from where it is than the filtered defaults
+    (a carry behind a box, one seed); a bad field is named with its file."""
+    import json
+
+    from experiments.cli.fit import run_fit
+    from physics.errors import ConfigError
+    raw = tmp_path / "raw.yaml"
+    raw.write_text("hands: {filtered: false}\n")
+    spreads = {}
+    for name, config in (("filtered", None), ("raw", str(raw))):
+        args = SimpleNamespace(scenarios="cup_carried_behind_box", seeds="100-100", regions=False, particles=64,
+                               workers=1, samples=None, config=config)
+        assert run_fit(args) == 0
+        spreads[name] = json.loads(capsys.readouterr().out)["held_offset_std"]
+    assert spreads["filtered"] < spreads["raw"]
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("hands:\n  offset_gate: -1\n")
+    with pytest.raises(ConfigError, match="bad.yaml:2"):
+        run_fit(SimpleNamespace(scenarios="cup_carried_behind_box", seeds="100-100", regions=False, particles=64,
+                                workers=1, samples=None, config=str(bad)))
+
+
 def test_set_downs_out_of_view_are_counted_when_the_hand_lifts_away():
     """Out of view, the held cup rests on the table (a truth relation) while the hand is at 0.8 m;
     once the hand is more than carry_distance higher, the sample is whether the cup is still held.

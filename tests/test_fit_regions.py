@@ -109,9 +109,12 @@ def test_collected_samples_are_the_hidden_ones_of_a_run_whatever_the_workers(tmp
 
 
 def test_the_command_rejects_bad_counts_and_unknown_scenarios_before_running():
-    args = SimpleNamespace(scenarios="all", seeds="100-100", regions=True, particles=0, workers=1, samples=None)
+    args = SimpleNamespace(scenarios="all", seeds="100-100", regions=True, particles=0, workers=1, samples=None,
+                           config=None)
     with pytest.raises(ValueError, match="--particles"):
         run_fit(args)
+    with pytest.raises(ValueError, match="--config"):  # the regions fit is of the defaults
+        run_fit(SimpleNamespace(**{**vars(args), "particles": 4, "config": "c.yaml"}))
     with pytest.raises(InputError, match="no_such_scenario"):
         collect_region_samples(["cup_falls_behind_box", "no_such_scenario"], [100], particles=4, workers=2)
 
@@ -129,7 +132,7 @@ def test_samples_saved_are_read_back_and_the_command_refits_from_them_without_ru
     assert back.scenarios == samples.scenarios and not (tmp_path / "samples.npz.tmp.npz").exists()
     # an existing file is fitted as it is: no scenario is run (an unknown name would fail if one were)
     args = SimpleNamespace(scenarios="no_such_scenario", seeds="100-100", regions=True, particles=4, workers=1,
-                           samples=str(path))
+                           samples=str(path), config=None)
     assert run_fit(args) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["samples"] == 3000 and out["samples_file"] == str(path) and "seeds" not in out

@@ -8,6 +8,7 @@ import json
 import os
 import shutil
 
+from estimator.config import load_config
 from experiments.evaluation.fit_priors import FIT_SEEDS, fit_priors
 from experiments.evaluation.fit_regions import RegionSamples, collect_region_samples, fit_regions, region_config
 
@@ -36,6 +37,9 @@ def add_fit_arguments(p: argparse.ArgumentParser) -> None:
                         "freedom): runs the particle estimator on every scenario x seed")
     p.add_argument("--particles", type=int, default=64, help="particles of the --regions runs (default 64)")
     p.add_argument("--workers", type=int, default=1, help="processes of the --regions runs (default 1)")
+    p.add_argument("--config", metavar="FILE", default=None,
+                   help="estimator configuration file (YAML or JSON) whose reasoner, priors and hands the priors fit "
+                        "replays (default: the particle filter's defaults); not with --regions")
     p.add_argument("--samples", default=None,
                    help="with --regions: an .npz of the collected samples; read if it exists (no runs: re-fit "
                         "only), else written once collected (each trial's samples go to FILE.parts/ as it "
@@ -44,6 +48,8 @@ def add_fit_arguments(p: argparse.ArgumentParser) -> None:
 
 def run_fit(args) -> int:
     names = None if args.scenarios == "all" else [s.strip() for s in args.scenarios.split(",") if s.strip()]
+    if args.regions and args.config:
+        raise ValueError("--config: the regions fit runs the estimator's defaults; use --config without --regions")
     if args.regions:
         if args.particles < 1 or args.workers < 1:
             raise ValueError(f"--particles and --workers must be >= 1, got {args.particles}, {args.workers}")
@@ -65,5 +71,6 @@ def run_fit(args) -> int:
             fit.update(seeds=[int(s) for s in seed_range(args.seeds)], particles=args.particles)
         print(json.dumps(fit, indent=1))
         return 0
-    print(json.dumps(fit_priors(names, seed_range(args.seeds)), indent=1))
+    config = load_config(args.config) if args.config else None
+    print(json.dumps(fit_priors(names, seed_range(args.seeds), config), indent=1))
     return 0

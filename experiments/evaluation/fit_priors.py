@@ -356,7 +356,9 @@ def fit_priors(scenarios: list[str] | None = None, seeds=FIT_SEEDS, config: Esti
     "held_out_of_reach": p, "hand_occlusion": p, "held_offset_std": m, "hand_std": m, "release_accel": m/s^2,
     "accel_std": m/s^2,
     "counts": {name: [hits, n] (release_accel: errors, samples, extremes)}, "scenarios": [...],
-    "seeds": [...]}``."""
+    "seeds": [...]}``; ``release_accel`` is None when no held object was perceived moving down.
+    ``config``: the estimator configuration replayed (reasoner, priors, hands; default
+    :class:`~estimator.config.EstimatorConfig`)."""
     cfg = config or EstimatorConfig()
     names = [n for n in (scenarios or list_scenarios()) if load_scenario(n).perception.hands_tracked]
     carried, still, hidden, occluded, spread, hand_error = Counts(), Counts(), Counts(), Counts(), Spread(), Spread()
@@ -374,14 +376,15 @@ def fit_priors(scenarios: list[str] | None = None, seeds=FIT_SEEDS, config: Esti
             count_hand_occlusion(result, cfg.visibility_threshold, occluded)
             count_out_of_reach(result.observations, result.truth, reach)
             count_accelerations(result.truth, accels)
-    accel, accel_errors = best_threshold(held_down, let_go_down)
+    # no held object perceived moving down in these runs (one scenario, say): nothing to fit
+    accel, accel_errors = best_threshold(held_down, let_go_down) if held_down or let_go_down else (None, 0)
     carry = np.abs(np.asarray(accels, float))
     return {"release_on_loss_carried": round(carried.p, 3), "release_on_loss_still": round(still.p, 3),
             "release_hidden": round(hidden.p, 3), "put_down_hidden": round(put_down.p, 3),
             "put_down_touched": round(touched.p, 3), "held_out_of_reach": float(f"{reach.p:.2g}"),
             "hand_occlusion": round(occluded.p, 3), "held_offset_std": round(spread.std, 4),
             "hand_std": round(hand_error.std, 4),
-            "release_accel": round(accel, 2),
+            "release_accel": None if accel is None else round(accel, 2),
             "accel_std": round(float(np.percentile(carry, 99)), 1) if carry.size else float("nan"),
             "counts": {"accel_std": {"samples": int(carry.size),
                                      "rms": round(float(np.sqrt(np.mean(carry ** 2))), 2) if carry.size else None},
