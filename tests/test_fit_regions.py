@@ -9,8 +9,8 @@ import pytest
 from estimator.config import config_from_dict
 from experiments.cli.fit import run_fit
 from physics.errors import InputError
-from experiments.evaluation.fit_regions import (LEVELS, RegionSamples, collect_region_samples, fit_regions,
-                                                region_config, region_coverage)
+from experiments.evaluation.fit_regions import (FLOORS, LEVELS, RegionSamples, collect_region_samples,
+                                                fit_regions, region_config, region_coverage)
 
 
 def _samples(rng, n, floor, speed_time, dof, scenarios=2):
@@ -24,7 +24,9 @@ def _samples(rng, n, floor, speed_time, dof, scenarios=2):
     z = np.einsum("nij,nj->ni", np.linalg.cholesky(total), rng.standard_normal((n, 3)))
     if math.isfinite(dof):
         z *= np.sqrt((dof - 2) / rng.chisquare(dof, size=n))[:, None]  # covariance kept: scale (dof - 2) / dof
-    return RegionSamples(z, cov, speed, np.arange(n) % scenarios, tuple(f"s{i}" for i in range(scenarios)))
+    # trials of 5 samples each, every trial in one scenario
+    trial = np.arange(n) // (5 * scenarios) * scenarios + np.arange(n) % scenarios
+    return RegionSamples(z, cov, speed, np.arange(n) % scenarios, tuple(f"s{i}" for i in range(scenarios)), trial)
 
 
 @pytest.mark.parametrize("dof", [3.0, math.inf])
@@ -53,6 +55,36 @@ def test_the_fit_recovers_the_model_the_samples_come_from(dof):
     noise = config_from_dict(region_config(fit)).noise
     assert (noise.covariance_floor_std, noise.covariance_speed_time, noise.position_dof) == \
         (fit["covariance_floor_std"], fit["covariance_speed_time"], fit["position_dof"])
+
+
+def test_coverage_is_averaged_over_trials_as_the_evaluation_averages_it():
+    """Two trials of one scenario: one sample covered, and ten samples none covered. Per trial
+    (the evaluation's average) the 90 % coverage is 0.5; pooled over samples it would be 1/11."""
+    r = np.zeros((11, 3))
+    r[1:, 0] = 1.0  # a metre off: outside any region of centimetres
+    cov = np.tile(1e-4 * np.eye(3), (11, 1, 1))
+    trial = np.array([0] + [1] * 10)
+    samples = RegionSamples(r, cov, np.zeros(11), np.zeros(11, dtype=int), ("s0",), trial)
+    pooled, per = region_coverage(samples, 0.001, 0.0, math.inf)
+    assert pooled[1] == pytest.approx(0.5) and per[0, 1] == pytest.approx(0.5)
+    flat = RegionSamples(r, cov, np.zeros(11), np.zeros(11, dtype=int), ("s0",))
+    assert region_coverage(flat, 0.001, 0.0, math.inf)[0][1] == pytest.approx(1 / 11)
+
+
+def test_the_fit_scores_the_estimators_own_regions_and_reports_the_evaluations():
+    """The estimator's regions are what a user reads: the fit scores them without the evaluation's
+    floor, and reports them with it too (more variance: at least the same coverage). A collapsed
+    particle set (zero covariance) is scored, not a singular matrix, and no zero floor is fitted."""
+    samples = _samples(np.random.default_rng(5), 4000, floor=0.003, speed_time=0.0, dof=math.inf)
+    collapsed = RegionSamples(samples.residual, np.zeros_like(samples.cov), samples.speed, samples.scenario,
+                              samples.scenarios, samples.trial)
+    pooled, _ = region_coverage(collapsed, 0.0, 0.0, math.inf)
+    assert np.all(pooled < 0.01)  # regions of (almost) no volume hold (almost) nothing
+    fit = fit_regions(collapsed)
+    assert fit["covariance_floor_std"] > 0 and min(FLOORS) > 0
+    own, seen = fit["coverage"], fit["as_evaluated"]
+    assert seen["50"] >= own["50"] and seen["90"] >= own["90"]
+    assert seen["min_scenario_90"] <= seen["90"] + 1e-9  # a pooled rate is a mean of the scenarios'
 
 
 def test_a_scenario_below_the_minimum_is_avoided_when_the_grid_allows():
@@ -101,6 +133,7 @@ def test_collected_samples_are_the_hidden_ones_of_a_run_whatever_the_workers(tmp
     with pytest.raises(InputError, match="s100__K4"):
         collect_region_samples(["cup_falls_behind_box"], [100], particles=4, workers=1, parts_dir=str(parts))
     assert len(one.residual) > 10 and one.scenarios == ("cup_falls_behind_box",)
+    assert np.all(one.trial == 0)  # one trial: its samples carry its index
     for a, b in ((one.residual, two.residual), (one.cov, two.cov), (one.speed, two.speed)):
         assert np.array_equal(a, b)
     assert np.all(np.isfinite(one.residual)) and np.all(one.speed >= 0)

@@ -20,7 +20,9 @@ grids is scored on the estimator's own regions, what a user reads (not with the 
 :data:`~experiments.evaluation.metrics.COV_FLOOR_STD`, which the evaluation adds to every method's
 covariance for the point estimates' sake; the fit also reports the coverage with it, ``as_evaluated``):
 the fraction of samples inside the 50 % and 90 % regions (:func:`estimator.belief.region_radius_sq`),
-pooled and per scenario. The fit is the
+per trial, averaged over the trials of each scenario and over all trials, as the evaluation averages
+its per-trial coverages (a trial in which an object is hidden for one update counts as much as one in
+which it is hidden for twenty). The fit is the
 combination whose pooled coverages are nearest to 0.5 and 0.9 (sum of squared differences) among
 those where every scenario's 90 % coverage is at least ``min_scenario`` (all of them if none is).
 A grid search, deterministic; the trials are seeded as the evaluation seeds them.
@@ -56,18 +58,20 @@ OFF = {"noise": {"covariance_floor_std": 0.0, "covariance_speed_time": 0.0, "pos
 @dataclass(frozen=True)
 class RegionSamples:
     """``residual (N, 3)`` m (truth minus headline position), ``cov (N, 3, 3)`` m^2 (the particles'),
-    ``speed (N,)`` m/s, ``scenario (N,)`` int index into ``scenarios``."""
+    ``speed (N,)`` m/s, ``scenario (N,)`` int index into ``scenarios``, ``trial (N,)`` int, the
+    trial each sample comes from (None: every sample counts alike, as if one trial)."""
 
     residual: np.ndarray
     cov: np.ndarray
     speed: np.ndarray
     scenario: np.ndarray
     scenarios: tuple[str, ...]
+    trial: np.ndarray | None = None
 
     def __post_init__(self):
         n = len(self.residual)
         shapes = (self.residual.shape == (n, 3), self.cov.shape == (n, 3, 3), self.speed.shape == (n,),
-                  self.scenario.shape == (n,))
+                  self.scenario.shape == (n,), self.trial is None or np.shape(self.trial) == (n,))
         if not all(shapes):
             raise ValueError(f"RegionSamples: inconsistent shapes {self.residual.shape}, {self.cov.shape}, "
                              f"{self.speed.shape}, {self.scenario.shape}")
@@ -75,16 +79,18 @@ class RegionSamples:
     def save(self, path) -> None:
         """Write the samples to ``path`` (``.npz``), through a temporary file renamed into place (an
         interrupted write leaves no partial file)."""
+        extra = {} if self.trial is None else {"trial": self.trial}
         _save_npz(path, residual=self.residual, cov=self.cov, speed=self.speed, scenario=self.scenario,
-                  scenarios=np.array(self.scenarios, dtype=str))
+                  scenarios=np.array(self.scenarios, dtype=str), **extra)
 
     @classmethod
     def load(cls, path) -> "RegionSamples":
         """Samples written by :meth:`save`; a missing or malformed file is an
         :class:`~physics.errors.InputError` naming it."""
-        z = _load_npz(path, ("residual", "cov", "speed", "scenario", "scenarios"), "not a file of region samples")
+        keys = ("residual", "cov", "speed", "scenario", "scenarios", "trial")
+        z = _load_npz(path, keys, "not a file of region samples (from before 'trial' was kept: collect again)")
         return cls(z["residual"], z["cov"], z["speed"], z["scenario"].astype(int),
-                   tuple(str(n) for n in z["scenarios"]))
+                   tuple(str(n) for n in z["scenarios"]), z["trial"].astype(int))
 
 
 def _save_npz(path, **arrays) -> None:
@@ -147,14 +153,17 @@ def collect_region_samples(scenarios: list[str] | None = None, seeds=FIT_SEEDS, 
         for job in todo:
             keep(job, _trial_samples(job))
     res, cov, spd, scen = [], [], [], []
-    for job in jobs:
+    trial = []
+    for i, job in enumerate(jobs):
         r, c, s = parts[job]
         res.append(r)
         cov.append(c)
         spd.append(s)
         scen.append(np.full(len(r), names.index(job[0])))
+        trial.append(np.full(len(r), i))
     return RegionSamples(np.concatenate(res).reshape(-1, 3), np.concatenate(cov).reshape(-1, 3, 3),
-                         np.concatenate(spd), np.concatenate(scen).astype(int), tuple(names))
+                         np.concatenate(spd), np.concatenate(scen).astype(int), tuple(names),
+                         np.concatenate(trial).astype(int))
 
 
 def _part_path(parts_dir: str, job: tuple[str, int, int]) -> str:
@@ -206,15 +215,24 @@ def region_coverage(samples: RegionSamples, floor_std: float, speed_time: float,
     """Coverage of the :data:`LEVELS` regions: pooled ``(L,)`` and per scenario ``(S, L)`` (NaN for a
     scenario without samples), the covariance being the particles' + ``floor_std^2`` +
     ``(speed_time * speed)^2`` (+ ``score_floor_std^2``: the evaluation's floor, to score as it
-    does; + :data:`RIDGE_STD` ^2) times I."""
+    does; + :data:`RIDGE_STD` ^2) times I. With ``samples.trial``, each trial's coverage is
+    averaged, per scenario and over all (the evaluation's figures); else each sample's."""
     var = floor_std ** 2 + score_floor_std ** 2 + RIDGE_STD ** 2 + (speed_time * samples.speed) ** 2
     r = samples.residual
     m2 = M.mahalanobis_sq(np.zeros_like(r), samples.cov + var[:, None, None] * np.eye(3), r, floor_std=0.0)
-    inside = M.in_regions(m2, LEVELS, dof)
+    inside = M.in_regions(m2, LEVELS, dof).astype(float)
+    scenario = samples.scenario
+    if samples.trial is not None and len(m2):  # one row per trial: its coverage and its scenario
+        trials, idx = np.unique(samples.trial, return_inverse=True)
+        counts = np.bincount(idx, minlength=len(trials)).astype(float)
+        inside = np.stack([np.bincount(idx, weights=inside[:, j], minlength=len(trials)) for j in
+                           range(len(LEVELS))], axis=1) / counts[:, None]
+        scenario = np.zeros(len(trials), dtype=int)
+        scenario[idx] = samples.scenario
     pooled = inside.mean(axis=0) if len(m2) else np.full(len(LEVELS), np.nan)
     per = np.full((len(samples.scenarios), len(LEVELS)), np.nan)
     for s in range(len(samples.scenarios)):
-        mask = samples.scenario == s
+        mask = scenario == s
         if mask.any():
             per[s] = inside[mask].mean(axis=0)
     return pooled, per
