@@ -193,9 +193,9 @@ class NoiseConfig:
     fuse_resting: bool = True
     fusion_floor_std: float = 0.001
     rest_speed: float = 0.01
-    covariance_floor_std: float = 0.002  # fitted: scene-estimator fit-priors --regions (seeds 100-119)
-    covariance_speed_time: float = 0.1  # fitted, as the floor
-    position_dof: float | None = 2.5  # fitted, as the floor
+    covariance_floor_std: float = 0.007  # fitted: scene-estimator fit-priors --regions (seeds 100-119), cba693d
+    covariance_speed_time: float = 0.0  # fitted, as the floor
+    position_dof: float | None = 3.0  # fitted, as the floor
     held_drift_std: float = 0.05
     held_offset_std: float = 0.0101  # fitted: scene-estimator fit-priors (seeds 100-119)
     held_offset_time: float = 0.5
