@@ -22,14 +22,13 @@ import numpy as np
 from .config import HandConfig
 from .tracker import process_noise, transition
 
-_H = np.hstack([np.eye(3), np.zeros((3, 3))])
-
 
 class HandFilter:
     """One tracked hand's position and velocity, filtered: state ``x (6,)`` = ``[x, y, z, vx, vy,
     vz]`` (m, m/s), covariance ``P (6, 6)``. A new filter, or one whose hand has not been seen for
     ``restart_gap``, starts at the next position at rest (velocity standard deviation 1 m/s).
-    With ``config.filtered`` False, :attr:`position` is the latest raw position."""
+    With ``config.filtered`` False nothing is filtered: :attr:`position` is the latest raw position
+    (and :attr:`velocity` NaN)."""
 
     def __init__(self, config: HandConfig):
         self.config = config
@@ -44,17 +43,17 @@ class HandFilter:
         z = np.asarray(z, dtype=float).reshape(3)
         cfg = self.config
         dt = t - self.t
-        if not dt <= cfg.restart_gap:  # first position, or back after a gap
+        if cfg.filtered and not dt <= cfg.restart_gap:  # first position, or back after a gap
             self.x = np.concatenate([z, np.zeros(3)])
             self.P = np.diag([cfg.measurement_std ** 2] * 3 + [1.0] * 3)
-        elif dt > 0:
+        elif cfg.filtered and dt > 0:
             f = transition(dt)
             x = f @ self.x
             p = f @ self.P @ f.T + process_noise(dt, cfg.accel_std)
             s = p[:3, :3] + cfg.measurement_std ** 2 * np.eye(3)
             gain = np.linalg.solve(s, p[:3, :]).T  # P H^T S^-1 (S and P symmetric)
             self.x = x + gain @ (z - x[:3])
-            self.P = p - gain @ _H @ p
+            self.P = p - gain @ p[:3, :]  # (I - K H) P, H selecting the position rows
             self.P = 0.5 * (self.P + self.P.T)
         self.t, self.raw = t, z
         return self.position

@@ -9,8 +9,8 @@ import pytest
 from estimator.config import config_from_dict
 from experiments.cli.fit import run_fit
 from physics.errors import InputError
-from experiments.evaluation.fit_regions import (FLOORS, LEVELS, RegionSamples, collect_region_samples,
-                                                fit_regions, region_config, region_coverage)
+from experiments.evaluation.fit_regions import (LEVELS, RegionSamples, collect_region_samples, fit_regions,
+                                                region_config, region_coverage)
 
 
 def _samples(rng, n, floor, speed_time, dof, scenarios=2):
@@ -67,7 +67,7 @@ def test_coverage_is_averaged_over_trials_as_the_evaluation_averages_it():
     samples = RegionSamples(r, cov, np.zeros(11), np.zeros(11, dtype=int), ("s0",), trial)
     pooled, per = region_coverage(samples, 0.001, 0.0, math.inf)
     assert pooled[1] == pytest.approx(0.5) and per[0, 1] == pytest.approx(0.5)
-    flat = RegionSamples(r, cov, np.zeros(11), np.zeros(11, dtype=int), ("s0",))
+    flat = RegionSamples(r, cov, np.zeros(11), np.zeros(11, dtype=int), ("s0",), np.arange(11))
     assert region_coverage(flat, 0.001, 0.0, math.inf)[0][1] == pytest.approx(1 / 11)
 
 
@@ -81,10 +81,9 @@ def test_the_fit_scores_the_estimators_own_regions_and_reports_the_evaluations()
     pooled, _ = region_coverage(collapsed, 0.0, 0.0, math.inf)
     assert np.all(pooled < 0.01)  # regions of (almost) no volume hold (almost) nothing
     fit = fit_regions(collapsed)
-    assert fit["covariance_floor_std"] > 0 and min(FLOORS) > 0
+    assert fit["coverage"]["90"] > 0.5  # the fitted floor gives the collapsed samples a region
     own, seen = fit["coverage"], fit["as_evaluated"]
     assert seen["50"] >= own["50"] and seen["90"] >= own["90"]
-    assert seen["min_scenario_90"] <= seen["90"] + 1e-9  # a pooled rate is a mean of the scenarios'
 
 
 def test_a_scenario_below_the_minimum_is_avoided_when_the_grid_allows():
@@ -94,7 +93,7 @@ def test_a_scenario_below_the_minimum_is_avoided_when_the_grid_allows():
     bad = _samples(rng, 1000, floor=0.007, speed_time=0.0, dof=math.inf, scenarios=1)
     merged = RegionSamples(np.concatenate([good.residual, bad.residual]), np.concatenate([good.cov, bad.cov]),
                            np.concatenate([good.speed, bad.speed]), np.r_[np.zeros(6000, int), np.ones(1000, int)],
-                           ("good", "bad"))
+                           ("good", "bad"), np.arange(7000))
     free = fit_regions(merged, min_scenario=0.0, score_floor_std=0.0)
     assert free["scenario_coverage"]["bad"][1] < 0.8  # the larger one alone would leave it out
     fit = fit_regions(merged, score_floor_std=0.0)
@@ -107,8 +106,11 @@ def test_a_scenario_below_the_minimum_is_avoided_when_the_grid_allows():
 
 def test_samples_are_checked_and_an_empty_fit_is_an_error():
     with pytest.raises(ValueError):
-        RegionSamples(np.zeros((2, 3)), np.zeros((3, 3, 3)), np.zeros(2), np.zeros(2, int), ("a",))
-    empty = RegionSamples(np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0), np.zeros(0, int), ("a",))
+        RegionSamples(np.zeros((2, 3)), np.zeros((3, 3, 3)), np.zeros(2), np.zeros(2, int), ("a",), np.arange(2))
+    with pytest.raises(ValueError):  # a trial index per sample
+        RegionSamples(np.zeros((2, 3)), np.zeros((2, 3, 3)), np.zeros(2), np.zeros(2, int), ("a",), np.arange(3))
+    empty = RegionSamples(np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0), np.zeros(0, int), ("a",),
+                          np.zeros(0, int))
     with pytest.raises(ValueError, match="no hidden samples"):
         fit_regions(empty)
 

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from estimator.config import EstimatorConfig, HandConfig, config_from_dict
+from estimator.config import HandConfig, config_from_dict
 from estimator.hands import HandFilter, average_offset, filtered_track
 from physics.errors import ConfigError
 
@@ -106,6 +106,5 @@ def test_hand_configuration_is_checked_and_read_from_configuration_data():
         HandConfig(filtered="yes")
     cfg = config_from_dict({"hands": {"measurement_std": 0.02, "filtered": False}}, particles=8)
     assert cfg.hands == HandConfig(measurement_std=0.02, filtered=False)
-    assert EstimatorConfig().hands == HandConfig()
     with pytest.raises(ConfigError, match="hands.offset_gate"):
         config_from_dict({"hands": {"offset_gate": -1.0}}, path="c.yaml")

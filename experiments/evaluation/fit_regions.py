@@ -59,29 +59,28 @@ OFF = {"noise": {"covariance_floor_std": 0.0, "covariance_speed_time": 0.0, "pos
 class RegionSamples:
     """``residual (N, 3)`` m (truth minus headline position), ``cov (N, 3, 3)`` m^2 (the particles'),
     ``speed (N,)`` m/s, ``scenario (N,)`` int index into ``scenarios``, ``trial (N,)`` int, the
-    trial each sample comes from (None: every sample counts alike, as if one trial)."""
+    trial each sample comes from (``arange(N)``: every sample counts alike)."""
 
     residual: np.ndarray
     cov: np.ndarray
     speed: np.ndarray
     scenario: np.ndarray
     scenarios: tuple[str, ...]
-    trial: np.ndarray | None = None
+    trial: np.ndarray
 
     def __post_init__(self):
         n = len(self.residual)
         shapes = (self.residual.shape == (n, 3), self.cov.shape == (n, 3, 3), self.speed.shape == (n,),
-                  self.scenario.shape == (n,), self.trial is None or np.shape(self.trial) == (n,))
+                  self.scenario.shape == (n,), np.shape(self.trial) == (n,))
         if not all(shapes):
             raise ValueError(f"RegionSamples: inconsistent shapes {self.residual.shape}, {self.cov.shape}, "
-                             f"{self.speed.shape}, {self.scenario.shape}")
+                             f"{self.speed.shape}, {self.scenario.shape}, {np.shape(self.trial)}")
 
     def save(self, path) -> None:
         """Write the samples to ``path`` (``.npz``), through a temporary file renamed into place (an
         interrupted write leaves no partial file)."""
-        extra = {} if self.trial is None else {"trial": self.trial}
         _save_npz(path, residual=self.residual, cov=self.cov, speed=self.speed, scenario=self.scenario,
-                  scenarios=np.array(self.scenarios, dtype=str), **extra)
+                  scenarios=np.array(self.scenarios, dtype=str), trial=self.trial)
 
     @classmethod
     def load(cls, path) -> "RegionSamples":
@@ -215,20 +214,19 @@ def region_coverage(samples: RegionSamples, floor_std: float, speed_time: float,
     """Coverage of the :data:`LEVELS` regions: pooled ``(L,)`` and per scenario ``(S, L)`` (NaN for a
     scenario without samples), the covariance being the particles' + ``floor_std^2`` +
     ``(speed_time * speed)^2`` (+ ``score_floor_std^2``: the evaluation's floor, to score as it
-    does; + :data:`RIDGE_STD` ^2) times I. With ``samples.trial``, each trial's coverage is
-    averaged, per scenario and over all (the evaluation's figures); else each sample's."""
+    does; + :data:`RIDGE_STD` ^2) times I. Each trial's coverage (``samples.trial``) is averaged, per
+    scenario and over all trials (the evaluation's figures)."""
     var = floor_std ** 2 + score_floor_std ** 2 + RIDGE_STD ** 2 + (speed_time * samples.speed) ** 2
     r = samples.residual
     m2 = M.mahalanobis_sq(np.zeros_like(r), samples.cov + var[:, None, None] * np.eye(3), r, floor_std=0.0)
     inside = M.in_regions(m2, LEVELS, dof).astype(float)
-    scenario = samples.scenario
-    if samples.trial is not None and len(m2):  # one row per trial: its coverage and its scenario
-        trials, idx = np.unique(samples.trial, return_inverse=True)
-        counts = np.bincount(idx, minlength=len(trials)).astype(float)
-        inside = np.stack([np.bincount(idx, weights=inside[:, j], minlength=len(trials)) for j in
-                           range(len(LEVELS))], axis=1) / counts[:, None]
-        scenario = np.zeros(len(trials), dtype=int)
-        scenario[idx] = samples.scenario
+    # one row per trial: its coverage and its scenario
+    trials, idx = np.unique(samples.trial, return_inverse=True)
+    counts = np.bincount(idx, minlength=len(trials)).astype(float)
+    inside = np.stack([np.bincount(idx, weights=inside[:, j], minlength=len(trials)) for j in
+                       range(len(LEVELS))], axis=1) / counts[:, None]
+    scenario = np.zeros(len(trials), dtype=int)
+    scenario[idx] = samples.scenario
     pooled = inside.mean(axis=0) if len(m2) else np.full(len(LEVELS), np.nan)
     per = np.full((len(samples.scenarios), len(LEVELS)), np.nan)
     for s in range(len(samples.scenarios)):
