@@ -241,6 +241,11 @@ class Evidence:
       particle expected them (None: none).
     * ``out_of_reach (M,)`` bool: objects detected in this update out of reach of every tracked
       hand (None: no hand tracked, or hands not followed).
+    * ``diverged (K, M)`` float: for free, checked objects that physics let diverge from their
+      detection by more than ``d_sim_perc`` during the update (Algorithm 1: the world then put
+      them on the perception and held them there), the divergence at that moment (m); NaN elsewhere
+      (None: none). They are scored at that distance from their detection, not where they were put:
+      the override is a correction, not evidence that the particle was right.
     """
 
     poses: np.ndarray
@@ -262,6 +267,7 @@ class Evidence:
     proposal_log_weight: np.ndarray | None = None
     fused: np.ndarray | None = None
     out_of_reach: np.ndarray | None = None
+    diverged: np.ndarray | None = None
 
 
 LogWeightTerm = Callable[[Evidence], np.ndarray]
@@ -271,7 +277,10 @@ LogWeightTerm = Callable[[Evidence], np.ndarray]
 @dataclass(frozen=True)
 class DetectionTerm:
     """The detections of this update (:func:`detection_log_likelihood`). A detection without a std
-    uses ``max(default_std, 1e-3)`` m."""
+    uses ``max(default_std, 1e-3)`` m. Objects teleported or fused before physics are scored where
+    the particle expected them (``Evidence.predicted``); objects that physics let diverge
+    (``Evidence.diverged``) at their divergence from the detection, with the orientation the
+    particle expected (the isotropic position term depends on that distance only)."""
 
     default_std: float
     orientation_std: float
@@ -285,6 +294,15 @@ class DetectionTerm:
         if ev.fused is not None:
             expected = expected | ev.fused[:, idx]
         src = np.where(expected[..., None], ev.predicted[:, idx], ev.poses[:, idx])
+        if ev.diverged is not None:
+            d = ev.diverged[:, idx]
+            over = np.isfinite(d)
+            if np.any(over):  # a point at the divergence from the detection, along x
+                at = np.broadcast_to(ev.detected_poses[idx, :3], d.shape + (3,)).copy()
+                at[..., 0] += np.where(over, d, 0.0)
+                src = src.copy()
+                src[..., :3] = np.where(over[..., None], at, src[..., :3])
+                src[..., 3:] = np.where(over[..., None], ev.predicted[:, idx, 3:], src[..., 3:])
         std = ev.detection_std[idx]
         std = np.where(np.isfinite(std), std, max(self.default_std, 1e-3))
         return detection_log_likelihood(src, ev.detected_poses[idx], ev.has_orientation[idx], std,

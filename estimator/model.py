@@ -63,6 +63,14 @@ def initial_poses(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     return poses, known
 
 
+def diverged_by(move: Move, out: BatchOutput) -> np.ndarray:
+    """``(K, M)`` float: the divergence (m) at which physics overrode each free, checked object
+    (the pool switched it to HELD and put it on its perception, Algorithm 1), NaN for the others
+    (``Evidence.diverged``)."""
+    over = move.check & (move.modes == FREE) & (out.modes == HELD)
+    return np.where(over, out.max_divergence, np.nan)
+
+
 FUSION_MIN_STEP = 5e-4
 """Ensemble Kalman steps of resting objects shorter than this (m) are not taken: a converged object
 stays asleep in its world (:meth:`SceneModel.fuse_resting`)."""
@@ -355,7 +363,7 @@ class SceneModel:
         object perceived at rest on a support is let go; Release in view: a held object perceived
         falling (fast, or accelerating down with nothing under it) was let go; the events."""
         hr, cfg, mem = self.config.reasoner, self.config, self.memory
-        new_modes = out.modes
+        new_modes = out.modes.copy()  # out.modes stays what physics made (Evidence.diverged)
         valid = np.broadcast_to(self.known, (self.K, self.M))
         on_top, is_in, supported = relations_and_support(
             out.aabbs, valid, static=self.static, floor=self.scene.floor, config=cfg.relations,
@@ -430,7 +438,7 @@ class SceneModel:
                         fell_unseen=(settled.modes == FREE)
                         & (frame.t - move.let_go_unseen < self.config.reasoner.t_perceived - 1e-9),
                         proposal_log_weight=move.proposal_log_weight, fused=move.fused,
-                        out_of_reach=move.out_of_reach)
+                        out_of_reach=move.out_of_reach, diverged=diverged_by(move, out))
 
     def _out_of_reach(self, frame: Frame, detected: np.ndarray) -> np.ndarray | None:
         """Dynamic objects ``(M,)`` detected since the last update whose latest detection lies farther

@@ -188,6 +188,24 @@ def test_detection_term_scores_a_teleported_object_where_the_particle_predicted_
     assert tiny[1] - tiny[0] == pytest.approx(-0.5 * 0.02 ** 2 / 0.001 ** 2)
 
 
+def test_detection_term_scores_an_object_physics_let_diverge_at_its_divergence_not_where_it_was_put():
+    # both particles' object ends on its detection; particle 1's physics had let it diverge by 5 cm
+    # first (the world then put it on the perception): it is scored 5 cm away, with the orientation
+    # it expected, not rewarded for the override
+    det = np.array([[0.1, 0.2, 0.3, 0.0, 0.0, 0.0, 1.0]])
+    poses = np.broadcast_to(det, (2, 1, 7)).copy()
+    predicted = poses.copy()
+    predicted[1, 0, 3:] = [0.0, 0.0, math.sin(0.05), math.cos(0.05)]  # 0.1 rad about z
+    ev = replace(_evidence(K=2, M=1), poses=poses, predicted=predicted, detected=np.array([True]),
+                 detected_poses=det, has_orientation=np.array([True]), detection_std=np.array([0.01]),
+                 diverged=np.array([[np.nan], [0.05]]))
+    ll = DetectionTerm(default_std=0.01, orientation_std=0.1, outlier_prob=0.0)(ev)
+    assert ll[0] == pytest.approx(math.log(gauss3(0.0, 0.01)), rel=1e-12)
+    assert ll[1] == pytest.approx(math.log(gauss3(0.05, 0.01)) - 0.5 * (0.1 / 0.1) ** 2, rel=1e-9)
+    same = DetectionTerm(default_std=0.01, orientation_std=0.1, outlier_prob=0.0)(replace(ev, diverged=None))
+    assert same[1] == pytest.approx(same[0])  # without the field, the override would look perfect
+
+
 def test_terms_are_added_in_order_to_the_previous_log_weights():
     visible = np.array([[1.0, 0.0], [1.0, 1.0]])
     ev = replace(_evidence(), visible=visible, queried=np.array([True, True]), perceived=np.array([True, False]),

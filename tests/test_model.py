@@ -376,6 +376,40 @@ def test_place_a_held_object_perceived_at_rest_on_a_support(still_unacted, reste
     assert list(s2.codes[:, CUP]) == [PLACE, 0] and s2.times[0, CUP] == pytest.approx(t - model.config.reasoner.place_dwell)
 
 
+def test_an_object_physics_let_diverge_is_weighed_at_its_divergence_even_when_put_down_at_once():
+    """A cup seen at rest, free in both particles: in particle 1 physics let it diverge 5 cm from its
+    detection (the pool put it there and held it), and the update's Place rule lets it go again.
+    The evidence still says it diverged, and the particle whose physics agreed weighs more: the
+    override does not make particle 1's world look right."""
+    model = make(EstimatorConfig(particles=2, noise=NoiseConfig()))
+    st = model.initial_state(np.random.default_rng(0))
+    for i in range(13):  # 0.4 s at rest on the table
+        model.memory.record(Frame(i / 30, {"cup": Detection(np.array([0.3, 0.3, 0.14]))}))
+    t = 12 / 30
+    perceived = model.memory.perceived(t)
+    mv = model.move(st, Frame(t), perceived, perceived, 0.0, np.random.default_rng(0))
+    assert mv.check[:, CUP].all() and np.all(mv.modes[:, CUP] == FREE)
+    poses = st.poses.copy()
+    poses[:, CUP, :3] = [0.3, 0.3, 0.14]  # both end on the detection
+    modes = mv.modes.copy()
+    modes[1, CUP] = HELD  # particle 1: switched by the divergence test
+    divergence = np.zeros((2, 5))
+    divergence[:, CUP] = [0.004, 0.05]
+    aabbs = np.zeros((2, 5, 2, 3))
+    aabbs[:, TABLE] = [[-0.5, -0.5, 0.0], [0.5, 0.5, 0.1]]
+    aabbs[:, CUP] = [[0.27, 0.27, 0.1], [0.33, 0.33, 0.18]]
+    out = BatchOutput(poses, np.zeros_like(st.velocities), modes, divergence, aabbs, np.ones(2, bool),
+                      np.zeros((2, 5)))
+    settled = model.settle(st, mv, out, t, 0.08, perceived, perceived)
+    assert list(settled.modes[:, CUP]) == [FREE, FREE]  # put down again at once
+    assert list(out.modes[:, CUP]) == [FREE, HELD]      # what physics made is left as it was
+    ev = model.evidence(mv, settled, out, Frame(t), perceived, perceived, st.unseen_in_view)
+    assert np.isnan(ev.diverged[0, CUP]) and ev.diverged[1, CUP] == 0.05
+    assert np.isnan(np.delete(ev.diverged, CUP, axis=1)).all()
+    lw = model.log_weight(np.zeros(2), ev)
+    assert lw[0] > lw[1] + 1.0
+
+
 def test_log_weight_of_one_particle_is_only_the_explosion_mask():
     model = make(EstimatorConfig(particles=1, noise=NoiseConfig()))
     z = np.zeros((1, 5, 7))
