@@ -27,9 +27,14 @@ def test_bad_twin_sizes_are_refused_by_the_config(kwargs):
 
 
 def test_twin_config_checks_its_fields():
-    for bad in (dict(twins=0), dict(twins=2.5), dict(threshold=0.0), dict(threshold=1.5), dict(at="end")):
+    for bad in (dict(twins=0), dict(twins=2.5), dict(threshold=0.0), dict(threshold=1.5), dict(at="end"),
+                dict(params="guess")):
         with pytest.raises(ValueError):
             TwinConfig(**bad)
+    # rows of the two ways of setting parameters are never mixed up on resume; the older rows ("scale")
+    # keep their keys
+    assert TwinConfig(params="scale").key("x", 0) == "x__s0__n10__last_seen__pscene__q0.01"
+    assert TwinConfig().key("x", 0) != TwinConfig(params="scale").key("x", 0)
 
 
 def _row(positions, relations, held=()):

@@ -12,7 +12,7 @@ from experiments.scenarios import load_scenario
 from experiments.cli.simulate import add_simulate_arguments, run_simulate
 from experiments.simulation.ground_truth import GroundTruth
 from experiments.simulation.simulator import HAND_ID, sample_variant, simulate
-from experiments.simulation.variants import TWIN_PARAMETERS, twin_variant
+from experiments.simulation.variants import TWIN_PARAMETERS, redraw_parameters, twin_variant
 
 SEEDS = range(5)
 DT = 1.0 / 240.0
@@ -302,6 +302,33 @@ def test_a_twin_moves_dynamic_objects_horizontally_and_scales_their_parameters_w
     assert twin_variant(variant, np.random.default_rng(5), std, scale) == twin_variant(
         variant, np.random.default_rng(5), std, scale)
     assert twin_variant(variant, np.random.default_rng(5), 0.0, 0.0).scene == variant.scene
+
+
+def test_redrawn_parameters_are_uniform_in_the_scenarios_ranges_and_nothing_else_changes():
+    """ball_bounces_behind_screen randomises the ball's mass factor in [0.8, 1.2] and its restitution
+    in [0.3, 0.8], and the bin's position only: 400 redraws of seed 3's variant put the ball's
+    restitution uniformly in its range (mean within 4 standard errors of 0.55, every draw inside) and
+    its mass at the nominal 0.05 kg times a factor in range; the bin, the screen, the poses and the
+    script stay the variant's."""
+    scenario = load_scenario("ball_bounces_behind_screen")
+    variant = sample_variant(scenario, 3)
+    rng = np.random.default_rng(7)
+    draws = [redraw_parameters(variant, rng) for _ in range(400)]
+    ball = variant.scene.index("ball")
+    rest = np.array([d.scene.objects[ball].restitution for d in draws])
+    mass = np.array([d.scene.objects[ball].mass for d in draws])
+    assert np.all((rest >= 0.3) & (rest <= 0.8)) and np.all((mass >= 0.04 - 1e-12) & (mass <= 0.06 + 1e-12))
+    se = 0.5 / math.sqrt(12) / math.sqrt(len(rest))
+    assert abs(rest.mean() - 0.55) < 4 * se
+    assert len(set(rest.tolist())) == len(rest)  # drawn afresh each time
+    for d in draws[:20]:
+        assert d.script == variant.script
+        for a, b in zip(variant.scene.objects, d.scene.objects):
+            if a.id != "ball":
+                assert a == b
+            else:
+                assert dataclasses.replace(b, mass=a.mass, restitution=a.restitution) == a
+    assert redraw_parameters(variant, np.random.default_rng(1)) == redraw_parameters(variant, np.random.default_rng(1))
 
 
 @pytest.mark.parametrize("kwargs", [dict(position_std=-0.001, param_scale=0.01),

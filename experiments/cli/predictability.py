@@ -1,6 +1,7 @@
 """``scene-estimator predictability``: which scenarios let anyone say where their objects end, to
 5 cm: each (scenario, seed) of the evaluation run again as twins that differ from the truth by what
-the robot could not know (each object moved by the tracker's noise at its last sighting;
+the robot could not know (each object moved by the tracker's noise at its last sighting, the
+physical parameters the scenario randomises drawn again;
 :mod:`experiments.evaluation.predictability`); with ``--evaluation DIR``, each method's success
 beside it and pooled over the predictable scenarios.
 
@@ -16,7 +17,7 @@ import sys
 
 def add_predictability_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``predictability``."""
-    from experiments.evaluation.predictability import AT, TwinConfig
+    from experiments.evaluation.predictability import AT, PARAMS, TwinConfig
 
     d = TwinConfig()
     p.add_argument("--scenarios", default="all", help="'all' or comma-separated scenario names (default all)")
@@ -27,8 +28,11 @@ def add_predictability_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--position-std", type=float, default=d.position_std,
                    help="std (m) per axis of the perturbation (default: the scenario's tracker noise, its "
                         "position_std, and hand_std for an object in the hand)")
+    p.add_argument("--params", choices=PARAMS, default=d.params,
+                   help="'scenario' (default): the physical parameters the scenario randomises are drawn again "
+                        "from its ranges (the estimator is told the nominal ones); 'scale': the truth's")
     p.add_argument("--param-scale", type=float, default=d.param_scale,
-                   help=f"twins' physical parameters x U(1 - s, 1 + s) (default {d.param_scale:g})")
+                   help=f"twins' other physical parameters x U(1 - s, 1 + s) (default {d.param_scale:g})")
     p.add_argument("--threshold", type=float, default=d.threshold,
                    help=f"agreement below which a scenario is unpredictable to 5 cm (default {d.threshold:g})")
     p.add_argument("--workers", type=int, default=1, help="processes (default 1); results do not depend on it")
@@ -43,7 +47,8 @@ def run_predictability(args) -> int:
     from experiments.evaluation.sweep import read_rows
     from experiments.scenarios import resolve_scenarios
 
-    config = TwinConfig(twins=args.twins, at=args.at, position_std=args.position_std, param_scale=args.param_scale,
+    config = TwinConfig(twins=args.twins, at=args.at, position_std=args.position_std, params=args.params,
+                        param_scale=args.param_scale,
                         threshold=args.threshold)
     if args.seeds < 1 or args.workers < 1:
         raise ValueError(f"--seeds and --workers must be >= 1, got {args.seeds}, {args.workers}")

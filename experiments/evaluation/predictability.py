@@ -16,8 +16,14 @@ again as ``twins`` *twins*, each differing from the truth by what the robot coul
 * ``at="start"``: each dynamic object starts moved horizontally (:func:`~experiments.simulation.variants.twin_variant`):
   a test of chaos (with ``position_std`` 1 mm: does a millimetre change the outcome?).
 
-``position_std`` (m), when given, replaces both noises; ``param_scale`` also multiplies each physical
-parameter the variant sets by a uniform factor in ``[1 - param_scale, 1 + param_scale]``. A twin
+``position_std`` (m), when given, replaces both noises. The physical parameters: with
+``params="scenario"`` (default) those the scenario randomises (masses, frictions, restitutions) are
+drawn again from its ranges (:func:`~experiments.simulation.variants.redraw_parameters`): the
+estimator is told the scenario's nominal values, not the seed's, so they are among what the robot
+could not know; with ``params="scale"`` they stay the truth's. ``param_scale`` multiplies each of the
+other parameters the variant sets (all of them with ``"scale"``) by a uniform factor in
+``[1 - param_scale, 1 + param_scale]`` (``params="scale"`` with ``at="start"`` is a test of chaos:
+nothing unknown but a millimetre and a percent). A twin
 *agrees* on an object when its final position is within
 :data:`~experiments.evaluation.metrics.SUCCESS_DISTANCE` of the truth's and its final support is one of
 the truth's (:func:`~experiments.evaluation.metrics.truth_supports`). The *agreement* of a trial is the
@@ -57,6 +63,9 @@ CSV_FILE = "predictability.csv"
 AT = ("last_seen", "start")
 """Where twins are perturbed (see the module's docstring)."""
 
+PARAMS = ("scenario", "scale")
+"""How twins' physical parameters differ from the truth's (see the module's docstring)."""
+
 
 @dataclass(frozen=True)
 class TwinConfig:
@@ -67,8 +76,10 @@ class TwinConfig:
     * ``position_std`` (m): the noise of the perturbation, per axis; ``None`` (default): the
       scenario's tracker noise (``perception.position_std`` for a free object, ``perception.hand_std``
       for one in the hand).
-    * ``param_scale``: each physical parameter the variant sets is multiplied by a uniform factor in
-      ``[1 - param_scale, 1 + param_scale]`` (default 0.01).
+    * ``params``: ``"scenario"`` (default): the parameters the scenario randomises are drawn again
+      from its ranges; ``"scale"``: they stay the truth's.
+    * ``param_scale``: each other physical parameter the variant sets is multiplied by a uniform
+      factor in ``[1 - param_scale, 1 + param_scale]`` (default 0.01).
     * ``threshold``: a scenario whose mean agreement is below this is unpredictable to 5 cm (default
       0.85, the issue's floor on any one scenario's success).
     """
@@ -76,6 +87,7 @@ class TwinConfig:
     twins: int = 10
     at: str = "last_seen"
     position_std: float | None = None
+    params: str = "scenario"
     param_scale: float = 0.01
     threshold: float = 0.85
 
@@ -84,6 +96,8 @@ class TwinConfig:
             raise ValueError(f"twins must be an integer >= 1, got {self.twins!r}")
         if self.at not in AT:
             raise ValueError(f"at must be one of {AT}, got {self.at!r}")
+        if self.params not in PARAMS:
+            raise ValueError(f"params must be one of {PARAMS}, got {self.params!r}")
         if self.position_std is not None and not (self.position_std >= 0 and math.isfinite(self.position_std)):
             raise ValueError(f"position_std must be finite and >= 0, got {self.position_std}")
         if not (0 <= self.param_scale < 1):
@@ -94,7 +108,8 @@ class TwinConfig:
     def key(self, scenario: str, seed: int) -> str:
         """Identity of a (scenario, seed) row under these settings (``threshold`` is not part of it)."""
         p = "scene" if self.position_std is None else f"{self.position_std:g}"
-        return f"{scenario}__s{seed}__n{self.twins}__{self.at}__p{p}__q{self.param_scale:g}"
+        redrawn = "__rscenario" if self.params == "scenario" else ""  # rows of the older runs: "scale"
+        return f"{scenario}__s{seed}__n{self.twins}__{self.at}__p{p}__q{self.param_scale:g}{redrawn}"
 
 
 def twin_rng(scenario: str, seed: int) -> np.random.Generator:
@@ -164,7 +179,7 @@ def twin_row(job: tuple[str, int, TwinConfig]) -> dict:
     ``scenario``, ``seed``, ``objects`` (dynamic ids), per object ``agree`` (fraction of twins that
     agree) and ``distance_median`` (m), ``agreement`` (mean over objects) and the settings."""
     from experiments.scenarios import load_scenario
-    from experiments.simulation.variants import sample_variant, twin_variant
+    from experiments.simulation.variants import redraw_parameters, sample_variant, twin_variant
 
     name, seed, cfg = job
     scenario = load_scenario(name)
@@ -186,12 +201,14 @@ def twin_row(job: tuple[str, int, TwinConfig]) -> dict:
         else:
             twin = twin_variant(variant, rng, 0.0, cfg.param_scale)
             moves = _perturbations(sightings, index, object_std, hand_std, rng)
+        if cfg.params == "scenario":
+            twin = redraw_parameters(twin, rng)
         ok[k], dist[k] = agreement(base, _run(twin, scenario.duration, seed, moves)[0][-1], ids)
     agree = ok.mean(axis=0)
     return {"key": cfg.key(name, seed), "scenario": name, "seed": int(seed), "objects": ids,
             "agree": [float(a) for a in agree], "distance_median": [float(d) for d in np.median(dist, axis=0)],
             "agreement": float(agree.mean()) if ids else math.nan, "twins": cfg.twins, "at": cfg.at,
-            "position_std": cfg.position_std, "param_scale": cfg.param_scale,
+            "position_std": cfg.position_std, "params": cfg.params, "param_scale": cfg.param_scale,
             "last_seen_s": {o: (None if w is None else round(w[0] * dt, 4)) for o, w in sightings.items()}}
 
 
@@ -297,11 +314,15 @@ def report(twins: list[dict], trials: list[dict], config: TwinConfig) -> tuple[s
     where = ("the run is the truth's until each dynamic object's last sighting, where the object (or, in "
              f"the hand, the hand) is moved by {size}" if config.at == "last_seen" else
              f"each dynamic object starts moved horizontally by {size}")
+    params = (f"the physical parameters the scenario randomises drawn again from its ranges (the estimator is "
+              f"told the nominal ones), the others changed by up to {100 * config.param_scale:g} %"
+              if config.params == "scenario" else
+              f"its physical parameters the truth's, changed by up to {100 * config.param_scale:g} %")
     lines = [
         "# Predictability to 5 cm",
         "",
         f"{len(twins)} (scenario, seed) pairs, {', '.join(map(str, n_tw))} twins each: the same scene and hand "
-        f"script; {where}; its physical parameters changed by up to {100 * config.param_scale:g} %. "
+        f"script; {where}; {params}. "
         "Agreement: twins whose "
         "object ends within 5 cm of the truth, on one of its supports (mean over objects, then seeds "
         "[95 % bootstrap interval]); distance: median over seeds of the median twin distance of the "

@@ -154,3 +154,33 @@ def twin_variant(variant: Variant, rng: np.random.Generator, position_std: float
                 kw[key] = value * factor
         objects.append(replace(spec, **kw))
     return replace(variant, scene=variant.scene.with_objects(objects))
+
+
+def redraw_parameters(variant: Variant, rng: np.random.Generator) -> Variant:
+    """``variant`` with the physical parameters its scenario randomises drawn again from ``rng``:
+    for every object with a ``randomize`` entry, its mass factor (times the scenario's nominal
+    mass) and each of friction, rolling friction, spinning friction and restitution that the entry
+    gives a range for, uniformly in that range, in that order, objects in scene order. Geometry,
+    poses and the hand script stay the variant's.
+
+    The estimator is told the scenario's nominal values, not the ones a seed drew
+    (:func:`~experiments.simulation.simulator.estimator_scene`): a twin that differs from the truth
+    by what the robot could not know draws them again."""
+    rand = {r.id: r for r in variant.scenario.randomize.objects}
+    nominal = {o.id: o for o in variant.scenario.scene.objects}
+    objects = []
+    for spec in variant.scene.objects:
+        r = rand.get(spec.id)
+        if r is None or spec.static:
+            objects.append(spec)
+            continue
+        kw: dict[str, Any] = {}
+        if r.mass is not None:
+            base = nominal[spec.id].mass
+            kw["mass"] = (base if base is not None else DEFAULT_PRIMITIVE_MASS) * float(rng.uniform(*r.mass))
+        for key in ("friction", "rolling_friction", "spinning_friction", "restitution"):
+            lo_hi = getattr(r, key)
+            if lo_hi is not None:
+                kw[key] = float(rng.uniform(*lo_hi))
+        objects.append(replace(spec, **kw))
+    return replace(variant, scene=variant.scene.with_objects(objects))
