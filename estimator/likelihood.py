@@ -241,12 +241,11 @@ class Evidence:
       particle expected them (None: none).
     * ``out_of_reach (M,)`` bool: objects detected in this update out of reach of every tracked
       hand (None: no hand tracked, or hands not followed).
-    * ``diverged (K, M)`` float: for free, checked objects at rest when the update began that
-      physics let diverge from their detection by more than ``d_sim_perc`` during it (Algorithm 1:
-      the world then put them on the perception and held them there), the divergence at that
-      moment (m); NaN elsewhere (None: none; :func:`~estimator.model.diverged_by`). They are scored
-      at that distance from their detection, not where they were put: the override is a
-      correction, not evidence that the particle was right.
+    * ``diverged (K, M)`` float: for free, checked objects that physics let diverge from their
+      detection by more than ``d_sim_perc`` during the update (Algorithm 1: the world then put
+      them on the perception and held them there), the divergence at that moment (m); NaN elsewhere
+      (None: none). They are scored at that distance from their detection, not where they were put:
+      the override is a correction, not evidence that the particle was right.
     """
 
     poses: np.ndarray

@@ -65,15 +65,9 @@ def initial_poses(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
 
 def diverged_by(move: Move, out: BatchOutput) -> np.ndarray:
     """``(K, M)`` float: the divergence (m) at which physics overrode each free, checked object
-    that was at rest when the update began (the pool switched it to HELD and put it on its
-    perception, Algorithm 1), NaN for the others (``Evidence.diverged``).
-
-    At rest, an object's copies differ by millimetres, and which of them cross ``d_sim_perc`` when a
-    detection jumps is chance: scored where they were put, those that crossed would win on that
-    chance alone. An object already moving keeps the paper's correction: its copies that physics
-    let drift are put back on the perception and scored there (the rolling friction that made
-    them drift is not known well, and the particles keep their spread of it)."""
-    over = move.check & (move.modes == FREE) & (out.modes == HELD) & slow(move.velocities)
+    (the pool switched it to HELD and put it on its perception, Algorithm 1), NaN for the others
+    (``Evidence.diverged``)."""
+    over = move.check & (move.modes == FREE) & (out.modes == HELD)
     return np.where(over, out.max_divergence, np.nan)
 
 
