@@ -18,9 +18,10 @@ again as ``twins`` *twins*, each differing from the truth by what the robot coul
 
 ``position_std`` (m), when given, replaces both noises. The physical parameters: with
 ``params="scenario"`` (default) those the scenario randomises (masses, frictions, restitutions) are
-drawn again from its ranges (:func:`~experiments.simulation.variants.redraw_parameters`): the
-estimator is told the scenario's nominal values, not the seed's, so they are among what the robot
-could not know; with ``params="scale"`` they stay the truth's. ``param_scale`` multiplies each of the
+drawn again from its ranges (:func:`~experiments.simulation.variants.draw_parameters`) and an object
+takes them at its last sighting (with ``at="start"``, at the start): the estimator is told the scenario's nominal values, not the seed's, and what it saw
+of an object's motion before is the truth's (it may have learnt something of them from it, which
+this ignores: agreement is then a lower bound); with ``params="scale"`` they stay the truth's. ``param_scale`` multiplies each of the
 other parameters the variant sets (all of them with ``"scale"``) by a uniform factor in
 ``[1 - param_scale, 1 + param_scale]`` (``params="scale"`` with ``at="start"`` is a test of chaos:
 nothing unknown but a millimetre and a percent). A twin
@@ -144,18 +145,21 @@ def last_sightings(truth: list[dict], object_ids: list[str], dt: float) -> dict[
 
 
 def _perturbations(sightings: dict, index: dict[str, int], object_std: float, hand_std: float,
-                   rng: np.random.Generator) -> dict[int, list[tuple[int, np.ndarray]]]:
+                   rng: np.random.Generator, params: dict[str, dict[str, float]] | None = None
+                   ) -> dict[int, list[tuple]]:
     """One twin's moves at the last sightings: per object (in ``sightings`` order) three normal draws;
     a free object moves horizontally by ``object_std`` times the first two, one in the hand moves
-    the hand by ``hand_std`` times all three."""
-    out: dict[int, list[tuple[int, np.ndarray]]] = {}
+    the hand by ``hand_std`` times all three. ``params``: physical parameters per object id that it
+    takes at its last sighting (:func:`~experiments.simulation.variants.draw_parameters`; an object
+    seen at the end keeps the truth's)."""
+    out: dict[int, list[tuple]] = {}
     for o, when in sightings.items():
         z = rng.normal(0.0, 1.0, 3)
         if when is None:
             continue
         step, held = when
         offset = z * hand_std if held else np.array([z[0], z[1], 0.0]) * object_std
-        out.setdefault(step, []).append((index[o], offset))
+        out.setdefault(step, []).append((index[o], offset, (params or {}).get(o)))
     return out
 
 
@@ -179,7 +183,7 @@ def twin_row(job: tuple[str, int, TwinConfig]) -> dict:
     ``scenario``, ``seed``, ``objects`` (dynamic ids), per object ``agree`` (fraction of twins that
     agree) and ``distance_median`` (m), ``agreement`` (mean over objects) and the settings."""
     from experiments.scenarios import load_scenario
-    from experiments.simulation.variants import redraw_parameters, sample_variant, twin_variant
+    from experiments.simulation.variants import draw_parameters, sample_variant, twin_variant
 
     name, seed, cfg = job
     scenario = load_scenario(name)
@@ -198,11 +202,12 @@ def twin_row(job: tuple[str, int, TwinConfig]) -> dict:
     for k in range(cfg.twins):
         if cfg.at == "start":
             twin, moves = twin_variant(variant, rng, object_std, cfg.param_scale), None
+            if cfg.params == "scenario":  # every object takes them from the first step
+                moves = {1: [(index[o], np.zeros(3), p) for o, p in draw_parameters(variant, rng).items()]}
         else:
             twin = twin_variant(variant, rng, 0.0, cfg.param_scale)
-            moves = _perturbations(sightings, index, object_std, hand_std, rng)
-        if cfg.params == "scenario":
-            twin = redraw_parameters(twin, rng)
+            params = draw_parameters(variant, rng) if cfg.params == "scenario" else None
+            moves = _perturbations(sightings, index, object_std, hand_std, rng, params)
         ok[k], dist[k] = agreement(base, _run(twin, scenario.duration, seed, moves)[0][-1], ids)
     agree = ok.mean(axis=0)
     return {"key": cfg.key(name, seed), "scenario": name, "seed": int(seed), "objects": ids,
@@ -314,8 +319,9 @@ def report(twins: list[dict], trials: list[dict], config: TwinConfig) -> tuple[s
     where = ("the run is the truth's until each dynamic object's last sighting, where the object (or, in "
              f"the hand, the hand) is moved by {size}" if config.at == "last_seen" else
              f"each dynamic object starts moved horizontally by {size}")
-    params = (f"the physical parameters the scenario randomises drawn again from its ranges (the estimator is "
-              f"told the nominal ones), the others changed by up to {100 * config.param_scale:g} %"
+    params = (f"{'from there on' if config.at == 'last_seen' else 'from the start'}, the physical parameters the "
+              "scenario randomises drawn again from its ranges (the estimator is told the nominal ones; every "
+              f"parameter changed by up to {100 * config.param_scale:g} % from the start)"
               if config.params == "scenario" else
               f"its physical parameters the truth's, changed by up to {100 * config.param_scale:g} %")
     lines = [

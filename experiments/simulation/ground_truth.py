@@ -254,11 +254,17 @@ class GroundTruth:
                             jointChildFrameOrientation=q.tolist(), maxForce=self.scenario.hand.max_force,
                             physicsClientId=self.world.client)
 
-    def perturb(self, index: int, offset) -> None:
+    def perturb(self, index: int, offset, params: dict[str, float] | None = None) -> None:
         """Move object ``index`` by ``offset (3,)`` m now, its velocity kept; an object in the hand
         moves with the hand instead: the hand's path is shifted by ``offset`` from now on (what a
         twin of the run, :mod:`experiments.evaluation.predictability`, changes at an object's last
-        sighting)."""
+        sighting). ``params``: physical parameters the object has from now on (``mass`` kg,
+        ``friction``, ``rolling_friction``, ``spinning_friction``, ``restitution``; others kept)."""
+        if params:
+            self.world.set_dynamics(index, lateral_friction=params.get("friction"),
+                                    rolling_friction=params.get("rolling_friction"),
+                                    spinning_friction=params.get("spinning_friction"),
+                                    restitution=params.get("restitution"), mass=params.get("mass"))
         offset = np.asarray(offset, dtype=float)
         if index in self.held:
             self.hand_shift = self.hand_shift + offset
@@ -306,10 +312,10 @@ class GroundTruth:
         return self.camera.visible_fractions(poses)
 
     def run(self, duration: float, perception_rng: np.random.Generator,
-            perturbations: dict[int, list[tuple[int, np.ndarray]]] | None = None) -> "SimulationResult":
+            perturbations: dict[int, list[tuple]] | None = None) -> "SimulationResult":
         """Settle, then simulate ``duration`` seconds; returns the recorded streams.
-        ``perturbations``: ``{step: [(object index, offset (3,) m), ...]}`` applied by :meth:`perturb`
-        after that simulation step (1-based) and the script's waypoints due then."""
+        ``perturbations``: ``{step: [(object index, offset (3,) m[, params]), ...]}`` applied by
+        :meth:`perturb` after that simulation step (1-based) and the script's waypoints due then."""
         cfg = self.scenario.perception
         world = self.world
         self.settle()
@@ -344,8 +350,8 @@ class GroundTruth:
                 self._advance_script(t, step)
                 self._track_pushes(step)
             if perturbations and step in perturbations:
-                for index, offset in perturbations[step]:
-                    self.perturb(index, offset)
+                for index, offset, *params in perturbations[step]:
+                    self.perturb(index, offset, *params)
             is_frame = step in frame_of_step
             if not is_frame and step not in captures:
                 continue

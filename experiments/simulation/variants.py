@@ -156,31 +156,31 @@ def twin_variant(variant: Variant, rng: np.random.Generator, position_std: float
     return replace(variant, scene=variant.scene.with_objects(objects))
 
 
-def redraw_parameters(variant: Variant, rng: np.random.Generator) -> Variant:
-    """``variant`` with the physical parameters its scenario randomises drawn again from ``rng``:
-    for every object with a ``randomize`` entry, its mass factor (times the scenario's nominal
-    mass) and each of friction, rolling friction, spinning friction and restitution that the entry
-    gives a range for, uniformly in that range, in that order, objects in scene order. Geometry,
-    poses and the hand script stay the variant's.
+def draw_parameters(variant: Variant, rng: np.random.Generator) -> dict[str, dict[str, float]]:
+    """The physical parameters ``variant``'s scenario randomises, drawn again from ``rng``: per
+    object id with a ``randomize`` entry (dynamic objects, in scene order), its ``mass`` (kg: the
+    scenario's nominal mass times a factor drawn in the entry's range) and each of ``friction``,
+    ``rolling_friction``, ``spinning_friction`` and ``restitution`` the entry gives a range for,
+    uniformly in it, in that order.
 
     The estimator is told the scenario's nominal values, not the ones a seed drew
     (:func:`~experiments.simulation.simulator.estimator_scene`): a twin that differs from the truth
-    by what the robot could not know draws them again."""
+    by what the robot could not know takes these from an object's last sighting on
+    (:mod:`experiments.evaluation.predictability`)."""
     rand = {r.id: r for r in variant.scenario.randomize.objects}
     nominal = {o.id: o for o in variant.scenario.scene.objects}
-    objects = []
+    out: dict[str, dict[str, float]] = {}
     for spec in variant.scene.objects:
         r = rand.get(spec.id)
         if r is None or spec.static:
-            objects.append(spec)
             continue
-        kw: dict[str, Any] = {}
+        values: dict[str, float] = {}
         if r.mass is not None:
             base = nominal[spec.id].mass
-            kw["mass"] = (base if base is not None else DEFAULT_PRIMITIVE_MASS) * float(rng.uniform(*r.mass))
+            values["mass"] = (base if base is not None else DEFAULT_PRIMITIVE_MASS) * float(rng.uniform(*r.mass))
         for key in ("friction", "rolling_friction", "spinning_friction", "restitution"):
             lo_hi = getattr(r, key)
             if lo_hi is not None:
-                kw[key] = float(rng.uniform(*lo_hi))
-        objects.append(replace(spec, **kw))
-    return replace(variant, scene=variant.scene.with_objects(objects))
+                values[key] = float(rng.uniform(*lo_hi))
+        out[spec.id] = values
+    return out
