@@ -40,7 +40,7 @@ from .params import param_bounds, shrink_params
 from .perception_memory import HAND_RADIUS, PerceptionMemory
 from .pool import BatchInput, BatchOutput
 from .resting import slow
-from .relations import relations_and_support
+from .relations import relations_and_support, supported_mask
 from .resampling import effective_sample_size, normalise_log_weights
 from .state import ParticleState
 from .step import Fall, Move, Settled
@@ -376,7 +376,13 @@ class SceneModel:
             ((accel < -hr.release_accel) & (vel[:, 2] < -RELEASE_DOWN_SPEED))[None, :] & ~supported)
         held_seen = (new_modes == HELD) & perceived[None, :]
         after_physics = new_modes.copy()
-        new_modes[held_seen & ((rested[None, :] & supported) | falling)] = FREE
+        put_down = held_seen & rested[None, :] & supported
+        if np.any(put_down) and self.episode_rule.lift < hr.place_gap:
+            # held still more than `lift` above its support (a box paused 2 cm up): let go, it would
+            # drop that far and be held again by the episode rule (update_events); it is held
+            put_down &= supported_mask(out.aabbs, is_in, valid, static=self.static, floor=self.scene.floor,
+                                       z_gap=self.episode_rule.lift, config=cfg.relations)
+        new_modes[put_down | (held_seen & falling)] = FREE
         # the switches read as actions (actions.episodes): a Pick dated when the object started
         # moving, a Place once physics confirms it (dated when it came to rest), a Push if unlifted
         rule, onset = self.episode_rule, mem.moving_since
