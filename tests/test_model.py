@@ -376,6 +376,34 @@ def test_place_a_held_object_perceived_at_rest_on_a_support(still_unacted, reste
     assert list(s2.codes[:, CUP]) == [PLACE, 0] and s2.times[0, CUP] == pytest.approx(t - model.config.reasoner.place_dwell)
 
 
+def test_a_held_object_seen_still_above_its_support_by_more_than_lift_is_not_let_go():
+    """A cup held in both particles, seen still: 1 cm above the table in particle 0 (put down: let
+    go), 2.5 cm above it in particle 1 (within place_gap, 3 cm, but more than lift, 2 cm: a hand
+    holding it still above the table; let go it would drop 2.5 cm and be held again)."""
+    model = make(EstimatorConfig(particles=2, noise=NoiseConfig()))
+    rule, hr = model.episode_rule, model.config.reasoner
+    assert rule.lift < 0.025 < hr.place_gap
+    st = model.initial_state(np.random.default_rng(0))
+    for i in range(13):  # 0.4 s still
+        model.memory.record(Frame(i / 30, {"cup": Detection(np.array([0.3, 0.3, 0.15]))}))
+    t = 12 / 30
+    perceived = model.memory.perceived(t)
+    mv = model.move(st, Frame(t), perceived, perceived, 0.0, np.random.default_rng(0))
+    modes = np.zeros((2, 5), np.int8)
+    modes[:, CUP] = HELD
+    aabbs = np.zeros((2, 5, 2, 3))
+    aabbs[:, TABLE] = [[-0.5, -0.5, 0.0], [0.5, 0.5, 0.1]]
+    aabbs[:, CRATE] = [[-0.15, -0.1, 0.1], [0.15, 0.1, 0.22]]
+    aabbs[:, BALL] = [[0.05, -0.03, 0.11], [0.11, 0.03, 0.17]]
+    aabbs[0, CUP] = [[0.27, 0.27, 0.11], [0.33, 0.33, 0.19]]     # 1 cm above the table
+    aabbs[1, CUP] = [[0.27, 0.27, 0.125], [0.33, 0.33, 0.205]]   # 2.5 cm above it
+    out = BatchOutput(st.poses.copy(), st.velocities.copy(), modes, np.zeros((2, 5)), aabbs, np.ones(2, bool),
+                      np.zeros((2, 5)))
+    s = model.settle(st, replace(mv, modes=modes.copy()), out, t, 0.08, perceived, perceived)
+    assert list(s.supported[:, CUP]) == [True, True]  # both within place_gap: supported
+    assert list(s.modes[:, CUP]) == [FREE, HELD]
+
+
 def test_an_object_physics_let_diverge_is_weighed_at_its_divergence_even_when_put_down_at_once():
     """A cup seen at rest, free in both particles: in particle 1 physics let it diverge 5 cm from its
     detection (the pool put it there and held it), and the update's Place rule lets it go again.
