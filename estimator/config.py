@@ -71,8 +71,9 @@ class ReasonerConfig:
     * ``place_speed`` (m/s), ``place_spin`` (rad/s), ``place_dwell`` (s) and ``place_gap`` (m): a
       held object whose detections over the last ``place_dwell`` moved slower than ``place_speed``
       and turned slower than ``place_spin`` on average, with its bottom within ``place_gap`` of a
-      support's top (or inside a container), is put down (Place). The paper leaves this rule
-      implicit (see README).
+      support's top (or inside a container), is put down (Place), unless it is more than
+      ``push_lift`` above that support (held still above it: let go, it would drop and be held
+      again). The paper leaves this rule implicit (see README).
     * ``release_speed`` (m/s) and ``release_accel`` (m/s^2): a held object perceived moving down
       faster than ``release_speed``, or accelerating down faster than ``release_accel`` (while moving
       down at :data:`RELEASE_DOWN_SPEED` or more) with nothing under it, was let go (Release, in view). Velocities are
