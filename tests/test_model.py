@@ -327,6 +327,27 @@ def test_release_on_loss_and_later_releases():
     assert np.all(modes[:, CUP] == HELD)  # input untouched
 
 
+def _cup_held_seen_still(model, st, z, cup_boxes):
+    """The cup seen still at height ``z`` (m) for 0.4 s and HELD in both particles, whose physics put
+    it in the boxes ``cup_boxes (2, 2, 3)`` (the table, crate and ball where ``scene()`` has them):
+    ``(t, perceived, move, modes, out)`` for :meth:`SceneModel.settle`."""
+    for i in range(13):  # 0.4 s still
+        model.memory.record(Frame(i / 30, {"cup": Detection(np.array([0.3, 0.3, z]))}))
+    t = 12 / 30
+    perceived = model.memory.perceived(t)
+    mv = model.move(st, Frame(t), perceived, perceived, 0.0, np.random.default_rng(0))
+    modes = np.zeros((2, 5), np.int8)
+    modes[:, CUP] = HELD
+    aabbs = np.zeros((2, 5, 2, 3))
+    aabbs[:, TABLE] = [[-0.5, -0.5, 0.0], [0.5, 0.5, 0.1]]
+    aabbs[:, CRATE] = [[-0.15, -0.1, 0.1], [0.15, 0.1, 0.22]]
+    aabbs[:, BALL] = [[0.05, -0.03, 0.11], [0.11, 0.03, 0.17]]
+    aabbs[:, CUP] = cup_boxes
+    out = BatchOutput(st.poses.copy(), st.velocities.copy(), modes, np.zeros((2, 5)), aabbs, np.ones(2, bool),
+                      np.zeros((2, 5)))
+    return t, perceived, mv, modes, out
+
+
 @pytest.mark.parametrize("still_unacted, rested", [(False, True), (True, True), (True, False)])
 def test_place_a_held_object_perceived_at_rest_on_a_support(still_unacted, rested):
     """A cup held in both particles, seen at rest on the table: let go where it rests on the table
@@ -339,21 +360,10 @@ def test_place_a_held_object_perceived_at_rest_on_a_support(still_unacted, reste
     st = model.initial_state(np.random.default_rng(0))
     if rested:
         st.holds[:, CUP, REF_Z] = 0.14  # it had rested on the table in both particles
-    for i in range(13):  # 0.4 s at rest on the table
-        model.memory.record(Frame(i / 30, {"cup": Detection(np.array([0.3, 0.3, 0.14]))}))
-    t = 12 / 30
-    perceived = model.memory.perceived(t)
-    mv = model.move(st, Frame(t), perceived, perceived, 0.0, np.random.default_rng(0))
-    modes = np.zeros((2, 5), np.int8)
-    modes[:, CUP] = HELD
-    aabbs = np.zeros((2, 5, 2, 3))
-    aabbs[:, TABLE] = [[-0.5, -0.5, 0.0], [0.5, 0.5, 0.1]]
-    aabbs[:, CRATE] = [[-0.15, -0.1, 0.1], [0.15, 0.1, 0.22]]
-    aabbs[:, BALL] = [[0.05, -0.03, 0.11], [0.11, 0.03, 0.17]]
-    aabbs[0, CUP] = [[0.27, 0.27, 0.1], [0.33, 0.33, 0.18]]    # particle 0: the cup sits on the table
-    aabbs[1, CUP] = [[0.27, 0.27, 0.3], [0.33, 0.33, 0.38]]    # particle 1: 20 cm above it
-    out = BatchOutput(st.poses.copy(), st.velocities.copy(), modes, np.zeros((2, 5)), aabbs, np.ones(2, bool),
-                      np.zeros((2, 5)))
+    t, perceived, mv, modes, out = _cup_held_seen_still(model, st, 0.14, [
+        [[0.27, 0.27, 0.1], [0.33, 0.33, 0.18]],    # particle 0: the cup sits on the table
+        [[0.27, 0.27, 0.3], [0.33, 0.33, 0.38]]])   # particle 1: 20 cm above it
+    aabbs = out.aabbs
     s = model.settle(st, replace(mv, modes=modes.copy()), out, t, 0.08, perceived, perceived)
     assert list(s.modes[:, CUP]) == [FREE, HELD] and list(s.codes[:, CUP]) == [0, 0]
     if still_unacted and not rested:  # silent on the table (particle 0), not in the air (particle 1)
@@ -384,21 +394,9 @@ def test_a_held_object_seen_still_above_its_support_by_more_than_lift_is_not_let
     rule, hr = model.episode_rule, model.config.reasoner
     assert rule.lift < 0.025 < hr.place_gap
     st = model.initial_state(np.random.default_rng(0))
-    for i in range(13):  # 0.4 s still
-        model.memory.record(Frame(i / 30, {"cup": Detection(np.array([0.3, 0.3, 0.15]))}))
-    t = 12 / 30
-    perceived = model.memory.perceived(t)
-    mv = model.move(st, Frame(t), perceived, perceived, 0.0, np.random.default_rng(0))
-    modes = np.zeros((2, 5), np.int8)
-    modes[:, CUP] = HELD
-    aabbs = np.zeros((2, 5, 2, 3))
-    aabbs[:, TABLE] = [[-0.5, -0.5, 0.0], [0.5, 0.5, 0.1]]
-    aabbs[:, CRATE] = [[-0.15, -0.1, 0.1], [0.15, 0.1, 0.22]]
-    aabbs[:, BALL] = [[0.05, -0.03, 0.11], [0.11, 0.03, 0.17]]
-    aabbs[0, CUP] = [[0.27, 0.27, 0.11], [0.33, 0.33, 0.19]]     # 1 cm above the table
-    aabbs[1, CUP] = [[0.27, 0.27, 0.125], [0.33, 0.33, 0.205]]   # 2.5 cm above it
-    out = BatchOutput(st.poses.copy(), st.velocities.copy(), modes, np.zeros((2, 5)), aabbs, np.ones(2, bool),
-                      np.zeros((2, 5)))
+    t, perceived, mv, modes, out = _cup_held_seen_still(model, st, 0.15, [
+        [[0.27, 0.27, 0.11], [0.33, 0.33, 0.19]],     # 1 cm above the table
+        [[0.27, 0.27, 0.125], [0.33, 0.33, 0.205]]])  # 2.5 cm above it
     s = model.settle(st, replace(mv, modes=modes.copy()), out, t, 0.08, perceived, perceived)
     assert list(s.supported[:, CUP]) == [True, True]  # both within place_gap: supported
     assert list(s.modes[:, CUP]) == [FREE, HELD]
