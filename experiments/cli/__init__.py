@@ -52,8 +52,7 @@ def main(argv: list[str] | None = None) -> int:
              "scenarios (seeds 100-119)", add_fit_arguments, run_fit),
             ("predictability", "which scenarios let anyone say where their objects end, to 5 cm (twins moved "
              "by the tracker's noise at each object's last sighting, its parameters drawn again)",
-             add_predictability_arguments,
-             run_predictability),
+             add_predictability_arguments, run_predictability),
             ("search", "where to look first for a hidden object: ranked places and a look plan",
              add_search_arguments, run_search),
             ("search-eval", "the search experiment: a simulated robot camera looks for hidden objects, by method",

@@ -32,7 +32,7 @@ def add_predictability_arguments(p: argparse.ArgumentParser) -> None:
                    help="'scenario' (default): the physical parameters the scenario randomises are drawn again "
                         "from its ranges (the estimator is told the nominal ones); 'scale': the truth's")
     p.add_argument("--param-scale", type=float, default=d.param_scale,
-                   help=f"twins' other physical parameters x U(1 - s, 1 + s) (default {d.param_scale:g})")
+                   help=f"twins' physical parameters x U(1 - s, 1 + s) from the start (default {d.param_scale:g})")
     p.add_argument("--threshold", type=float, default=d.threshold,
                    help=f"agreement below which a scenario is unpredictable to 5 cm (default {d.threshold:g})")
     p.add_argument("--workers", type=int, default=1, help="processes (default 1); results do not depend on it")
@@ -48,8 +48,7 @@ def run_predictability(args) -> int:
     from experiments.scenarios import resolve_scenarios
 
     config = TwinConfig(twins=args.twins, at=args.at, position_std=args.position_std, params=args.params,
-                        param_scale=args.param_scale,
-                        threshold=args.threshold)
+                        param_scale=args.param_scale, threshold=args.threshold)
     if args.seeds < 1 or args.workers < 1:
         raise ValueError(f"--seeds and --workers must be >= 1, got {args.seeds}, {args.workers}")
     trials = []

@@ -16,15 +16,16 @@ again as ``twins`` *twins*, each differing from the truth by what the robot coul
 * ``at="start"``: each dynamic object starts moved horizontally (:func:`~experiments.simulation.variants.twin_variant`):
   a test of chaos (with ``position_std`` 1 mm: does a millimetre change the outcome?).
 
-``position_std`` (m), when given, replaces both noises. The physical parameters: with
-``params="scenario"`` (default) those the scenario randomises (masses, frictions, restitutions) are
-drawn again from its ranges (:func:`~experiments.simulation.variants.draw_parameters`) and an object
-takes them at its last sighting (with ``at="start"``, at the start): the estimator is told the scenario's nominal values, not the seed's, and what it saw
-of an object's motion before is the truth's (it may have learnt something of them from it, which
-this ignores: agreement is then a lower bound); with ``params="scale"`` they stay the truth's. ``param_scale`` multiplies each of the
-other parameters the variant sets (all of them with ``"scale"``) by a uniform factor in
-``[1 - param_scale, 1 + param_scale]`` (``params="scale"`` with ``at="start"`` is a test of chaos:
-nothing unknown but a millimetre and a percent). A twin
+``position_std`` (m), when given, replaces both noises. ``param_scale`` multiplies each physical
+parameter the variant sets by a uniform factor in ``[1 - param_scale, 1 + param_scale]`` from the
+start. With ``params="scenario"`` (default) those the scenario randomises (masses, frictions,
+restitutions) are then drawn again from its ranges
+(:func:`~experiments.simulation.variants.draw_parameters`), and an object takes them at its last
+sighting (with ``at="start"``, at the start): the estimator is told the scenario's nominal values,
+not the seed's, and what it saw of an object's motion before is the truth's (it may have learnt
+something of them from it, which this ignores: agreement is then a lower bound). With
+``params="scale"`` they stay the truth's (``at="start"`` then tests chaos: nothing unknown but a
+millimetre and a percent). A twin
 *agrees* on an object when its final position is within
 :data:`~experiments.evaluation.metrics.SUCCESS_DISTANCE` of the truth's and its final support is one of
 the truth's (:func:`~experiments.evaluation.metrics.truth_supports`). The *agreement* of a trial is the
@@ -78,9 +79,9 @@ class TwinConfig:
       scenario's tracker noise (``perception.position_std`` for a free object, ``perception.hand_std``
       for one in the hand).
     * ``params``: ``"scenario"`` (default): the parameters the scenario randomises are drawn again
-      from its ranges; ``"scale"``: they stay the truth's.
-    * ``param_scale``: each other physical parameter the variant sets is multiplied by a uniform
-      factor in ``[1 - param_scale, 1 + param_scale]`` (default 0.01).
+      from its ranges, taken at each object's last sighting; ``"scale"``: they stay the truth's.
+    * ``param_scale``: each physical parameter the variant sets is multiplied by a uniform factor in
+      ``[1 - param_scale, 1 + param_scale]`` from the start (default 0.01).
     * ``threshold``: a scenario whose mean agreement is below this is unpredictable to 5 cm (default
       0.85, the issue's floor on any one scenario's success).
     """
