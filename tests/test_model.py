@@ -328,9 +328,10 @@ def test_release_on_loss_and_later_releases():
 
 
 def _cup_held_seen_still(model, st, z, cup_boxes):
-    """The cup seen still at height ``z`` (m) for 0.4 s and HELD in both particles, whose physics put
-    it in the boxes ``cup_boxes (2, 2, 3)`` (the table, crate and ball where ``scene()`` has them):
-    ``(t, perceived, move, modes, out)`` for :meth:`SceneModel.settle`."""
+    """The cup seen still at height ``z`` (m) for 0.4 s, and the update's move; for
+    :meth:`SceneModel.settle`, the cup HELD in both particles, whose physics put it in the boxes
+    ``cup_boxes (2, 2, 3)`` (the table, crate and ball where ``scene()`` has them):
+    ``(t, perceived, move, modes, out)``."""
     for i in range(13):  # 0.4 s still
         model.memory.record(Frame(i / 30, {"cup": Detection(np.array([0.3, 0.3, z]))}))
     t = 12 / 30
@@ -409,11 +410,7 @@ def test_an_object_physics_let_diverge_is_weighed_at_its_divergence_even_when_pu
     override does not make particle 1's world look right."""
     model = make(EstimatorConfig(particles=2, noise=NoiseConfig()))
     st = model.initial_state(np.random.default_rng(0))
-    for i in range(13):  # 0.4 s at rest on the table
-        model.memory.record(Frame(i / 30, {"cup": Detection(np.array([0.3, 0.3, 0.14]))}))
-    t = 12 / 30
-    perceived = model.memory.perceived(t)
-    mv = model.move(st, Frame(t), perceived, perceived, 0.0, np.random.default_rng(0))
+    t, perceived, mv, _, _ = _cup_held_seen_still(model, st, 0.14, np.zeros((2, 2, 3)))
     assert mv.check[:, CUP].all() and np.all(mv.modes[:, CUP] == FREE)
     poses = st.poses.copy()
     poses[:, CUP, :3] = [0.3, 0.3, 0.14]  # both end on the detection

@@ -82,17 +82,9 @@ def sample_variant(scenario: Scenario, seed: int) -> Variant:
             factor = float(rng.uniform(*r.size))
             spec = _resize(spec, factor)
             rec["size_factor"] = factor
-        if r.mass is not None:
-            factor = float(rng.uniform(*r.mass))
-            base = spec.mass if spec.mass is not None else DEFAULT_PRIMITIVE_MASS
-            spec = replace(spec, mass=base * factor)
-            rec["mass"] = spec.mass
-        for key in ("friction", "rolling_friction", "spinning_friction", "restitution"):
-            lo_hi = getattr(r, key)
-            if lo_hi is not None:
-                value = float(rng.uniform(*lo_hi))
-                spec = replace(spec, **{key: value})
-                rec[key] = value
+        physics = _draw_physics(r, spec.mass, rng)
+        spec = replace(spec, **physics)
+        rec.update(physics)
         objects[i] = spec
         sampled_objects[spec.id] = rec
     script: tuple[Waypoint, ...] = ()
@@ -169,18 +161,20 @@ def draw_parameters(variant: Variant, rng: np.random.Generator) -> dict[str, dic
     (:mod:`experiments.evaluation.predictability`)."""
     rand = {r.id: r for r in variant.scenario.randomize.objects}
     nominal = {o.id: o for o in variant.scenario.scene.objects}
-    out: dict[str, dict[str, float]] = {}
-    for spec in variant.scene.objects:
-        r = rand.get(spec.id)
-        if r is None or spec.static:
-            continue
-        values: dict[str, float] = {}
-        if r.mass is not None:
-            base = nominal[spec.id].mass
-            values["mass"] = (base if base is not None else DEFAULT_PRIMITIVE_MASS) * float(rng.uniform(*r.mass))
-        for key in ("friction", "rolling_friction", "spinning_friction", "restitution"):
-            lo_hi = getattr(r, key)
-            if lo_hi is not None:
-                values[key] = float(rng.uniform(*lo_hi))
-        out[spec.id] = values
+    return {spec.id: _draw_physics(rand[spec.id], nominal[spec.id].mass, rng)
+            for spec in variant.scene.objects if spec.id in rand and not spec.static}
+
+
+def _draw_physics(r, mass: float | None, rng: np.random.Generator) -> dict[str, float]:
+    """The physical parameters a ``randomize`` entry ``r`` draws, in this order: ``mass`` (kg, ``mass``
+    or the primitive default times a factor in the entry's range), then each of friction, rolling
+    and spinning friction and restitution it gives a range for, uniformly in it."""
+    out: dict[str, float] = {}
+    if r.mass is not None:
+        factor = float(rng.uniform(*r.mass))
+        out["mass"] = (mass if mass is not None else DEFAULT_PRIMITIVE_MASS) * factor
+    for key in ("friction", "rolling_friction", "spinning_friction", "restitution"):
+        lo_hi = getattr(r, key)
+        if lo_hi is not None:
+            out[key] = float(rng.uniform(*lo_hi))
     return out
