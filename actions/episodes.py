@@ -21,7 +21,10 @@ person did:
   (:func:`~actions.push.end_codes`), and the end of a silent episode is no event;
 * an object free at the start of an update that physics switched to HELD and the Release rule let
   go in the same update (it diverged from its simulation because it fell: a ball rolling off an
-  edge) was never held: neither a Pick nor a Release.
+  edge) was never held: neither a Pick nor a Release;
+* a held object let fall as it rolled off its support's edge (``rolled_off``: seen rolling along
+  it, no hand near) had left the hand on the support: its episode was a push, a Push at the Pick's
+  time if it was never lifted (else the Release stands).
 
 Arrays are ``(..., M)`` (one scene or ``(K, M)`` particles); heights in metres, times in seconds.
 """
@@ -32,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .modes import HELD, NO_EVENT, PICK, PLACE, PUSH, RELEASE, merge_events, switch_events
-from .push import LET_GO_T, PICK_T, REF_Z, SMOOTH_Z, end_codes, end_holds, track_holds, unrested_picks
+from .push import LET_GO_T, PICK_T, REF_Z, SMOOTH_Z, end_codes, end_holds, lifted, track_holds, unrested_picks
 
 
 @dataclass(frozen=True)
@@ -81,7 +84,7 @@ def update_events(holds: np.ndarray, acted_on: np.ndarray, carried: np.ndarray, 
                   modes_after: np.ndarray, release_codes: np.ndarray, supported: np.ndarray, resting: np.ndarray,
                   start_z: np.ndarray, z: np.ndarray, seen_z: np.ndarray, pick_t: np.ndarray, t: float,
                   rule: EpisodeRule = EpisodeRule(), let_go_t: float | None = None,
-                  release_t: np.ndarray | None = None) -> UpdateEvents:
+                  release_t: np.ndarray | None = None, rolled_off: np.ndarray | None = None) -> UpdateEvents:
     """The events of one update at time ``t`` (see the module docstring).
 
     Args:
@@ -102,8 +105,11 @@ def update_events(holds: np.ndarray, acted_on: np.ndarray, carried: np.ndarray, 
             from it.
         release_t: ``(..., M)`` when the Releases (and Places) of ``release_codes`` happened (s; NaN,
             or None for all: at ``t``; an object let go out of view earlier).
+        rolled_off: ``(..., M)`` bool, objects seen rolling along their support at the last update
+            and falling off it in this one with no hand near (None: none).
     """
     held = np.asarray(modes_physics) == HELD
+    record = holds  # before this update (its fall off an edge is no lift)
     let_go = holds[..., LET_GO_T]
     pending = np.isfinite(let_go)
     if not (held.any() or pending.any() or np.any(release_codes)):  # nothing held, let go or picked
@@ -131,6 +137,11 @@ def update_events(holds: np.ndarray, acted_on: np.ndarray, carried: np.ndarray, 
     holds = track_holds(holds, held, resting, supported, start_z, z, picks == PICK, acted_on | carried, pick_t,
                         rule.smoothing)
     codes, push_t = end_codes(codes, holds, rule.lift)
+    if rolled_off is not None:  # let fall off the edge it rolled to: pushed there, not dropped
+        edge = (np.asarray(rolled_off, dtype=bool) & (puts == RELEASE) & (codes == RELEASE)
+                & ~lifted(record, rule.lift) & np.isfinite(record[..., PICK_T]))
+        codes = np.where(edge, PUSH, codes).astype(codes.dtype)
+        push_t = np.where(edge, record[..., PICK_T], push_t)
     times = np.where(codes == PICK, pick_t, np.where(codes == PUSH, push_t,
                                                      np.where(confirmed & (codes == ends), let_go, np.nan)))
     if release_t is not None:  # (a let-go behind cover may be a Place: put down back then)

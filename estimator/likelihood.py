@@ -246,6 +246,12 @@ class Evidence:
       them on the perception and held them there), the divergence at that moment (m); NaN elsewhere
       (None: none). They are scored at that distance from their detection, not where they were put:
       the override is a correction, not evidence that the particle was right.
+    * ``fell (M,)`` bool: objects seen rolling along at the previous update and falling off their
+      support in this one (:class:`~estimator.step.Fall`); they are scored on their horizontal
+      position only. A particle's prediction carries it on at its velocity, which knows nothing of
+      when the fall began: up to ``g dt**2 / 2`` (4.9 cm at 10 Hz) of height no particle can explain
+      better than another, and weighed at a detection's few millimetres it would leave one survivor
+      (None: none).
     """
 
     poses: np.ndarray
@@ -268,6 +274,7 @@ class Evidence:
     fused: np.ndarray | None = None
     out_of_reach: np.ndarray | None = None
     diverged: np.ndarray | None = None
+    fell: np.ndarray | None = None
 
 
 LogWeightTerm = Callable[[Evidence], np.ndarray]
@@ -280,7 +287,8 @@ class DetectionTerm:
     uses ``max(default_std, 1e-3)`` m. Objects teleported or fused before physics are scored where
     the particle expected them (``Evidence.predicted``); objects that physics let diverge
     (``Evidence.diverged``) at their divergence from the detection, with the orientation the
-    particle expected (the isotropic position term depends on that distance only)."""
+    particle expected (the isotropic position term depends on that distance only); objects that
+    fell off their support in the update (``Evidence.fell``) on their horizontal position only."""
 
     default_std: float
     orientation_std: float
@@ -303,6 +311,9 @@ class DetectionTerm:
                 src = src.copy()
                 src[..., :3] = np.where(over[..., None], at, src[..., :3])
                 src[..., 3:] = np.where(over[..., None], ev.predicted[:, idx, 3:], src[..., 3:])
+        if ev.fell is not None and np.any(ev.fell[idx]):  # the height: the detection's own
+            src = src.copy()
+            src[..., 2] = np.where(ev.fell[idx][None, :], ev.detected_poses[idx, 2][None, :], src[..., 2])
         std = ev.detection_std[idx]
         std = np.where(np.isfinite(std), std, max(self.default_std, 1e-3))
         return detection_log_likelihood(src, ev.detected_poses[idx], ev.has_orientation[idx], std,

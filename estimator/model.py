@@ -218,8 +218,12 @@ class SceneModel:
                 vel[started] = 0.0
         self.known |= perceived
         left_view = None
-        if cfg.moving_teleports:  # seen moving along at the last update, not now, no tracked hand
-            left_view = perceived & ~detected & rolled_along(mem.previous_tick_velocity()) & ~following
+        if cfg.moving_teleports:  # seen moving along at the last update (its last two detections, or
+            # the line fitted since it started moving: one noisy pair may read a 0.25 m/s roll as
+            # 0.18), not now, no tracked hand
+            along = rolled_along(mem.previous_tick_velocity()) | (np.isfinite(mem.moving_since)
+                                                                   & rolled_along(mem.perc_vel[:, :3]))
+            left_view = perceived & ~detected & along & ~following
         modes, release_codes = self.release(prev_modes, perceived, state.supported, rng, following, left_view)
         cover_t, proposal = let_go_out_of_view(state, poses, vel, modes, release_codes, frame, mem, following,
                                                perceived, detected, cfg.priors, cfg.noise, rng)
@@ -229,6 +233,14 @@ class SceneModel:
             modes[flicked] = FREE
             release_codes[flicked] = PLACE
         proposal = proposal + flick_weight
+        if left_view is not None and np.any(left_view):  # let go as it left view: at the velocity of the
+            # line through its detections since it started moving (one noisy pair is no velocity), with
+            # that velocity's standard error per particle
+            gone = (prev_modes == HELD) & (modes == FREE) & left_view[None, :]
+            idx = np.flatnonzero(gone.any(axis=0))
+            std = mem.velocity_std(cfg.noise.position_std)[idx]
+            drawn = mem.perc_vel[idx, :2][None] + rng.normal(0.0, 1.0, (self.K, len(idx), 2)) * std[None, :, None]
+            vel[:, idx, :2] = np.where(gone[:, idx, None], drawn, vel[:, idx, :2])
         self.roll_released(vel, (prev_modes == HELD) & (modes == FREE) & ~cover, state.supported)
         # at rest in the particle (on a support, slower than rest_speed) before this update
         resting = state.supported & (np.linalg.norm(state.velocities[..., :3], axis=-1)
@@ -404,7 +416,7 @@ class SceneModel:
             supported & (np.linalg.norm(out.velocities[..., :3], axis=-1) < rule.rest_speed), move.poses[..., 2],
             out.poses[..., 2], self._seen_z(t, detected),
             np.where((onset >= t - cfg.event_window) & (onset <= t), onset, t), t, rule, let_go_t=t - hr.place_dwell,
-            release_t=move.cover_t)
+            release_t=move.cover_t, rolled_off=None if move.fall is None else move.fall.mask[None, :])
         velocities = out.velocities
         released = (after_physics == HELD) & (ev.modes == FREE)
         if np.any(released):
@@ -444,7 +456,8 @@ class SceneModel:
                         fell_unseen=(settled.modes == FREE)
                         & (frame.t - move.let_go_unseen < self.config.reasoner.t_perceived - 1e-9),
                         proposal_log_weight=move.proposal_log_weight, fused=move.fused,
-                        out_of_reach=move.out_of_reach, diverged=diverged_by(move, out))
+                        out_of_reach=move.out_of_reach, diverged=diverged_by(move, out),
+                        fell=None if move.fall is None else move.fall.mask)
 
     def _out_of_reach(self, frame: Frame, detected: np.ndarray) -> np.ndarray | None:
         """Dynamic objects ``(M,)`` detected since the last update whose latest detection lies farther
