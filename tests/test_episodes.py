@@ -11,7 +11,7 @@ RULE = EpisodeRule(lift=0.02, smoothing=1.0, wait=0.5)
 
 
 def step(holds, before, physics, after, t, z, seen_z=None, resting=None, supported=None, acted=None,
-         release=None, pick_t=None, carried=None):
+         release=None, pick_t=None, carried=None, rolled_off=None):
     """One update of M objects (lists), everything else defaulted: at rest on a support where free."""
     m = len(before)
     arr = lambda v, d: np.asarray(v if v is not None else d)  # noqa: E731
@@ -20,7 +20,8 @@ def step(holds, before, physics, after, t, z, seen_z=None, resting=None, support
                          np.array(after, np.int8), arr(release, [0] * m).astype(np.int8),
                          arr(supported, [True] * m), arr(resting, [a == F for a in after]), np.array(z, float),
                          np.array(z, float), arr(seen_z, [np.nan] * m).astype(float),
-                         arr(pick_t, [t] * m).astype(float), t, RULE)
+                         arr(pick_t, [t] * m).astype(float), t, RULE,
+                         rolled_off=None if rolled_off is None else np.asarray(rolled_off, bool))
 
 
 def test_a_put_down_waits_for_physics_and_a_drag_is_a_push():
@@ -185,3 +186,19 @@ def test_held_and_let_fall_in_one_update_was_never_held():
     h = step(h, [F, F], [F, H], [F, H], 1.0, [0.70, 0.70], pick_t=[1.0, 0.9]).holds  # object 1 picked
     ev = step(h, [F, H], [H, H], [F, F], 1.1, [0.60, 0.75], supported=[False, False], resting=[False, False])
     assert ev.codes.tolist() == [NO_EVENT, RELEASE] and ev.modes.tolist() == [F, F]
+
+
+def test_a_held_object_let_fall_off_the_edge_it_rolled_to_was_pushed():
+    """Held along the table since a Pick at 0.9 s, objects 0 and 1 fall off its edge (rolled_off),
+    object 2 falls elsewhere: 0 was pushed (a Push at the Pick's time); 1, lifted 5 cm while held,
+    and 2 were dropped (Release). The fall in this update is no lift."""
+    h = empty_holds((3,))
+    h = step(h, [F, F, F], [F, F, F], [F, F, F], 0.1, [0.70] * 3).holds
+    h = step(h, [F, F, F], [H, H, H], [H, H, H], 1.0, [0.70] * 3, pick_t=[0.9] * 3).holds
+    h = step(h, [H, H, H], [H, H, H], [H, H, H], 1.1, [0.705, 0.75, 0.705]).holds
+    fall = dict(supported=[False] * 3, resting=[False] * 3)
+    ev = step(h, [H, H, H], [H, H, H], [F, F, F], 1.2, [0.62, 0.62, 0.62], rolled_off=[True, True, False], **fall)
+    assert ev.codes.tolist() == [PUSH, RELEASE, RELEASE]
+    assert ev.times[0] == 0.9 and np.isnan(ev.times[1:]).all()
+    plain = step(h, [H, H, H], [H, H, H], [F, F, F], 1.2, [0.62, 0.62, 0.62], **fall)
+    assert plain.codes.tolist() == [RELEASE, RELEASE, RELEASE]

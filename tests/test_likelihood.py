@@ -206,6 +206,27 @@ def test_detection_term_scores_an_object_physics_let_diverge_at_its_divergence_n
     assert same[1] == pytest.approx(same[0])  # without the field, the override would look perfect
 
 
+def test_an_object_that_fell_off_its_support_is_weighed_on_its_horizontal_position_only():
+    """Three particles of a ball seen falling: 3 cm low, 3 cm high, and 1 cm off horizontally. Marked
+    as fallen (``fell``), the first two match the detection exactly and the third pays its 1 cm;
+    unmarked, the heights count."""
+    det = np.array([[0.1, 0.2, 0.6, 0.0, 0.0, 0.0, 1.0]])
+    poses = np.broadcast_to(det, (3, 1, 7)).copy()
+    poses[0, 0, 2] -= 0.03
+    poses[1, 0, 2] += 0.03
+    poses[2, 0, 0] += 0.01
+    ev = replace(_evidence(K=3, M=1), poses=poses, predicted=poses.copy(), detected=np.array([True]),
+                 detected_poses=det, has_orientation=np.array([False]), detection_std=np.array([0.01]),
+                 fell=np.array([True]))
+    term = DetectionTerm(default_std=0.01, orientation_std=0.1, outlier_prob=0.0)
+    ll = term(ev)
+    assert ll[0] == pytest.approx(math.log(gauss3(0.0, 0.01)), rel=1e-12) and ll[1] == pytest.approx(ll[0])
+    assert ll[2] == pytest.approx(math.log(gauss3(0.01, 0.01)), rel=1e-12)
+    plain = term(replace(ev, fell=None))
+    assert plain[0] == pytest.approx(math.log(gauss3(0.03, 0.01)), rel=1e-12) and plain[2] == pytest.approx(ll[2])
+    assert term(replace(ev, fell=np.array([False]))) == pytest.approx(plain)
+
+
 def test_terms_are_added_in_order_to_the_previous_log_weights():
     visible = np.array([[1.0, 0.0], [1.0, 1.0]])
     ev = replace(_evidence(), visible=visible, queried=np.array([True, True]), perceived=np.array([True, False]),
