@@ -301,7 +301,8 @@ class SceneModel:
         positions = mem.last_pose[:, :3] if start is None else start
         return place(poses, vel, idx, newly_known, is_in, positions, mem.last_pose[:, 3:], mem.last_has_orientation,
                      mem.perc_vel, self.config.noise, rng, spinning, held, self.ball_radius,
-                     mem.velocity_std(self.config.noise.position_std))
+                     mem.velocity_std(self.config.noise.position_std),
+                     held if self.config.moving_teleports else None)
 
     def fuse_resting(self, poses: np.ndarray, log_weights: np.ndarray, modes: np.ndarray, resting: np.ndarray,
                      seen: np.ndarray, rng: np.random.Generator) -> np.ndarray:

@@ -53,7 +53,7 @@ def place(poses: np.ndarray, vel: np.ndarray, idx: np.ndarray, newly_known: np.n
           positions: np.ndarray, orientations: np.ndarray, has_orientation: np.ndarray, perc_vel: np.ndarray,
           noise: NoiseConfig, rng: np.random.Generator, spinning: np.ndarray | None = None,
           held: np.ndarray | None = None, ball_radius: np.ndarray | None = None,
-          vel_std: np.ndarray | None = None) -> np.ndarray:
+          vel_std: np.ndarray | None = None, gliding: np.ndarray | None = None) -> np.ndarray:
     """Alg. 2, in place on ``poses (K, M, 7)`` and ``vel (K, M, 6)``: put objects ``idx`` at
     ``positions (M, 3)`` (their perception, or where it was at the update's start) plus perception
     noise per particle (``noise.position_std``; none where ``held (K, M)``: a held object goes to its
@@ -61,10 +61,11 @@ def place(poses: np.ndarray, vel: np.ndarray, idx: np.ndarray, newly_known: np.n
     where ``has_orientation (M,)`` (noised by a quarter of ``noise.orientation_std``), with the
     perceived linear velocity ``perc_vel (M, 3+)``. The contents of each (``is_in (K, M, M)`` at the
     last update; not for ``newly_known (M,)`` objects) are carried rigidly, rotation included, and
-    given the container's velocity, except in particles where the container is ``held``: it glides on
-    to its target and what it carries keeps its own velocity (a ball in a box the hand starts moving
-    lags and rolls to the back wall; given the box's velocity at every teleport, it would ride in
-    the box as if glued). Objects ``spinning (M,)`` (teleported in motion) get, per particle,
+    given the container's velocity, except in particles where the container is ``gliding (K, M)``
+    (held, outside paper mode): it glides on to its target and what it carries keeps its own
+    velocity (a ball in a box the hand starts moving lags and rolls to the back wall; given the
+    box's velocity at every teleport, it would ride in the box as if glued). Paper mode puts a
+    container and its contents at rest. Objects ``spinning (M,)`` (teleported in motion) get, per particle,
     horizontal velocity noise of standard deviation ``vel_std (M,)`` (m/s; the perceived velocity's
     standard error: a hidden object goes on with what its last detections allow, not with one
     velocity in every particle) and keep each particle's angular velocity, balls among them
@@ -93,7 +94,7 @@ def place(poses: np.ndarray, vel: np.ndarray, idx: np.ndarray, newly_known: np.n
             children = [a for a in np.flatnonzero(is_in[k, :, b]) if a not in moved]
             if children:
                 poses[k, children] = carry_pose(poses[k, children], poses[k, b], new[k, j])
-                if held is None or not held[k, b]:  # a held container glides on: what it carries
+                if gliding is None or not gliding[k, b]:  # a held container glides on: what it carries
                     vel[k, children, :3] = perc_vel[b, :3]  # keeps its own velocity (it lags, rolls)
     poses[:, idx] = new
     spin = vel[:, idx, 3:].copy()

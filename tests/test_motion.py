@@ -50,7 +50,8 @@ def test_a_teleported_container_carries_its_contents_and_a_held_one_leaves_them_
     """A box (object 0) with a ball in it (object 1) is teleported 5 cm along x at 0.3 m/s, in
     particle 0 free (the ball takes the box's velocity: they were put there together) and in
     particle 1 held (it glides on to its target: the ball keeps its own velocity, lags and rolls as
-    the contact solver says). In both the ball moves rigidly with the box."""
+    the contact solver says; not in paper mode, which passes no ``gliding``). In both the ball
+    moves rigidly with the box."""
     K, M = 2, 2
     poses = np.zeros((K, M, 7))
     poses[..., 6] = 1.0
@@ -63,9 +64,13 @@ def test_a_teleported_container_carries_its_contents_and_a_held_one_leaves_them_
     positions = np.array([[0.05, 0.0, 0.0], [0.0, 0.0, 0.0]])
     place(poses, vel, np.array([0]), np.zeros(M, bool), is_in, positions, np.tile([0.0, 0.0, 0.0, 1.0], (M, 1)),
           np.zeros(M, bool), np.array([[0.3, 0.0, 0.0], [0.0, 0.0, 0.0]]), NoiseConfig.off(), np.random.default_rng(0),
-          held=held)
+          held=held, gliding=held)
     assert np.allclose(poses[:, 1, :3], [0.07, 0.0, 0.03])
     assert np.allclose(vel[0, 1, :3], [0.3, 0.0, 0.0]) and np.allclose(vel[1, 1, :3], [-0.1, 0.05, 0.0])
+    vel[:, 1, :3] = [-0.1, 0.05, 0.0]
+    place(poses, vel, np.array([0]), np.zeros(M, bool), is_in, positions, np.tile([0.0, 0.0, 0.0, 1.0], (M, 1)),
+          np.zeros(M, bool), np.zeros((M, 3)), NoiseConfig.off(), np.random.default_rng(0), held=held)
+    assert np.all(vel[:, 1, :3] == 0.0)  # paper mode: teleported at rest, contents too
 
 
 def test_objects_teleported_in_motion_get_their_velocity_error_per_particle():
