@@ -247,11 +247,13 @@ class Evidence:
       (None: none). They are scored at that distance from their detection, not where they were put:
       the override is a correction, not evidence that the particle was right.
     * ``fell (M,)`` bool: objects seen rolling along at the previous update and falling off their
-      support in this one (:class:`~estimator.step.Fall`); they are scored on their horizontal
-      position only. A particle's prediction carries it on at its velocity, which knows nothing of
-      when the fall began: up to ``g dt**2 / 2`` (4.9 cm at 10 Hz) of height no particle can explain
-      better than another, and weighed at a detection's few millimetres it would leave one survivor
-      (None: none).
+      support in this one (:class:`~estimator.step.Fall`); in the particles where they are free after
+      the update (free before, or let go by the Release rule) they are scored on their horizontal
+      position only. A particle's prediction carries the object on at its velocity, which knows
+      nothing of when the fall began: up to ``g dt**2 / 2`` (4.9 cm at 10 Hz) of height no particle
+      can explain better than another, and weighed at a detection's few millimetres it would leave
+      one survivor. A copy still held is weighed on its height: on a lagging (filtered) stream the
+      Release rule may not let it go, and held in the air it must not be spared (None: none).
     """
 
     poses: np.ndarray
@@ -288,7 +290,8 @@ class DetectionTerm:
     the particle expected them (``Evidence.predicted``); objects that physics let diverge
     (``Evidence.diverged``) at their divergence from the detection, with the orientation the
     particle expected (the isotropic position term depends on that distance only); objects that
-    fell off their support in the update (``Evidence.fell``) on their horizontal position only."""
+    fell off their support in the update (``Evidence.fell``), and are free after it, on their
+    horizontal position only."""
 
     default_std: float
     orientation_std: float
@@ -311,9 +314,10 @@ class DetectionTerm:
                 src = src.copy()
                 src[..., :3] = np.where(over[..., None], at, src[..., :3])
                 src[..., 3:] = np.where(over[..., None], ev.predicted[:, idx, 3:], src[..., 3:])
-        if ev.fell is not None and np.any(ev.fell[idx]):  # the height: the detection's own
+        if ev.fell is not None and np.any(ev.fell[idx]):  # the height of a free one: the detection's own
+            flat = ev.fell[idx][None, :] & (ev.modes[:, idx] != HELD)
             src = src.copy()
-            src[..., 2] = np.where(ev.fell[idx][None, :], ev.detected_poses[idx, 2][None, :], src[..., 2])
+            src[..., 2] = np.where(flat, ev.detected_poses[idx, 2][None, :], src[..., 2])
         std = ev.detection_std[idx]
         std = np.where(np.isfinite(std), std, max(self.default_std, 1e-3))
         return detection_log_likelihood(src, ev.detected_poses[idx], ev.has_orientation[idx], std,

@@ -207,9 +207,9 @@ def test_detection_term_scores_an_object_physics_let_diverge_at_its_divergence_n
 
 
 def test_an_object_that_fell_off_its_support_is_weighed_on_its_horizontal_position_only():
-    """Three particles of a ball seen falling: 3 cm low, 3 cm high, and 1 cm off horizontally. Marked
-    as fallen (``fell``), the first two match the detection exactly and the third pays its 1 cm;
-    unmarked, the heights count."""
+    """Three particles of a ball seen falling, free after the update: 3 cm low, 3 cm high, and 1 cm
+    off horizontally. Marked as fallen (``fell``), the first two match the detection exactly and the
+    third pays its 1 cm; unmarked, or still held in a particle (held in the air), the heights count."""
     det = np.array([[0.1, 0.2, 0.6, 0.0, 0.0, 0.0, 1.0]])
     poses = np.broadcast_to(det, (3, 1, 7)).copy()
     poses[0, 0, 2] -= 0.03
@@ -225,6 +225,8 @@ def test_an_object_that_fell_off_its_support_is_weighed_on_its_horizontal_positi
     plain = term(replace(ev, fell=None))
     assert plain[0] == pytest.approx(math.log(gauss3(0.03, 0.01)), rel=1e-12) and plain[2] == pytest.approx(ll[2])
     assert term(replace(ev, fell=np.array([False]))) == pytest.approx(plain)
+    held = term(replace(ev, modes=np.array([[FREE], [HELD], [FREE]], np.int8)))
+    assert held[0] == pytest.approx(ll[0]) and held[1] == pytest.approx(plain[1])
 
 
 def test_terms_are_added_in_order_to_the_previous_log_weights():
