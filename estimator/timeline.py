@@ -64,7 +64,9 @@ class Timeline:
 
         An event enters when its probability reaches ``threshold``; while it stays above, later updates
         raise its recorded probability (and refine its time) instead of adding a new event, unless
-        the switch time moved on by more than ``merge`` seconds (a new action of the same kind). A
+        the switch time moved on by more than ``merge`` seconds (a new action of the same kind). One
+        that drops below and comes back at a time within ``merge`` of an event of the same action
+        and subject already recorded is that event (its probability raised), not a second one. A
         new Push takes the place of the Pick it revises (:meth:`_revised_pick`); that Pick does not
         enter again.
         """
@@ -83,6 +85,12 @@ class Timeline:
                 continue
             if e.action == "Pick" and any(abs(e.t - r) <= self.merge for r in self._revised.get(e.subject, ())):
                 continue  # a Pick already revised into a Push
+            same = self._recorded(e)
+            if same is not None:  # back in the window (a later let-go decided in some particles): the
+                if e.p > self.events[same].p:  # same action, already recorded, not a second one
+                    self.events[same] = EventRecord(self.events[same].t, e.action, e.subject, e.p)
+                self._open_events[key] = same
+                continue
             j = self._revised_pick(e) if e.action == "Push" else None
             if j is None:
                 self.events.append(e)
@@ -97,6 +105,14 @@ class Timeline:
         for key in [k for k in self._open_events if k not in seen]:
             del self._open_events[key]
         return new
+
+    def _recorded(self, event: EventRecord) -> int | None:
+        """Index of an event in :attr:`events` of the same action and subject as ``event`` whose time is
+        within ``merge`` seconds of its time (None: none)."""
+        for i, e in enumerate(self.events):
+            if e.action == event.action and e.subject == event.subject and abs(e.t - event.t) <= self.merge:
+                return i
+        return None
 
     def _revised_pick(self, push: EventRecord) -> int | None:
         """Index of the Pick in :attr:`events` that ``push`` revises: the one of the same subject whose
