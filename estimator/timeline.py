@@ -106,22 +106,24 @@ class Timeline:
             del self._open_events[key]
         return new
 
-    def _recorded(self, event: EventRecord) -> int | None:
-        """Index of an event in :attr:`events` of the same action and subject as ``event`` whose time is
-        within ``merge`` seconds of its time (None: none)."""
+    def _nearest(self, action: str, subject: str, t: float) -> int | None:
+        """Index of the event in :attr:`events` of ``action`` and ``subject`` whose time is nearest
+        ``t`` (s), within ``merge`` seconds (None: none)."""
+        best, best_dt = None, self.merge + 1e-9
         for i, e in enumerate(self.events):
-            if e.action == event.action and e.subject == event.subject and abs(e.t - event.t) <= self.merge:
-                return i
-        return None
+            if e.action == action and e.subject == subject and abs(e.t - t) <= best_dt:
+                best, best_dt = i, abs(e.t - t)
+        return best
+
+    def _recorded(self, event: EventRecord) -> int | None:
+        """Index of the recorded event of ``event``'s action and subject nearest its time, within
+        ``merge`` seconds (None: none)."""
+        return self._nearest(event.action, event.subject, event.t)
 
     def _revised_pick(self, push: EventRecord) -> int | None:
         """Index of the Pick in :attr:`events` that ``push`` revises: the one of the same subject whose
         time is nearest the Push's, within ``merge`` seconds (None: none)."""
-        best, best_dt = None, self.merge + 1e-9
-        for i, e in enumerate(self.events):
-            if e.action == "Pick" and e.subject == push.subject and abs(e.t - push.t) <= best_dt:
-                best, best_dt = i, abs(e.t - push.t)
-        return best
+        return self._nearest("Pick", push.subject, push.t)
 
     @staticmethod
     def _fact(key, f: _OpenFact, end: float | None) -> dict:
