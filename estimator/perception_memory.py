@@ -225,11 +225,13 @@ class PerceptionMemory:
         known) moves when the detection is :data:`MOTION_ONSET` away (``moving_since`` = the previous
         detection's time); a moving one is still again once its detections over a ``place_dwell``
         since it started moving stayed within :data:`MOTION_ONSET` (checked on the history before
-        this detection: it restarts the average here). After a loss (``gap`` over
+        this detection, and this detection against the one a ``place_dwell`` before it: a box a hand
+        starts moving slowly after a pause is not still; still again, it restarts the average here). After a loss (``gap`` over
         ``t_perceived``) nothing is known: the object starts still where seen."""
         still, since, last = self.still_position[m], self.moving_since[m], self.last_seen[m]
         if not gap <= self.reasoner.t_perceived or np.isnan(still[0]) or (
-                last - since >= self.reasoner.place_dwell and self._rested(m, last, MOTION_ONSET)):
+                last - since >= self.reasoner.place_dwell and self._rested(m, last, MOTION_ONSET)
+                and self._stayed(m, last, position)):
             self.still_position[m], self.moving_since[m], self._still_n[m] = position, np.nan, 1
         elif np.isnan(self.moving_since[m]):
             if math.dist(still, position) > MOTION_ONSET:
@@ -427,6 +429,14 @@ class PerceptionMemory:
             if recent:
                 out[m] = np.mean(recent, axis=0)
         return out
+
+    def _stayed(self, m: int, t: float, position: np.ndarray) -> bool:
+        """Whether object m's new detection at ``position`` (m) is within :data:`MOTION_ONSET` of its
+        stored detection ``place_dwell`` before ``t`` (s, its latest one; True when there is none): a
+        box that a hand starts moving slowly looks still over the detections before, and is not."""
+        horizon = t - self.reasoner.place_dwell + 1e-9
+        old = next((h for h in reversed(self._history[m]) if h[0] <= horizon), None)
+        return old is None or math.dist(old[1], position) <= MOTION_ONSET
 
     def _rested(self, m: int, t: float, distance: float | None = None) -> bool:
         """:meth:`at_rest` for object m at time ``t`` (s), on the detections stored so far; with
