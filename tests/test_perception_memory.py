@@ -252,6 +252,31 @@ def test_motion_onset_is_the_last_still_detection_and_ends_when_still_again():
     assert np.isnan(mem.moving_since[CUP]) and np.allclose(mem.still_position[CUP], [0.0, 0.0, 0.14])
 
 
+def test_an_object_that_starts_moving_slowly_after_a_pause_is_not_still_again():
+    """A cup is lifted slowly (an onset), held, then a hand starts sliding it: over the place_dwell
+    before the new detection it moved under MOTION_ONSET (it looks still), but the new detection is
+    farther than MOTION_ONSET from the one a place_dwell before it: the onset stays. Held still
+    instead, it is still again."""
+    from estimator.perception_memory import MOTION_ONSET
+
+    for slides in (True, False):
+        mem = memory()
+        t = _frames(mem, [[0.3, 0.3, 0.14]] * 15)
+        lift = [0.145, 0.15, 0.155, 0.16]  # 5 mm a frame: the onset at the third
+        dx = [0.0] * 6 + [0.003, 0.010, 0.022] if slides else [0.0] * 9  # frames 5 to 13
+        path = [[0.3, 0.3, z] for z in lift] + [[0.3 + x, 0.3, 0.16] for x in dx]
+        for k, p in enumerate(path):
+            mem.record(Frame(t + (k + 1) / 30, {"cup": det(p)}))
+            if k == 3:
+                onset = mem.moving_since[CUP]
+                assert np.isfinite(onset)
+        if slides:
+            assert math.dist(path[-1], path[2]) > MOTION_ONSET > math.dist(path[-2], path[2])
+            assert mem.moving_since[CUP] == onset
+        else:
+            assert np.isnan(mem.moving_since[CUP])
+
+
 def test_shifted_means_moved_along_the_support_not_a_spike():
     mem = memory()
     t = _frames(mem, [[0.3, 0.3, 0.14]] * 15)
