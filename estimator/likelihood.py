@@ -304,19 +304,17 @@ class DetectionTerm:
         expected = np.broadcast_to(ev.teleported[idx][None, :], (len(ev.poses), len(idx)))
         if ev.fused is not None:
             expected = expected | ev.fused[:, idx]
-        src = np.where(expected[..., None], ev.predicted[:, idx], ev.poses[:, idx])
+        src = np.where(expected[..., None], ev.predicted[:, idx], ev.poses[:, idx])  # a new array
         if ev.diverged is not None:
             d = ev.diverged[:, idx]
             over = np.isfinite(d)
             if np.any(over):  # a point at the divergence from the detection, along x
                 at = np.broadcast_to(ev.detected_poses[idx, :3], d.shape + (3,)).copy()
                 at[..., 0] += np.where(over, d, 0.0)
-                src = src.copy()
                 src[..., :3] = np.where(over[..., None], at, src[..., :3])
                 src[..., 3:] = np.where(over[..., None], ev.predicted[:, idx, 3:], src[..., 3:])
         if ev.fell is not None and np.any(ev.fell[idx]):  # the height of a free one: the detection's own
             flat = ev.fell[idx][None, :] & (ev.modes[:, idx] != HELD)
-            src = src.copy()
             src[..., 2] = np.where(flat, ev.detected_poses[idx, 2][None, :], src[..., 2])
         std = ev.detection_std[idx]
         std = np.where(np.isfinite(std), std, max(self.default_std, 1e-3))

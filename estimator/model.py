@@ -34,7 +34,7 @@ from .likelihood import (DetectionTerm, Evidence, HandReachTerm, LogWeightTerm, 
                          add_terms,
                          exploded_log_likelihood)
 from .motion import (MOVING_MAX_VERTICAL_SPEED, let_go_moving, out_of_reach, place, roll_released, rolled_along,
-                     teleport_kinds)
+                     teleport_kinds, velocity_draws)
 from .observations import Frame
 from .params import param_bounds, shrink_params
 from .perception_memory import HAND_RADIUS, PerceptionMemory
@@ -233,15 +233,15 @@ class SceneModel:
             modes[flicked] = FREE
             release_codes[flicked] = PLACE
         proposal = proposal + flick_weight
+        let_go_now = (prev_modes == HELD) & (modes == FREE)
         if left_view is not None and np.any(left_view):  # let go as it left view: at the velocity of the
             # line through its detections since it started moving (one noisy pair is no velocity), with
             # that velocity's standard error per particle
-            gone = (prev_modes == HELD) & (modes == FREE) & left_view[None, :]
+            gone = let_go_now & left_view[None, :]
             idx = np.flatnonzero(gone.any(axis=0))
-            std = mem.velocity_std(cfg.noise.position_std)[idx]
-            drawn = mem.perc_vel[idx, :2][None] + rng.normal(0.0, 1.0, (self.K, len(idx), 2)) * std[None, :, None]
+            drawn = velocity_draws(mem.perc_vel, mem.velocity_std(cfg.noise.position_std), idx, self.K, rng)
             vel[:, idx, :2] = np.where(gone[:, idx, None], drawn, vel[:, idx, :2])
-        self.roll_released(vel, (prev_modes == HELD) & (modes == FREE) & ~cover, state.supported)
+        self.roll_released(vel, let_go_now & ~cover, state.supported)
         # at rest in the particle (on a support, slower than rest_speed) before this update
         resting = state.supported & (np.linalg.norm(state.velocities[..., :3], axis=-1)
                                      < self.config.noise.rest_speed)
@@ -388,7 +388,7 @@ class SceneModel:
         falling = (vel[:, 2] < -hr.release_speed)[None, :] | (
             ((accel < -hr.release_accel) & (vel[:, 2] < -RELEASE_DOWN_SPEED))[None, :] & ~supported)
         held_seen = (new_modes == HELD) & perceived[None, :]
-        after_physics = new_modes.copy()
+        after_physics = out.modes
         put_down = held_seen & rested[None, :] & supported
         if np.any(put_down) and self.episode_rule.lift < hr.place_gap:
             # held still more than `lift` above its support (a box paused 2 cm up): let go, it would

@@ -103,11 +103,20 @@ def place(poses: np.ndarray, vel: np.ndarray, idx: np.ndarray, newly_known: np.n
     if spinning is not None:
         keep = spinning[idx]
         if vel_std is not None and np.any(vel_std[idx[keep]] > 0):
-            vel[:, idx[keep], :2] += rng.normal(0.0, 1.0, (K, int(keep.sum()), 2)) * vel_std[idx[keep], None]
+            vel[:, idx[keep], :2] = velocity_draws(perc_vel, vel_std, idx[keep], K, rng)
         vel[:, idx[keep], 3:] = spin[:, keep]
         if ball_radius is not None:
             rolling_spin(vel, idx[keep], ball_radius)
     return drawn
+
+
+def velocity_draws(perc_vel: np.ndarray, vel_std: np.ndarray, idx: np.ndarray, K: int,
+                   rng: np.random.Generator) -> np.ndarray:
+    """Horizontal velocities ``(K, len(idx), 2)`` (m/s) of objects ``idx`` per particle: their
+    perceived velocity ``perc_vel (M, 2+)`` plus normal noise of its standard error ``vel_std (M,)``
+    (m/s) per axis. One standard normal draw per entry."""
+    idx = np.asarray(idx, dtype=int)
+    return perc_vel[idx, :2][None] + rng.normal(0.0, 1.0, (K, len(idx), 2)) * vel_std[idx][None, :, None]
 
 
 def rolling_spin(vel: np.ndarray, idx: np.ndarray, ball_radius: np.ndarray, rows: np.ndarray | None = None) -> None:

@@ -434,9 +434,14 @@ class PerceptionMemory:
         """Whether object m's new detection at ``position`` (m) is within :data:`MOTION_ONSET` of its
         stored detection ``place_dwell`` before ``t`` (s, its latest one; True when there is none): a
         box that a hand starts moving slowly looks still over the detections before, and is not."""
-        horizon = t - self.reasoner.place_dwell + 1e-9
-        old = next((h for h in reversed(self._history[m]) if h[0] <= horizon), None)
+        old = self._dwell_back(m, t)
         return old is None or math.dist(old[1], position) <= MOTION_ONSET
+
+    def _dwell_back(self, m: int, t: float) -> tuple | None:
+        """Object m's latest stored detection ``(t, position, orientation)`` at least ``place_dwell``
+        before ``t`` (s); None when there is none."""
+        horizon = t - self.reasoner.place_dwell + 1e-9
+        return next((h for h in reversed(self._history[m]) if h[0] <= horizon), None)
 
     def _rested(self, m: int, t: float, distance: float | None = None) -> bool:
         """:meth:`at_rest` for object m at time ``t`` (s), on the detections stored so far; with
@@ -445,8 +450,7 @@ class PerceptionMemory:
         hist = self._history[m]
         if not hist or t - hist[-1][0] > hr.place_dwell:
             return False
-        horizon = t - hr.place_dwell + 1e-9
-        old = next((h for h in reversed(hist) if h[0] <= horizon), None)  # the latest one old enough
+        old = self._dwell_back(m, t)  # the latest one old enough
         if old is None:
             return False
         t0, p0, q0 = old

@@ -85,7 +85,7 @@ class Timeline:
                 continue
             if e.action == "Pick" and any(abs(e.t - r) <= self.merge for r in self._revised.get(e.subject, ())):
                 continue  # a Pick already revised into a Push
-            same = self._recorded(e)
+            same = self._nearest(e.action, e.subject, e.t)
             if same is not None:  # back in the window (a later let-go decided in some particles): the
                 if e.p > self.events[same].p:  # same action, already recorded, not a second one
                     self.events[same] = EventRecord(self.events[same].t, e.action, e.subject, e.p)
@@ -114,11 +114,6 @@ class Timeline:
             if e.action == action and e.subject == subject and abs(e.t - t) <= best_dt:
                 best, best_dt = i, abs(e.t - t)
         return best
-
-    def _recorded(self, event: EventRecord) -> int | None:
-        """Index of the recorded event of ``event``'s action and subject nearest its time, within
-        ``merge`` seconds (None: none)."""
-        return self._nearest(event.action, event.subject, event.t)
 
     def _revised_pick(self, push: EventRecord) -> int | None:
         """Index of the Pick in :attr:`events` that ``push`` revises: the one of the same subject whose

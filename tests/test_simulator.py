@@ -370,7 +370,7 @@ def test_a_perturbation_moves_a_free_object_or_the_hand_that_holds_one():
 
     base, dt, shift = run(None)
     assert np.all(shift == 0)
-    moved, _dt, shift = run({int(round(0.5 / dt)): [(ball, np.array([0.02, 0.0, 0.0]))]})
+    moved, _dt, shift = run({int(round(0.5 / dt)): [(ball, np.array([0.02, 0.0, 0.0]), None)]})
     assert np.allclose(shift, [0.02, 0.0, 0.0])
     assert moved[0] - base[0] == pytest.approx(0.02, abs=0.003) and abs(moved[1] - base[1]) < 0.003
     with GroundTruth(variant) as gt:  # free: the object itself moves, at once

@@ -314,7 +314,7 @@ class GroundTruth:
     def run(self, duration: float, perception_rng: np.random.Generator,
             perturbations: dict[int, list[tuple]] | None = None) -> "SimulationResult":
         """Settle, then simulate ``duration`` seconds; returns the recorded streams.
-        ``perturbations``: ``{step: [(object index, offset (3,) m[, params]), ...]}`` applied by
+        ``perturbations``: ``{step: [(object index, offset (3,) m, params or None), ...]}`` applied by
         :meth:`perturb` after that simulation step (1-based) and the script's waypoints due then."""
         cfg = self.scenario.perception
         world = self.world
@@ -350,8 +350,8 @@ class GroundTruth:
                 self._advance_script(t, step)
                 self._track_pushes(step)
             if perturbations and step in perturbations:
-                for index, offset, *params in perturbations[step]:
-                    self.perturb(index, offset, *params)
+                for index, offset, params in perturbations[step]:
+                    self.perturb(index, offset, params)
             is_frame = step in frame_of_step
             if not is_frame and step not in captures:
                 continue
