@@ -119,6 +119,28 @@ def test_the_pooled_success_leaves_out_the_unpredictable_scenarios_only():
     assert rows[0]["predictable"] is False and rows[0]["particles (K=64) cover90"] == pytest.approx(0.9)
 
 
+def test_one_unpredictable_object_makes_its_scenario_unpredictable():
+    # a ball the twins agree on in half the runs, beside a screen and a bin that never move: the
+    # scenario's mean agreement is 0.83-0.9, but the ball cannot be located to 5 cm
+    rows = [{"key": f"bounce{s}", "scenario": "bounce", "seed": s, "objects": ["screen", "bin", "ball"],
+             "agree": [1.0, 1.0, a], "distance_median": [0.0, 0.0, 0.06], "agreement": (2.0 + a) / 3,
+             "twins": 10, "position_std": None, "param_scale": 0.01} for s, a in enumerate([0.5, 0.7, 0.6])]
+    rows += [{"key": f"box{s}", "scenario": "box", "seed": s, "objects": ["box", "ball"], "agree": [1.0, a],
+              "distance_median": [0.0, 0.01], "agreement": (1.0 + a) / 2, "twins": 10, "position_std": None,
+              "param_scale": 0.01} for s, a in enumerate([0.9, 0.8, 0.9])]
+    trials = _trials("bounce", [1.0, 2 / 3, 1.0]) + _trials("box", [1.0, 0.5, 1.0])
+    s = summarise(rows, trials, threshold=0.85)
+    assert np.mean(s["scenarios"]["bounce"]["agreement"]) >= 0.85  # the mean alone would call it predictable
+    assert s["scenarios"]["bounce"]["least"] == ("ball", pytest.approx(0.6))
+    assert s["scenarios"]["bounce"]["predictable"] is False
+    assert s["scenarios"]["box"]["least"] == ("ball", pytest.approx(2.6 / 3))
+    assert s["scenarios"]["box"]["predictable"] is True
+    assert sorted(s["pooled"]["particles (K=64)"]["success"]) == [0.5, 1.0, 1.0]
+    text, csv_rows = report(rows, trials, TwinConfig(threshold=0.85))
+    assert "left out: `bounce`" in text and "| ball: 60 [" in text
+    assert csv_rows[0]["least_object"] == "ball" and csv_rows[0]["least_agreement"] == pytest.approx(0.6)
+
+
 def test_cli_refuses_a_missing_evaluation_and_an_unknown_scenario(tmp_path, capsys):
     assert main(["predictability", "--seeds", "1", "--out", str(tmp_path), "--evaluation", str(tmp_path / "none")]) == 2
     assert "trials.jsonl" in capsys.readouterr().err

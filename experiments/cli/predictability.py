@@ -34,7 +34,8 @@ def add_predictability_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--param-scale", type=float, default=d.param_scale,
                    help=f"twins' physical parameters x U(1 - s, 1 + s) from the start (default {d.param_scale:g})")
     p.add_argument("--threshold", type=float, default=d.threshold,
-                   help=f"agreement below which a scenario is unpredictable to 5 cm (default {d.threshold:g})")
+                   help=f"an object's agreement below which its scenario is unpredictable to 5 cm "
+                        f"(default {d.threshold:g})")
     p.add_argument("--workers", type=int, default=1, help="processes (default 1); results do not depend on it")
     p.add_argument("--out", default="results", help="output folder: twins.jsonl, predictability.md/.csv")
     p.add_argument("--evaluation", default=None,
