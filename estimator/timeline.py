@@ -67,8 +67,8 @@ class Timeline:
         the switch time moved on by more than ``merge`` seconds (a new action of the same kind). One
         that drops below and comes back at a time within ``merge`` of an event of the same action
         and subject already recorded is that event (its probability raised), not a second one. A
-        new Push takes the place of the Pick it revises (:meth:`_revised_pick`); that Pick does not
-        enter again.
+        new Push takes the place of the Pick of its subject nearest its time, within ``merge`` (the
+        Pick it revises); that Pick does not enter again.
         """
         new = []
         seen = set()
@@ -91,7 +91,7 @@ class Timeline:
                     self.events[same] = EventRecord(self.events[same].t, e.action, e.subject, e.p)
                 self._open_events[key] = same
                 continue
-            j = self._revised_pick(e) if e.action == "Push" else None
+            j = self._nearest("Pick", e.subject, e.t) if e.action == "Push" else None  # the Pick it revises
             if j is None:
                 self.events.append(e)
                 j = len(self.events) - 1
@@ -114,11 +114,6 @@ class Timeline:
             if e.action == action and e.subject == subject and abs(e.t - t) <= best_dt:
                 best, best_dt = i, abs(e.t - t)
         return best
-
-    def _revised_pick(self, push: EventRecord) -> int | None:
-        """Index of the Pick in :attr:`events` that ``push`` revises: the one of the same subject whose
-        time is nearest the Push's, within ``merge`` seconds (None: none)."""
-        return self._nearest("Pick", push.subject, push.t)
 
     @staticmethod
     def _fact(key, f: _OpenFact, end: float | None) -> dict:

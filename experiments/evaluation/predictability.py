@@ -282,10 +282,9 @@ def summarise(twins: list[dict], trials: list[dict], threshold: float) -> dict:
             s["objects"].setdefault(o, []).append(a)
         pairs.add((r["scenario"], r["seed"]))
     for s in scen.values():
-        means = {o: float(np.mean(v)) for o, v in s["objects"].items()}
-        s["least"] = (min(means, key=means.get), min(means.values())) if means else None
-        lowest = s["least"][1] if means else float(np.mean(s["agreement"]))
-        s["predictable"] = bool(lowest >= threshold)
+        means = [(o, float(np.mean(v))) for o, v in s["objects"].items()]
+        s["least"] = min(means, key=lambda m: m[1]) if means else None
+        s["predictable"] = bool((s["least"][1] if means else np.mean(s["agreement"])) >= threshold)
     methods: list[str] = []
     for r in trials:
         if (r.get("scenario"), r.get("seed")) not in pairs:  # only the (scenario, seed) pairs twinned
