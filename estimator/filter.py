@@ -114,6 +114,7 @@ class SceneEstimator:
         self.last_belief: Belief | None = None
         self.t_frame: float | None = None
         self.t_tick: float | None = None
+        self._last_frame: Frame | None = None  # the last observed frame (outliers dropped)
         self._headline: np.ndarray | None = None  # (M, 3) the last update's headline positions
         self._detected_since_tick = np.zeros(M, dtype=bool)
         self._cameras_since_tick: dict | None = None  # cameras of the frames since the last update
@@ -149,11 +150,22 @@ class SceneEstimator:
     # -- the update -----------------------------------------------------------------------------------
     def update(self, frame: Frame) -> Belief | None:
         """Process one perception frame; returns the belief if a reasoning step ran, else None."""
+        self.observe(frame)
+        if not reasoning_due(self.t_tick, frame.t, self.config.reasoner.horizon):
+            return None
+        return self.step()
+
+    def observe(self, frame: Frame) -> None:
+        """Record one perception frame in the perception memory without running a reasoning step,
+        however much time has passed (a live stream that fell behind: the frames that arrived during
+        a long update are observed, and the next :meth:`step` simulates the whole elapsed time; the
+        velocity fit keeps every frame). Raises ``ValueError`` when ``frame.t`` does not increase."""
         if self.t_frame is not None and not frame.t > self.t_frame:
             raise ValueError(f"frame time must increase: {frame.t} after {self.t_frame}")
         frame = self.memory.admit(frame)  # detections outside the workspace are outliers
         detected = self.memory.record(frame)
         self.t_frame = frame.t
+        self._last_frame = frame
         self._detected_since_tick |= detected
         if frame.hands:
             self.last_hands = dict(frame.hands)
@@ -163,8 +175,15 @@ class SceneEstimator:
             own = self._cameras_since_tick if self._cameras_since_tick is not None else {}
             own.update((camera_key(c), c) for c in frame.cameras.values())
             self._cameras_since_tick = own
-        if not reasoning_due(self.t_tick, frame.t, self.config.reasoner.horizon):
-            return None
+
+    def step(self) -> Belief:
+        """Run a reasoning step at the time of the last frame :meth:`observe` recorded, whether or not
+        a horizon has passed since the previous step (it simulates the whole elapsed time, at most
+        ``max_gap``); returns the belief. Raises ``ValueError`` before any frame, or when no frame
+        was observed since the last step."""
+        frame = self._last_frame
+        if frame is None or (self.t_tick is not None and not frame.t > self.t_tick):
+            raise ValueError("step() needs a frame observed since the last reasoning step")
         detected = self._detected_since_tick
         self._detected_since_tick = np.zeros(self.M, bool)
         cameras = self._tick_cameras()

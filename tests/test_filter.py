@@ -835,3 +835,29 @@ def test_the_kalman_step_keeps_a_resting_stack_asleep_and_in_place():
     for o, p in at.items():
         est_p = np.asarray(ends[True][o].position)
         assert np.linalg.norm(est_p[:2] - p[:2]) < 0.004 and abs(est_p[2] - p[2]) < 0.004
+
+
+def test_frames_observed_during_a_long_update_are_merged_into_one_step():
+    """A live stream that fell behind: frames observed without a step (``observe``) still feed the
+    perception memory, and the next ``step`` simulates the whole elapsed time in one update."""
+    scene = table_scene(dict(BOX, pose={"position": [0.1, 0, TABLE_TOP + 0.03]}))
+    steps = []
+    frs = [Frame(float(t), {"box": det([0.1, 0.0, TABLE_TOP + 0.03])}) for t in times(1.0)]
+    with SceneEstimator(scene, EstimatorConfig.paper()) as est:
+        real_run = est.pool.run
+
+        def counting(batch, n_steps, *a, **kw):
+            steps.append(n_steps)
+            return real_run(batch, n_steps, *a, **kw)
+
+        est.pool.run = counting
+        with pytest.raises(ValueError):
+            est.step()  # nothing observed yet
+        est.update(frs[0])
+        for f in frs[1:10]:  # 0.3 s of frames arrive while an update runs
+            est.observe(f)
+        belief = est.step()
+        with pytest.raises(ValueError):
+            est.step()  # no new frame since
+        assert belief.t == frs[9].t and belief.objects["box"].perceived
+    assert steps == [0, int(round(frs[9].t * 240))]
