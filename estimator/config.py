@@ -338,6 +338,11 @@ class EstimatorConfig:
       :func:`~estimator.propagate.propagate_batch`).
     * ``visibility_threshold``: fraction of an object's sample points in view for it to count as
       visible to the camera.
+    * ``static_clip``: a held object's path to its target (a tracked hand, a detection carried on at
+      its velocity), and the target of a perceived object, stop at the surface of static geometry
+      they would enter (:meth:`physics.penetration.StaticGeometry.clip`): no particle ever believes
+      an object inside the table or under the floor. Off in paper mode, which places an overridden
+      object at its perceived pose wherever that is.
     """
 
     particles: int = 1
@@ -359,6 +364,7 @@ class EstimatorConfig:
     fresh_checks: bool = True
     moving_teleports: bool = True
     still_unacted: bool = True
+    static_clip: bool = True
     visibility_threshold: float = 0.3
     hypothesis_min_p: float = 0.02
 
@@ -389,7 +395,7 @@ class EstimatorConfig:
                    priors=ModePriors(release_on_loss=1.0, release_on_loss_carried=1.0, release_on_loss_still=1.0,
                                      let_go_moving=0.0),
                    negative_evidence=False, follow_hands=False, lazy_checks=False, fresh_checks=False,
-                   moving_teleports=False, still_unacted=False)
+                   moving_teleports=False, still_unacted=False, static_clip=False)
 
 
 SECTIONS: dict[str, type] = {"reasoner": ReasonerConfig, "noise": NoiseConfig, "priors": ModePriors,

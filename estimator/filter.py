@@ -104,6 +104,8 @@ class SceneEstimator:
             self.state: ParticleState = self.model.initial_state(self.rng)
         except BaseException:
             self.pool.close()
+            if getattr(self, "model", None) is not None:
+                self.model.close()
             raise
         self.static, self.dynamic, self.hollow = self.model.static, self.model.dynamic, self.model.hollow
         self.timeline = Timeline(cfg.event_threshold)
@@ -140,6 +142,7 @@ class SceneEstimator:
     def close(self) -> None:
         """Close the particle worlds (and worker processes)."""
         self.pool.close()
+        self.model.close()
 
     def __enter__(self) -> "SceneEstimator":
         return self

@@ -24,6 +24,7 @@ from actions.episodes import EpisodeRule, carried, update_events
 from actions.events import N_ACTIONS
 from actions.modes import FREE, HELD, PLACE
 from actions.push import REF_Z, empty_holds
+from physics.penetration import StaticGeometry
 from physics.scene import Scene
 
 from .config import RELEASE_DOWN_SPEED, EstimatorConfig
@@ -113,6 +114,15 @@ class SceneModel:
         self.episode_rule = EpisodeRule(hr.push_lift, hr.push_smoothing, hr.place_wait)
         self._just_initialised = np.zeros(self.M, dtype=bool)
         self.terms: tuple[LogWeightTerm, ...] = self.log_weight_terms()
+        # the static bodies, to stop paths at their surfaces (config.static_clip)
+        solid = bool(np.any(self.static)) or scene.floor
+        self.geometry = StaticGeometry(scene, config.physics) if config.static_clip and solid else None
+
+    def close(self) -> None:
+        """Release the static geometry's pybullet client."""
+        if self.geometry is not None:
+            self.geometry.close()
+            self.geometry = None
 
     def log_weight_terms(self) -> tuple[LogWeightTerm, ...]:
         """The terms a particle's log-weight is the sum of. A new term goes here."""
@@ -265,6 +275,8 @@ class SceneModel:
             vis_query = np.zeros(self.M, dtype=bool)
         fresh = detected if cfg.fresh_checks else perceived
         check = np.broadcast_to(perceived & fresh, (self.K, self.M)).copy()
+        if self.geometry is not None:
+            self.clip_targets(poses, target, target_vel, (modes == HELD) | check)
         placed = tele | self._just_initialised
         self._just_initialised = np.zeros(self.M, dtype=bool)
         depen = (np.broadcast_to(placed & (cfg.noise.position_std > 0), (self.K, self.M)) | jolted
@@ -272,6 +284,20 @@ class SceneModel:
         return Move(poses, vel, predicted, prev_modes, modes, release_codes, tele, target, target_vel, check,
                     depen, vis_query, hold_error, let_go, cameras, cover_t, proposal, nudged, jitter, far,
                     fall_now, detections)
+
+    def clip_targets(self, poses: np.ndarray, target: np.ndarray, target_vel: np.ndarray, which: np.ndarray) -> None:
+        """In place on ``target (K, M, 7)`` and ``target_vel (K, M, 6)``: the paths of the entries
+        ``which (K, M)`` from ``poses`` to their targets stop at the surface of static geometry they
+        would enter (:meth:`~physics.penetration.StaticGeometry.clip`), and those stopped have no target
+        velocity (a hand cannot carry a cup through the table; a detection sunk into it by the
+        tracker's error is not where the cup is)."""
+        for m in np.flatnonzero(which.any(axis=0) & self.dynamic & self.known).tolist():
+            rows = np.flatnonzero(which[:, m])
+            end, frac = self.geometry.clip(m, poses[rows, m], target[rows, m])
+            stopped = ~(frac == 1.0)
+            if np.any(stopped):
+                target[rows[stopped], m] = end[stopped]
+                target_vel[rows[stopped], m] = 0.0
 
     def let_go_moving(self, modes: np.ndarray, supported: np.ndarray, seen: np.ndarray, tick_vel: np.ndarray,
                       far: np.ndarray | None, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:

@@ -1,5 +1,6 @@
 """The estimator in paper mode (one world, no noise): the behaviours of the IROS 2019 reasoner."""
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -861,3 +862,35 @@ def test_frames_observed_during_a_long_update_are_merged_into_one_step():
             est.step()  # no new frame since
         assert belief.t == frs[9].t and belief.objects["box"].perceived
     assert steps == [0, int(round(frs[9].t * 240))]
+
+
+@pytest.mark.parametrize("clip", [True, False])
+def test_a_carried_object_never_ends_inside_the_table(clip):
+    """The cup is lifted and carried by a tracked hand, then no longer reported (no camera: nothing
+    says where it is but the hand) while the hand goes down through the table top to 30 cm under
+    it (a skeleton tracker's hand can be anywhere). A held object's path stops at the surface of
+    static geometry: at every update no particle has the cup more than 1 cm inside the table or the
+    floor, and it ends on the table top. Without the clip (``static_clip`` off) the hand takes it
+    through the table: the test sees it."""
+    from physics.penetration import INVARIANT_DEPTH, StaticGeometry
+
+    scene = table_scene(CUP_SPEC)
+
+    def hand(t):
+        up = min(max(0.0, t - 0.3) / 0.5, 1.0)  # lifted 20 cm, then from 33 cm above the top to 30 cm under it
+        down = min(max(0.0, t - 1.3) / 1.2, 1.0)
+        return [0.0, -0.3, TABLE_TOP + 0.13 + 0.2 * up - 0.63 * down]
+
+    frames = _carry_frames(hand, 3.2, cup_until=1.2)
+    config = replace(EstimatorConfig(particles=16, noise=NoiseConfig()), static_clip=clip)
+    deepest = 0.0
+    with StaticGeometry(scene) as geometry, SceneEstimator(scene, config, np.random.default_rng(3)) as est:
+        for f in frames:
+            if est.update(f) is not None:
+                deepest = max(deepest, float(geometry.depths(est.poses, est.known).max()))
+        z = est.poses[:, 1, 2]
+    if clip:
+        assert deepest <= INVARIANT_DEPTH
+        assert np.all(np.abs(z - (TABLE_TOP + 0.05)) < 0.01)  # on the table top (the cup's half height 5 cm)
+    else:
+        assert deepest > INVARIANT_DEPTH

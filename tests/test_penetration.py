@@ -1,0 +1,86 @@
+"""Penetration depths into static geometry, and paths stopped at its surface (physics/penetration.py)."""
+import numpy as np
+import pytest
+
+from physics.penetration import INVARIANT_DEPTH, StaticGeometry
+
+from helpers import table_scene
+
+TABLE_TOP = 0.625  # the top of the table's collision box (helpers.TABLE_TOP is where objects rest on it)
+
+BALL = {"id": "ball", "sphere": {"radius": 0.03}}
+BOX = {"id": "box", "box": {"size": [0.1, 0.06, 0.04]}}
+DUCK = {"id": "duck", "urdf": "pybullet_data://duck_vhacd.urdf"}
+
+
+def poses(*rows):
+    out = np.zeros((len(rows), 7))
+    out[:, 6] = 1.0
+    for i, r in enumerate(rows):
+        out[i, :len(r)] = r
+    return out
+
+
+@pytest.fixture(scope="module")
+def geometry():
+    with StaticGeometry(table_scene(BALL, BOX, DUCK)) as g:
+        yield g
+
+
+def test_depths_are_how_far_an_object_is_inside_the_table_or_under_the_floor(geometry):
+    # the ball resting on the table, 2 and 5 cm into its top, and 4 cm under the floor beside it
+    ball = poses([0, 0, TABLE_TOP + 0.03], [0, 0, TABLE_TOP + 0.01], [0, 0, TABLE_TOP - 0.02], [2.0, 0, -0.01])
+    d = geometry.depth_of(1, ball)
+    assert d[0] < 1e-3
+    assert d[1:] == pytest.approx([0.02, 0.05, 0.04], abs=1e-3)
+    # a box turned on its side: its half height is then 5 cm, not 2
+    q = [0, np.sin(np.pi / 4), 0, np.cos(np.pi / 4)]
+    assert geometry.depth_of(2, poses([0.3, 0, TABLE_TOP + 0.045, *q]))[0] == pytest.approx(0.005, abs=1e-3)
+
+
+def test_depths_of_a_stack_skip_static_parked_and_non_finite_entries(geometry):
+    stack = np.zeros((2, 4, 7))
+    stack[..., 6] = 1.0
+    stack[:, 0, :3] = [0, 0, 0]  # the table itself: never measured
+    stack[0, 1, :3] = [0, 0, TABLE_TOP - 0.01]  # 4 cm in
+    stack[1, 1, :3] = [50, 50, -50]  # parked: not known yet
+    stack[0, 2, :3] = np.nan
+    stack[1, 2, :3] = [0.2, 0.2, TABLE_TOP + 0.02]
+    stack[:, 3, :3] = [-0.3, 0.0, 1.0]
+    d = geometry.depths(stack)
+    assert d.shape == (2, 4)
+    assert d[0, 1] == pytest.approx(0.04, abs=1e-3)
+    assert d[0, 0] == d[1, 1] == d[0, 2] == 0.0
+    assert np.array_equal(geometry.violations(stack), d > INVARIANT_DEPTH)
+    with pytest.raises(ValueError):
+        geometry.depths(stack[:, :3])
+
+
+def test_a_path_into_the_table_stops_at_its_surface_and_one_through_its_top_too(geometry):
+    start = poses([0, 0, 0.9], [0, 0, 0.9], [0.1, 0, TABLE_TOP + 0.031], [0, 0, 1.0])
+    # straight down to the floor (the end is clear: the top is 5 cm thick, the path crosses it),
+    # down to 1 cm above the top (kept), along the top sinking 2 cm (stopped), and up (kept)
+    end = poses([0, 0, 0.3], [0, 0, TABLE_TOP + 0.04], [0.5, 0, TABLE_TOP + 0.01], [0, 0, 1.2])
+    new, frac = geometry.clip(1, start, end)
+    top = TABLE_TOP + 0.03  # the ball's centre when it rests on the table
+    assert new[0, 2] == pytest.approx(top, abs=0.005) and 0 < frac[0] < 1
+    assert np.array_equal(new[[1, 3]], end[[1, 3]]) and np.all(frac[[1, 3]] == 1.0)
+    assert 0 < frac[2] < 1 and geometry.depth_of(1, new[2:3])[0] <= 0.004 + 1e-4
+    assert new[2, 2] >= top - 0.005
+
+
+def test_a_path_that_starts_inside_ends_pushed_out(geometry):
+    start = poses([0.2, 0, TABLE_TOP - 0.01])
+    end = poses([0.25, 0, TABLE_TOP - 0.005])
+    new, frac = geometry.clip(1, start, end)
+    assert np.isnan(frac[0])
+    assert geometry.depth_of(1, new)[0] < 1e-3
+
+
+def test_a_mesh_object_is_stopped_too(geometry):
+    start = poses([-0.3, 0.1, 0.9])
+    end = poses([-0.3, 0.1, 0.4])
+    new, frac = geometry.clip(3, start, end)
+    assert 0 < frac[0] < 1
+    assert geometry.depth_of(3, new)[0] <= 0.004 + 1e-4
+    assert new[0, 2] > TABLE_TOP - 0.01
