@@ -179,11 +179,19 @@ class NoiseConfig:
     * ``outlier_prob``: weight of the uniform-outlier component of the pose likelihood (heavy tails).
     * ``miss_prob``: probability that the camera misses an object in plain view (negative evidence:
       a particle that puts an undetected object in view is weighted by it).
-    * ``hand_occlusion``: probability that the tracked hand holding an object, or its person, hides
-      it from a camera that would otherwise see it (the particle worlds contain neither): a held
-      object in view pays ``log(hand_occlusion + (1 - hand_occlusion) * miss_prob)``; 1 exempts held
-      objects from negative evidence. The default is fitted on the simulator's scenarios
-      (``scene-estimator fit-priors``, seeds the evaluation does not use).
+    * ``hand_radius`` (m): a tracked hand hides what is behind it from the camera, as a sphere of this
+      radius at the tracked position (:func:`physics.visibility.sphere_occlusion`; the particle worlds
+      do not contain hands): an adult hand's breadth across the knuckles is 8-9 cm (anthropometric
+      surveys), a fist about as wide. 0: hands hide nothing.
+    * ``hand_occlusion``: probability that the person hides an object their tracked hand *carries*
+      (the hand has moved more than ``ModePriors.carry_distance`` since the object was last seen)
+      with their body, which the particle worlds do not contain (a cup carried behind the back): a
+      carried object in view pays ``log(hand_occlusion + (1 - hand_occlusion) * miss_prob)`` in all,
+      not ``log(miss_prob)`` per update. A hand that has not moved since its object was last seen
+      can hide it only with the hand itself (``hand_radius``): its object gets no such allowance,
+      and one that vanishes from a still hand in plain view was let go. 1 exempts held objects from
+      negative evidence. The default is fitted on the simulator's scenarios (``scene-estimator
+      fit-priors``, seeds the evaluation does not use).
     """
 
     position_std: float = 0.01
@@ -212,12 +220,13 @@ class NoiseConfig:
     outlier_prob: float = 0.05
     miss_prob: float = 0.1
     hand_occlusion: float = 0.099  # fitted: scene-estimator fit-priors (seeds 100-119)
+    hand_radius: float = 0.045
 
     def __post_init__(self):
         _check_nonneg(self, "position_std", "orientation_std", "process_position_std",
                       "process_orientation_std", "held_drift_std", "held_offset_std", "param_jitter", "outlier_prob",
                       "miss_prob", "motion_noise", "rest_speed", "covariance_floor_std", "regularisation",
-                      "max_jitter_std", "fusion_floor_std", "covariance_speed_time")
+                      "max_jitter_std", "fusion_floor_std", "covariance_speed_time", "hand_radius")
         dof = self.position_dof
         if dof is not None and not (isinstance(dof, (int, float)) and math.isfinite(dof) and dof > 2):
             raise ValueError(f"NoiseConfig.position_dof must be > 2 (None: Gaussian), got {dof!r}")

@@ -98,7 +98,7 @@ def detection_log_likelihood(poses: np.ndarray, detected: np.ndarray, has_orient
 
 def negative_evidence_log_likelihood(visible: np.ndarray, modes: np.ndarray, queried: np.ndarray,
                                      in_tracked_hand: np.ndarray, miss_prob: float,
-                                     visibility_threshold: float, hand_occlusion: float = 1.0,
+                                     visibility_threshold: float, hand_occlusion: float | np.ndarray = 1.0,
                                      unseen_in_view: np.ndarray | None = None,
                                      perceived: np.ndarray | None = None,
                                      exempt: np.ndarray | None = None) -> np.ndarray:
@@ -124,7 +124,9 @@ def negative_evidence_log_likelihood(visible: np.ndarray, modes: np.ndarray, que
         in_tracked_hand: ``(M,)`` bool, objects whose hand (when last detected) is tracked now.
         miss_prob: probability in (0, 1] that the camera misses an object in plain view.
         visibility_threshold: fraction of points in view for an object to count as visible.
-        hand_occlusion: probability in [0, 1] that the holding hand or its person hides the object.
+        hand_occlusion: probability in [0, 1] that the person hides the object their hand holds, one
+            for all or ``(M,)`` per object (0 for an object whose hand has not moved since it was
+            seen: only the hand itself, already in ``visible``, can hide it then).
         unseen_in_view: ``(K, M)`` int, ``n`` before this update (None: zeros).
         perceived: ``(M,)`` bool, objects still perceived (None: none).
         exempt: ``(K, M)`` bool, entries that pay nothing (``Evidence.fell_unseen``; None: none).
@@ -138,11 +140,11 @@ def negative_evidence_log_likelihood(visible: np.ndarray, modes: np.ndarray, que
     out = math.log(miss_prob) * (seen & ~in_hand)[:, queried].sum(axis=1)
     if perceived is not None:
         in_hand = in_hand & ~np.asarray(perceived, dtype=bool)[None, :]
-    if hand_occlusion < 1.0:
-        held_seen = (seen & in_hand)[:, queried]
+    h = np.broadcast_to(np.asarray(hand_occlusion, dtype=float), (len(queried),))[queried]
+    if np.any(h < 1.0):
+        held_seen = (seen & in_hand)[:, queried] & (h < 1.0)[None, :]
         if np.any(held_seen):
             n = np.zeros(held_seen.shape) if unseen_in_view is None else unseen_in_view[:, queried].astype(float)
-            h = hand_occlusion
             step = np.log(h + (1.0 - h) * miss_prob ** (n + 1)) - np.log(h + (1.0 - h) * miss_prob ** n)
             out = out + np.where(held_seen, step, 0.0).sum(axis=1)
     return out
@@ -246,6 +248,9 @@ class Evidence:
       them on the perception and held them there), the divergence at that moment (m); NaN elsewhere
       (None: none). They are scored at that distance from their detection, not where they were put:
       the override is a correction, not evidence that the particle was right.
+    * ``carried (M,)`` bool: objects whose tracked hand has moved more than ``carry_distance`` since
+      they were last seen (the person may hide what they carry: ``NoiseConfig.hand_occlusion``
+      applies to them only; None: to every held object).
     * ``fell (M,)`` bool: objects seen rolling along at the previous update and falling off their
       support in this one (:class:`~estimator.step.Fall`); in the particles where they are free after
       the update (free before, or let go by the Release rule) they are scored on their horizontal
@@ -277,6 +282,7 @@ class Evidence:
     out_of_reach: np.ndarray | None = None
     diverged: np.ndarray | None = None
     fell: np.ndarray | None = None
+    carried: np.ndarray | None = None
 
 
 LogWeightTerm = Callable[[Evidence], np.ndarray]
@@ -324,15 +330,20 @@ class DetectionTerm:
 
 @dataclass(frozen=True)
 class NegativeEvidenceTerm:
-    """Undetected objects in view (:func:`negative_evidence_log_likelihood`)."""
+    """Undetected objects in view (:func:`negative_evidence_log_likelihood`); ``hand_occlusion``
+    applies to the objects ``Evidence.carried`` says their hand carries (to every held one when it
+    is None), 0 to the others (1, paper mode's exemption, to all)."""
 
     miss_prob: float
     visibility_threshold: float
     hand_occlusion: float = 1.0
 
     def __call__(self, ev: Evidence) -> np.ndarray:
+        h = self.hand_occlusion
+        if ev.carried is not None and h < 1.0:
+            h = np.where(np.asarray(ev.carried, dtype=bool), h, 0.0)
         return negative_evidence_log_likelihood(ev.visible, ev.modes, ev.queried, ev.in_tracked_hand,
-                                                self.miss_prob, self.visibility_threshold, self.hand_occlusion,
+                                                self.miss_prob, self.visibility_threshold, h,
                                                 ev.unseen_in_view, ev.perceived, ev.fell_unseen)
 
 

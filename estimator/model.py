@@ -26,6 +26,7 @@ from actions.modes import FREE, HELD, PLACE
 from actions.push import REF_Z, empty_holds
 from physics.penetration import StaticGeometry
 from physics.scene import Scene
+from physics.visibility import sphere_occlusion
 
 from .config import RELEASE_DOWN_SPEED, EstimatorConfig
 from .fusion import ensemble_kalman_step
@@ -473,18 +474,44 @@ class SceneModel:
         """What the log-weight terms read for this update (``unseen_in_view (K, M)``: the particles'
         counts before it, see :class:`~estimator.state.ParticleState`)."""
         mem = self.memory
+        visible = self.behind_hands(out.visible, settled.poses, out.aabbs, frame, move.cameras, move.vis_query)
         return Evidence(poses=settled.poses, predicted=move.predicted, previous_modes=move.previous_modes,
                         modes=settled.modes, detected=detected & self.dynamic, teleported=move.teleported,
                         perceived=perceived, detected_poses=mem.last_pose if move.detections is None else move.detections,
                         has_orientation=mem.last_has_orientation, detection_std=mem.last_std,
-                        visible=out.visible, queried=move.vis_query,
+                        visible=visible, queried=move.vis_query,
                         in_tracked_hand=mem.following_hand(frame), finite=out.finite,
                         unseen_in_view=unseen_in_view,
                         fell_unseen=(settled.modes == FREE)
                         & (frame.t - move.let_go_unseen < self.config.reasoner.t_perceived - 1e-9),
                         proposal_log_weight=move.proposal_log_weight, fused=move.fused,
                         out_of_reach=move.out_of_reach, diverged=diverged_by(move, out),
-                        fell=None if move.fall is None else move.fall.mask)
+                        fell=None if move.fall is None else move.fall.mask,
+                        carried=mem.hand_travel() > self.config.priors.carry_distance)
+
+    def behind_hands(self, visible: np.ndarray, poses: np.ndarray, aabbs: np.ndarray, frame: Frame,
+                     cameras: tuple | None, queried: np.ndarray) -> np.ndarray:
+        """``visible (K, M)`` with what the tracked hands of ``frame`` hide taken out: each queried
+        object ``queried (M,)``, a ball of its box's mean half extent (``aabbs (K, M, 2, 3)``) at its
+        position in ``poses (K, M, 7)``, keeps ``1 - share`` of its visible fraction, ``share`` being
+        the part of its disk a hand (``NoiseConfig.hand_radius``) covers from the camera that sees
+        the most of it (:func:`~physics.visibility.sphere_occlusion`; ``cameras``: those of the
+        update, None: the scene's). The worlds hold no hands; a held object is often right behind
+        its own."""
+        r = self.config.noise.hand_radius
+        if not frame.hands or r <= 0 or not np.any(queried):
+            return visible
+        cams = [self.scene.camera] if cameras is None else list(cameras)
+        cams = [c for c in cams if c is not None]
+        if not cams:
+            return visible
+        idx = np.flatnonzero(queried)
+        hands = np.array([np.asarray(h, dtype=float) for h in frame.hands.values()])
+        radii = 0.5 * np.mean(aabbs[:, idx, 1] - aabbs[:, idx, 0], axis=-1)
+        shares = [sphere_occlusion(np.asarray(c.position, float), poses[:, idx, :3], radii, hands, r) for c in cams]
+        out = visible.copy()
+        out[:, idx] = visible[:, idx] * (1.0 - np.min(shares, axis=0))
+        return out
 
     def _out_of_reach(self, frame: Frame, detected: np.ndarray) -> np.ndarray | None:
         """Dynamic objects ``(M,)`` detected since the last update whose latest detection lies farther

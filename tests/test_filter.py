@@ -718,8 +718,8 @@ def test_a_still_visible_hand_whose_object_vanishes_has_let_it_go():
     """The hand carries the cup beyond the table's far edge and stays still in the camera's view; the
     cup is no longer reported (it fell behind the table, where the camera cannot see the floor).
     Particles that keep it in the still hand would show it; within 1.5 s of the loss P(held) is
-    below 0.2 (prior 0.5 at the loss, then at most a factor hand_occlusion = 0.099 against: about
-    0.09 expected) and the cup is on the floor."""
+    below 0.2 (prior 0.5 at the loss, then miss_prob = 0.1 against at every update: a hand that has
+    not moved since the cup was seen cannot hide it but with itself) and the cup is on the floor."""
     camera = {"position": [1.1, 0.0, 1.15], "target": [-0.3, 0.0, 0.7], "fov_deg": 60}
     scene = table_scene(CUP_SPEC, camera=camera)
 
@@ -894,3 +894,43 @@ def test_a_carried_object_never_ends_inside_the_table(clip):
         assert np.all(np.abs(z - (TABLE_TOP + 0.05)) < 0.01)  # on the table top (the cup's half height 5 cm)
     else:
         assert deepest > INVARIANT_DEPTH
+
+
+def test_a_ball_let_go_from_a_still_visible_hand_is_not_held_a_second_after_it_vanished():
+    """The hand carries a ball over an open bin, stops there in the camera's view, and lets go; the
+    ball drops into the bin and is never reported again. A hand that has not moved since its
+    object was last seen can hide it only with itself (a 4.5 cm sphere, well above the ball here):
+    the particles that keep it in the hand put it in plain view and pay miss_prob per update, with
+    no allowance for the person hiding it (that is for carried objects). Within 1 s of its last
+    detection P(held) is below 0.2 (0.5 at the loss, then about 0.09 after one update) and the ball
+    is in the bin."""
+    camera = {"position": [1.1, 0.0, 1.25], "target": [-0.2, 0.0, 0.7], "fov_deg": 60}
+    ball = {"id": "ball", "sphere": {"radius": 0.03}, "mass": 0.05,
+            "pose": {"position": [0.25, -0.2, TABLE_TOP + 0.03]}}
+    bin_ = {"id": "bin", "container": {"size": [0.22, 0.22, 0.16], "wall": 0.01}, "mass": 0.6,
+            "pose": {"position": [-0.2, 0.15, TABLE_TOP + 0.08]}}
+    scene = table_scene(bin_, ball, camera=camera)
+    over = np.array([-0.2, 0.15, TABLE_TOP + 0.16 + 0.12])
+
+    def hand(t):
+        s = min(max(0.0, t - 0.3) / 0.8, 1.0)
+        start = np.array([0.25, -0.2, TABLE_TOP + 0.09])
+        return start + (over - start) * (3 * s * s - 2 * s ** 3)
+
+    last = 1.5  # the hand has been still over the bin since 1.1 s
+    out = []
+    for t in np.arange(0.0, 3.0, 1 / 30):
+        h = hand(t)
+        objs = {"bin": det(bin_["pose"]["position"])}
+        if t < 0.3:
+            objs["ball"] = det(ball["pose"]["position"], None)
+        elif t <= last:
+            objs["ball"] = det(h - [0.0, 0.0, 0.06], None)
+        out.append(Frame(float(t), objs, {"human/right": h}))
+    with SceneEstimator(scene, EstimatorConfig(particles=64, noise=NoiseConfig()), np.random.default_rng(4)) as est:
+        beliefs = est.run(out)
+    later = [b for b in beliefs if b.t >= last + 1.0]
+    assert later and all(b.objects["ball"].p_held < 0.2 for b in later), \
+        [(round(b.t, 2), round(b.objects["ball"].p_held, 2)) for b in beliefs if b.t > last]
+    end = later[-1]
+    assert end.relation_p("ball", "isIn", "bin") > 0.8

@@ -127,6 +127,28 @@ def test_hand_occlusion_is_sticky_and_its_total_cost_is_bounded_by_h():
     assert np.all(held_unseen_in_view(replace(ev, detected=np.array([True, True])), 0.5) == 0)
 
 
+def test_only_a_carried_object_gets_the_person_allowance_a_still_hands_pays_every_miss():
+    """Two objects held in tracked hands, both in view and undetected for n updates: the first one's
+    hand carried it away since it was last seen (``Evidence.carried``), the second one's stayed put.
+    The first is bounded by log h in all (the person may hide what they carry); the second pays
+    log(miss) at every update, as a free object does: a hand that did not move can hide its object
+    only with itself, which the visible fraction already says. With ``carried`` None every held
+    object gets the allowance (the old reading)."""
+    miss, h = 0.1, 0.25
+    term = NegativeEvidenceTerm(miss, 0.5, h)
+    ev = replace(_evidence(K=1, M=2), visible=np.ones((1, 2)), modes=np.array([[HELD, HELD]], np.int8),
+                 queried=np.array([True, True]), in_tracked_hand=np.array([True, True]),
+                 carried=np.array([True, False]))
+    total, both = np.zeros(1), np.zeros(1)
+    for n in range(5):
+        total += term(ev)
+        both += term(replace(ev, carried=None))
+        ev = replace(ev, unseen_in_view=held_unseen_in_view(ev, 0.5))
+    assert total[0] == pytest.approx(math.log(h + (1 - h) * miss ** 5) + 5 * math.log(miss))
+    assert both[0] == pytest.approx(2 * math.log(h + (1 - h) * miss ** 5))
+    assert NegativeEvidenceTerm(miss, 0.5, 1.0)(ev)[0] == 0.0  # paper mode: held objects exempt
+
+
 def test_hidden_by_person_is_bayes_rule_on_the_sticky_occlusion():
     """P(hidden | n misses in view) = h / (h + (1 - h) miss^n): the prior h at n = 0, rising to 1;
     its complement is what a look at the hand can still find; h = 1 hides always."""

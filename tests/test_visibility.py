@@ -1,10 +1,13 @@
+import math
+
 import numpy as np
+import pytest
 
 from physics.scene import CameraSpec
 from physics.group import WorldGroup
 from physics import sightlines, visibility
 from physics.visibility import (Camera, first_copies, local_box, local_sample_points, rays_clear_of, solid_box,
-                                visible_enough, visible_fraction, visible_fractions)
+                                sphere_occlusion, visible_enough, visible_fraction, visible_fractions)
 from physics.world import World
 
 from helpers import TABLE_TOP, table_scene
@@ -117,3 +120,19 @@ def test_visible_enough_is_the_fraction_against_the_threshold_with_fewer_rays(mo
             assert sum(cast) <= 9 * frac.size
             if thr == 0.3:
                 assert sum(cast) < 0.8 * 9 * frac.size  # decided before every point is tested
+
+
+def test_a_hand_sphere_hides_the_part_of_a_disk_it_covers_from_in_front():
+    """The hand as a sphere (sphere_occlusion): a ball straight behind a larger hand is hidden, one in
+    front of it or far to the side is not, and two disks of the same apparent radius a whose centres
+    are a apart overlap by (2 pi / 3 - sqrt(3) / 2) / pi of a disk (small angles)."""
+    eye = np.zeros(3)
+    hand = np.array([[1.0, 0.0, 0.0]])
+    centres = np.array([[2.0, 0.0, 0.0], [0.5, 0.0, 0.0], [2.0, 1.0, 0.0]])
+    share = sphere_occlusion(eye, centres, np.array([0.04, 0.02, 0.04]), hand, 0.045)
+    assert share[0] == pytest.approx(1.0) and share[1] == 0.0 and share[2] == 0.0
+    a = 0.01  # the hand at 1 m and the object at 2 m, both of apparent radius a, a apart
+    centre = 2.0 * np.array([[math.cos(a), math.sin(a), 0.0]])
+    lens = (2 * math.pi / 3 - math.sqrt(3) / 2) / math.pi
+    assert sphere_occlusion(eye, centre, np.array([2 * math.sin(a)]), hand, math.sin(a))[0] == pytest.approx(lens, rel=1e-3)
+    assert sphere_occlusion(eye, centres, np.array([0.04, 0.02, 0.04]), np.zeros((0, 3)), 0.045).sum() == 0.0

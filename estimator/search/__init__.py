@@ -103,8 +103,9 @@ class SearchPlan:
 
 def person_hides(est, obj: int) -> np.ndarray:
     """``(K,)``: the probability, per particle, that the person keeps object ``obj`` hidden (it is
-    held by a tracked hand and has stayed unseen in view, see
-    :func:`~estimator.likelihood.hidden_by_person`); 0 for particles that do not hold it. A look
+    held by a tracked hand that carried it away and has stayed unseen in view, see
+    :func:`~estimator.likelihood.hidden_by_person`); 0 for particles that do not hold it, and for a
+    hand that has not moved since the object was seen (``NoiseConfig.hand_occlusion``). A look
     cannot find what the person hides, whatever the ray tests say: the filter's negative evidence
     and the plan then agree."""
     s = est.state
@@ -112,7 +113,9 @@ def person_hides(est, obj: int) -> np.ndarray:
     if est.memory.hold_hand[obj] is None or not held.any():
         return np.zeros(len(held))
     nz = est.config.noise
-    return np.where(held, hidden_by_person(s.unseen_in_view[:, obj], nz.hand_occlusion, nz.miss_prob), 0.0)
+    travel = est.memory.hand_travel()[obj]  # a hand that has not moved since cannot hide it (config)
+    h = nz.hand_occlusion if (nz.hand_occlusion >= 1.0 or travel > est.config.priors.carry_distance) else 0.0
+    return np.where(held, hidden_by_person(s.unseen_in_view[:, obj], h, nz.miss_prob), 0.0)
 
 
 def search_regions(est, boxes: np.ndarray, hands, user: ViewpointFile | None, camera_xy) -> list[Region]:
