@@ -219,6 +219,17 @@ class StaticGeometry:
         5 mm (a table top 5 cm thick cannot fall between two samples of anything larger)."""
         return max(0.005, float(np.min(self._local[m][1])))
 
+    def push_out(self, m: int, poses: np.ndarray, depth: float = INVARIANT_DEPTH) -> tuple[np.ndarray, np.ndarray]:
+        """Link-frame ``poses (N, 7)`` of dynamic object ``m``, those deeper than ``depth`` (m) inside
+        static geometry moved out of it along the deepest contact's normal (a fast object caught by
+        a step in the middle of its impact on the table). Returns the poses ``(N, 7)`` (a copy) and
+        which were moved ``(N,)``."""
+        poses = np.asarray(poses, dtype=float).reshape(-1, 7).copy()
+        deep = self.depth_of(m, poses, depth) > depth
+        for r in np.flatnonzero(deep).tolist():
+            poses[r] = self._push_out(m, poses[r])
+        return poses, deep
+
     def _push_out(self, m: int, pose: np.ndarray, rounds: int = 3) -> np.ndarray:
         """``pose (7,)`` moved out of the static geometry it is inside of, along the deepest contact's
         normal, by the contact's depth (a few rounds: a corner may touch two bodies)."""
