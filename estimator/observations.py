@@ -23,7 +23,7 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass, field
-from typing import Callable, Iterable, Iterator
+from typing import Callable, Iterable, Iterator, TextIO
 
 import numpy as np
 
@@ -170,11 +170,16 @@ class ObservationReader:
         skip_bad_frames: drop malformed frames instead of raising; they are counted in
             :attr:`skipped` and described through ``warn``.
         warn: called with a message for each dropped frame (default: no-op).
+        stream: an open text stream to read instead of opening ``path`` (standard input, a socket's
+            file); ``path`` then only names it in messages (``<stdin>:5: t: ...``). Lines are read
+            as they come (nothing is read ahead of the frame being yielded but what the stream has
+            already delivered); the stream is closed at the end.
     """
 
     def __init__(self, path: str, known_ids: Iterable[str] | None = None, *, skip_bad_frames: bool = False,
-                 warn: Callable[[str], None] | None = None):
+                 warn: Callable[[str], None] | None = None, stream: TextIO | None = None):
         self.path = str(path)
+        self.stream = stream
         self.known_ids = tuple(known_ids) if known_ids is not None else None
         self.skip_bad_frames = skip_bad_frames
         self.warn = warn or (lambda msg: None)
@@ -183,7 +188,7 @@ class ObservationReader:
 
     def __iter__(self) -> Iterator[Frame]:
         try:
-            fh = open(self.path, encoding="utf-8")
+            fh = self.stream if self.stream is not None else open(self.path, encoding="utf-8")
         except FileNotFoundError:
             raise ObservationError("observation file not found", path=self.path) from None
         last_t = -math.inf

@@ -41,6 +41,7 @@ class Timeline:
         self._open_events: dict[tuple[str, str], int] = {}
         self._revised: dict[str, list[float]] = {}  # subject -> times of Picks revised into Pushes
         self.t_end: float | None = None
+        self.kept_since: float | None = None  # set by forget_before: what is older was dropped
 
     def observe_facts(self, t: float, probabilities: dict[tuple, float]) -> None:
         """Record fact probabilities at time ``t``. Keys: ``(predicate, subject, object_or_None)``;
@@ -115,6 +116,26 @@ class Timeline:
                 best, best_dt = i, abs(e.t - t)
         return best
 
+    def forget_before(self, t: float) -> None:
+        """Drop the facts that ended and the events that happened before ``t`` (s), so that a
+        timeline kept over an endless stream holds a bounded window (``run --timeline-window``).
+        Open facts and events still being refined are kept; :meth:`to_json` then names ``t`` as
+        ``kept_since``. Later updates are unaffected as long as ``t`` is more than ``merge`` seconds
+        older than the events they refine or revise."""
+        keep = [i for i, e in enumerate(self.events) if e.t >= t or i in self._open_events.values()]
+        if len(keep) < len(self.events) or any(f["end"] < t for f in self.facts):
+            self.kept_since = t if self.kept_since is None else max(self.kept_since, t)
+        index = {old: new for new, old in enumerate(keep)}
+        self.events = [self.events[i] for i in keep]
+        self._open_events = {k: index[i] for k, i in self._open_events.items()}
+        self.facts = [f for f in self.facts if f["end"] >= t]
+        for subject in list(self._revised):
+            times = [r for r in self._revised[subject] if r >= t - self.merge]
+            if times:
+                self._revised[subject] = times
+            else:
+                del self._revised[subject]
+
     @staticmethod
     def _fact(key, f: _OpenFact, end: float | None) -> dict:
         predicate, subject, obj = key
@@ -125,8 +146,11 @@ class Timeline:
         """The timeline document; facts still open have ``end: null``."""
         facts = list(self.facts) + [self._fact(k, f, None) for k, f in self._open.items()]
         facts.sort(key=lambda d: (d["start"], d["predicate"], d["subject"], str(d["object"])))
-        return {"version": TIMELINE_FORMAT_VERSION, "t_end": self.t_end, "facts": facts,
-                "events": [e.to_json() for e in sorted(self.events, key=lambda e: e.t)]}
+        doc = {"version": TIMELINE_FORMAT_VERSION, "t_end": self.t_end, "facts": facts,
+               "events": [e.to_json() for e in sorted(self.events, key=lambda e: e.t)]}
+        if self.kept_since is not None:
+            doc["kept_since"] = self.kept_since
+        return doc
 
     def write(self, path: str) -> None:
         with open(path, "w", encoding="utf-8") as fh:

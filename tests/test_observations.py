@@ -187,3 +187,16 @@ def test_a_frame_camera_gives_negative_evidence_where_it_looks_and_the_scene_cam
     assert np.allclose(weights({"head": head}), [miss / (1 + miss), 1 / (1 + miss)])
     # no camera took it: no negative evidence at all
     assert np.allclose(weights({}), [0.5, 0.5])
+
+
+def test_an_open_stream_is_read_as_it_comes_and_named_in_errors():
+    import io
+    lines = [json.dumps(dict(GOOD, t=k / 10)) for k in range(3)] + ['{"t": 0.3, "objects": {"mug": {}}}']
+    fh = io.StringIO("\n".join(lines) + "\n")
+    reader = ObservationReader("<stdin>", IDS, stream=fh)
+    it = iter(reader)
+    assert [next(it).t for _ in range(3)] == [0.0, 0.1, 0.2]
+    assert fh.tell() < len(fh.getvalue())  # the bad line is not read before it is asked for
+    with pytest.raises(ObservationError, match=r"^<stdin>:4: objects\.mug: unknown object id"):
+        next(it)
+    assert fh.closed

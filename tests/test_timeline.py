@@ -74,3 +74,26 @@ def test_an_event_that_leaves_the_window_and_comes_back_is_recorded_once():
     tl.observe_events(2.6, [])
     tl.observe_events(3.0, [EventRecord(2.9, "Push", "ball", 1.0)])
     assert [(e.action, e.t) for e in tl.events] == [("Push", 0.53), ("Push", 2.9)]
+
+
+def test_forget_before_keeps_a_bounded_window_and_what_is_still_refined():
+    tl = Timeline(threshold=0.5, merge=0.3)
+    key = ("isPerceived", "ball", None)
+    for k in range(100):  # a fact that opens and closes every second, a Pick every 2 s
+        t = float(k)
+        tl.observe_facts(t, {key: 1.0} if k % 2 == 0 else {})
+        tl.observe_events(t, [EventRecord(t, "Pick", "cup", 0.9)] if k % 2 == 0 else [])
+    tl.observe_events(99.5, [EventRecord(99.4, "Release", "cup", 0.8)])  # open: still refined
+    before = tl.to_json()
+    tl.forget_before(90.0)
+    doc = tl.to_json()
+    assert doc["kept_since"] == 90.0 and "kept_since" not in before
+    assert [f for f in before["facts"] if f["end"] is None or f["end"] >= 90.0] == doc["facts"]
+    assert [e for e in before["events"] if e["t"] >= 90.0] == doc["events"]
+    assert len(doc["events"]) == 6 and len(doc["facts"]) == 5
+    # the open Release is refined in place after the forgetting, not entered twice
+    assert tl.observe_events(99.6, [EventRecord(99.45, "Release", "cup", 0.95)]) == []
+    assert [(e["action"], e["p"]) for e in tl.to_json()["events"]][-1] == ("Release", 0.95)
+    # nothing older to forget: the document does not change
+    tl.forget_before(10.0)
+    assert tl.to_json()["kept_since"] == 90.0
