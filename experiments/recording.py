@@ -1,9 +1,11 @@
 """Rerun recordings (``.rrd``) of what the estimator perceives, believes and what was true.
 
 A :class:`Recorder` owns its own :class:`rerun.RecordingStream` (application id ``scene-estimator``,
-a fresh recording id per instance) that writes to one file; it never touches rerun's global
-recording, so two recorders in one process keep their data apart. Open the file with
-``rerun run.rrd``. Time is the stream's ``t`` (seconds), on the timeline :data:`TIMELINE`.
+a fresh recording id per instance) that writes to one file, or streams live (:class:`LiveView`: a
+gRPC server that rerun's viewers, native or in a browser, connect to, or a connection to a running
+viewer), or both; it never touches rerun's global recording, so two recorders in one process keep
+their data apart. Open the file with ``rerun run.rrd``. Time is the stream's ``t`` (seconds), on the
+timeline :data:`TIMELINE`.
 
 Entity paths (object ids are escaped as entity path parts; M objects)::
 
@@ -94,6 +96,74 @@ class RecorderOptions:
             raise ValueError(f"region must be in (0, 1), got {self.region}")
 
 
+@dataclass(frozen=True)
+class LiveView:
+    """Where a :class:`Recorder` streams besides (or instead of) its file.
+
+    ``serve``: host a gRPC server on ``bind``:``grpc_port`` that viewers connect to
+    (``rerun rerun+http://HOST:PORT/proxy``); it keeps up to ``memory_limit`` of the stream for
+    viewers that connect late (the oldest data is dropped beyond it, the static scene never), so
+    that an endless run does not grow without bound. ``web_port``: also serve rerun's web viewer
+    over HTTP on that port, connected to the server (None: none). ``connect``: the gRPC URL of a
+    running viewer or server to send to (``rerun+http://HOST:PORT/proxy``, :func:`grpc_url`).
+    """
+
+    serve: bool = False
+    grpc_port: int = 9876
+    web_port: int | None = 9090
+    bind: str = "0.0.0.0"
+    connect: str | None = None
+    memory_limit: str = "256MiB"
+
+    def __post_init__(self):
+        if not (self.serve or self.connect):
+            raise ValueError("a live view serves (serve=True) or connects to a viewer (connect=URL)")
+        for name in ("grpc_port", "web_port"):
+            port = getattr(self, name)
+            if port is not None and not 0 < port < 65536:
+                raise ValueError(f"{name} must be a TCP port (1-65535), got {port}")
+
+    def viewer_url(self, host: str = "127.0.0.1") -> str | None:
+        """The address to open in a browser (the web viewer, connected to the served stream), with
+        ``host`` the machine's name as the browser reaches it; None without a web viewer."""
+        if not self.serve or self.web_port is None:
+            return None
+        from urllib.parse import quote
+        return f"http://{host}:{self.web_port}/?url=" + quote(self.grpc_uri(host), safe="")
+
+    def grpc_uri(self, host: str = "127.0.0.1") -> str:
+        """The served stream's gRPC URL, as a native viewer opens it (``rerun URL``)."""
+        return f"rerun+http://{host}:{self.grpc_port}/proxy"
+
+
+def grpc_url(address: str) -> str:
+    """A viewer's gRPC URL from ``HOST:PORT``, ``PORT`` or a full ``rerun+http://HOST:PORT/proxy``
+    (``rerun://`` and ``rerun+https://`` too). Raises ValueError for anything else."""
+    a = address.strip()
+    if a.startswith(("rerun://", "rerun+http://", "rerun+https://")):
+        if not a.rstrip("/").endswith("/proxy"):
+            a = a.rstrip("/") + "/proxy"
+        return a
+    host, sep, port = a.rpartition(":")
+    if not sep:
+        host, port = "127.0.0.1", a
+    if not port.isdigit() or not 0 < int(port) < 65536 or (sep and not host):
+        raise ValueError(f"expected HOST:PORT, PORT or rerun+http://HOST:PORT/proxy, got {address!r}")
+    return f"rerun+http://{host}:{int(port)}/proxy"
+
+
+def _check_port_free(bind: str, port: int, what: str) -> None:
+    """Raise ValueError when ``port`` cannot be listened on at ``bind`` (rerun's gRPC server would
+    fail silently in a thread of its own)."""
+    import socket
+    with socket.socket(socket.AF_INET6 if ":" in bind else socket.AF_INET) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind((bind, port))
+        except OSError as exc:
+            raise ValueError(f"{what}: cannot listen on {bind}:{port}: {exc.strerror or exc}") from None
+
+
 def path(*parts: str) -> str:
     """An entity path from raw parts (object ids may hold ``/`` or spaces): ``/plots/p_held/cup``."""
     return "/" + "/".join(rr.escape_entity_path_part(p) for p in parts)
@@ -146,7 +216,8 @@ def _packed(rgba) -> np.uint32:
 
 
 class Recorder:
-    """Write a rerun recording of a run to ``path`` (an ``.rrd`` file, created or overwritten).
+    """Write a rerun recording of a run to ``path`` (an ``.rrd`` file, created or overwritten), and,
+    with ``live``, stream it to viewers as it is made (:class:`LiveView`; ``path`` may then be None).
 
     The static scene (geometry of static objects, floor, camera frustum) and a default layout (3D view,
     plots, text log) are written at construction. Call :meth:`log_frame`, :meth:`log_belief`,
@@ -158,19 +229,25 @@ class Recorder:
     update is a few numpy operations); text entries are written at once.
 
     Args:
-        path: the ``.rrd`` file.
+        path: the ``.rrd`` file (None: no file; ``live`` needed then).
         scene: the scene the run is about (its geometry gives every box's size).
         max_particles_logged: particles drawn per object and update (the heaviest ones; 0: none).
         options: every other drawing option; ``max_particles_logged``, when given, overrides its own.
+        live: stream to viewers too (a gRPC server and a web viewer, or a running viewer); a port that
+            cannot be listened on is a ValueError. :attr:`viewer_url` is then the address to open.
     """
 
-    def __init__(self, path: str | os.PathLike, scene: Scene, *, max_particles_logged: int | None = None,
-                 options: RecorderOptions | None = None):
+    def __init__(self, path: str | os.PathLike | None, scene: Scene, *, max_particles_logged: int | None = None,
+                 options: RecorderOptions | None = None, live: LiveView | None = None):
         opts = options or RecorderOptions()
         if max_particles_logged is not None and max_particles_logged != opts.max_particles_logged:
             opts = replace(opts, max_particles_logged=max_particles_logged)
         self.options = opts
-        self.path = Path(path)
+        if path is None and live is None:
+            raise ValueError("a recorder needs a file (path) or a live view (live)")
+        self.path = None if path is None else Path(path)
+        self.live = live
+        self.viewer_url: str | None = None
         self.scene = scene
         self.recording_id = str(uuid.uuid4())
         self._dynamic = [o.id for o in scene.objects if not o.static]
@@ -184,18 +261,39 @@ class Recorder:
         with World(scene) as world:
             statics = static_geometry(world, scene)
             self._local = local_boxes(world)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        if live is not None and live.serve:
+            _check_port_free(live.bind, live.grpc_port, "the live view's gRPC server")
+            if live.web_port is not None:
+                _check_port_free(live.bind, live.web_port, "the live view's web viewer")
+        if self.path is not None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
         self.stream = rr.RecordingStream(APPLICATION_ID, recording_id=self.recording_id)
         self._closed = False
         try:
             self.stream.set_log_time_enabled(False)
             self.stream.set_log_tick_enabled(False)
-            self.stream.save(str(self.path), default_blueprint=default_blueprint())
-            self.stream.send_recording_name(self.path.stem)
+            self.stream.set_sinks(*self._sinks(), default_blueprint=default_blueprint())
+            self.stream.send_recording_name(self.path.stem if self.path is not None else scene.name)
             self._log_static(statics)
+            if live is not None and live.serve and live.web_port is not None:
+                try:  # rerun's web viewer: one per process, up until the process ends
+                    rr.serve_web_viewer(web_port=live.web_port, open_browser=False, connect_to=live.grpc_uri())
+                except RuntimeError as exc:
+                    raise ValueError(f"the live view's web viewer: {exc}") from None
+                self.viewer_url = live.viewer_url()
         except BaseException:
             self.close()
             raise
+
+    def _sinks(self) -> list:
+        """rerun sinks: the file, the served gRPC stream, the running viewer (as asked)."""
+        sinks = [] if self.path is None else [rr.FileSink(str(self.path))]
+        live = self.live
+        if live is not None and live.serve:
+            sinks.append(rr.GrpcServerSink(live.bind, live.grpc_port, server_memory_limit=live.memory_limit))
+        if live is not None and live.connect:
+            sinks.append(rr.GrpcSink(grpc_url(live.connect)))
+        return sinks
 
     # -- life cycle ---------------------------------------------------------------------------------
     def flush(self) -> None:
@@ -223,7 +321,7 @@ class Recorder:
 
     def _start(self, t: float) -> float:
         if self._closed:
-            raise RuntimeError(f"the recorder of {self.path} is closed")
+            raise RuntimeError(f"the recorder of {self.path or 'the live view'} is closed")
         return float(t)
 
     def _done(self) -> None:

@@ -15,6 +15,8 @@ import sys
 
 
 def main(argv: list[str] | None = None) -> int:
+    from experiments.streams import EXIT_SIGINT, EXIT_SIGTERM, Terminated, silence_stdout
+
     parser = argparse.ArgumentParser(prog="scene-estimator", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     from experiments.cli.common import add_estimator_arguments
@@ -69,7 +71,13 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         print("interrupted: the estimates written so far are kept", file=sys.stderr)
-        return 130
+        return EXIT_SIGINT
+    except Terminated:
+        print("terminated (SIGTERM): the estimates written so far are kept", file=sys.stderr)
+        return EXIT_SIGTERM
+    except BrokenPipeError:  # the reader of standard output went away (| head): nothing more to say
+        silence_stdout()
+        return 0
 
 
 if __name__ == "__main__":
