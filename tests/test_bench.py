@@ -184,3 +184,25 @@ def test_bag_mode_times_the_same_stream_from_jsonl_and_from_a_two_source_bag(tmp
     assert rows[0]["bag_over_jsonl"] == pytest.approx(rows[0]["bag_s"] / rows[0]["jsonl_s"])
     with contextlib.redirect_stderr(io.StringIO()):
         assert main(["bench", "--bag", "--particles", "2"]) == 2
+
+
+def test_bench_live_feeds_a_scenario_through_a_pipe_and_reports_latency(capsys):
+    """``bench --scenario NAME --live``: the figures are there and consistent (no assertion on speed)."""
+    assert main(["bench", "--scenario", "static_floating", "--particles", "2", "--workers", "0", "--live",
+                 "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["mode"] == "live" and len(out["load_average_at_start"]) == 3
+    (r,) = out["results"]
+    with bench_scenario.scenario_stream("static_floating") as (_, frames):
+        n = len(frames)
+    assert r["scenario"] == "static_floating" and r["particles"] == 2 and r["frames"] == n
+    assert 1 <= r["steps"] <= n and r["merged"] >= 0 and r["steps"] + r["merged"] <= n
+    for name in ("latency_ms_median", "latency_ms_p95", "latency_ms_max", "update_ms_median", "rss_mb_end",
+                 "realtime_factor", "stream_s", "busy_s"):
+        assert math.isfinite(r[name]) and r[name] > 0, name
+    assert r["latency_ms_median"] <= r["latency_ms_p95"] <= r["latency_ms_max"]
+    assert r["p95_over_horizon"] == pytest.approx(r["latency_ms_p95"] / 80.0)
+    assert r["p95_over_update"] == pytest.approx(r["latency_ms_p95"] / r["update_ms_median"])
+    assert r["stream_s"] == pytest.approx(frames[-1].t - frames[0].t)
+    assert main(["bench", "--particles", "2", "--live"]) == 2
+    assert "--live feeds the streams of scenarios" in capsys.readouterr().err

@@ -11,7 +11,9 @@ Two kinds of input, timed by the same loop (:func:`experiments.bench.timing.time
   off.
 
 ``--breakdown`` adds where the update's time goes; ``--bag`` compares JSONL and ROS-bag input;
-``--rerun-overhead`` the cost of recording.
+``--rerun-overhead`` the cost of recording; ``--live`` (with ``--scenario``) feeds each stream at its
+real rate through a pipe into the live loop and reports the latency from a frame's arrival to the
+estimate that used it and the frames merged (:mod:`experiments.bench.live`).
 """
 from __future__ import annotations
 
@@ -86,6 +88,10 @@ def add_bench_arguments(p: argparse.ArgumentParser) -> None:
                         "each worker's time over bare stepping per particle")
     p.add_argument("--rerun-overhead", action="store_true",
                    help="measure the cost of --rerun recording instead (e.g. --particles 64)")
+    p.add_argument("--live", action="store_true",
+                   help="with --scenario: feed each stream at its real rate through a pipe into the live loop "
+                        "(run --live) and report the latency from a frame's arrival to the estimate that used it "
+                        "(median, p95, max) and the frames merged")
 
 
 def run_bench(args) -> int:
@@ -95,6 +101,10 @@ def run_bench(args) -> int:
         raise ValueError("--bag compares the streams of scenarios: give --scenario NAME")
     if args.bag and args.breakdown:
         raise ValueError("--breakdown splits an update's time; --bag times whole runs: give one of them")
+    if args.live and not args.scenario:
+        raise ValueError("--live feeds the streams of scenarios: give --scenario NAME (or all)")
+    if args.live and (args.bag or args.breakdown or args.updates is not None):
+        raise ValueError("--live times whole streams at their real rate: drop --bag, --breakdown and --updates")
     if args.scenario:
         if args.rerun_overhead:
             raise ValueError("--rerun-overhead times the synthetic scenes (--objects), not --scenario")
@@ -136,4 +146,8 @@ def _scenario_bench(args) -> int:
     if args.bag:
         from experiments.bench.bag import BAG_COLUMNS
         return report(args, BAG_COLUMNS, bag_table(names, configs), meta)
+    if args.live:
+        from experiments.bench.live import LIVE_COLUMNS, live_rows
+        meta.update(mode="live", load_average_at_start=list(os.getloadavg()))
+        return report(args, LIVE_COLUMNS, live_rows(names, configs), meta)
     return report(args, SCENARIO_COLUMNS, scenario_rows(names, configs, args.updates), meta)
