@@ -99,14 +99,14 @@ class ModePriors:
       (:func:`estimator.likelihood.hand_reach_log_likelihood`), so an object flicked or pushed and
       then left to roll is not followed as if carried. Fitted the same way, over the frames where an
       object is held in truth, detected, and a hand is tracked.
-    * ``let_go_moving``: the share of the particles holding an object seen moving along its support
-      (faster than 0.2 m/s, not falling) with no tracked hand within reach (or no hand tracked at
-      all) that let it go at each update, at its velocity: physics takes it on (a ball flicked or
-      pushed and then left to roll). A Pick needs an agent that can reach the object: 1, the
-      default, lets it go in every particle, so that a roll is never carried as if in a hand. The
-      switch is a Place while perceived, whose prior ``place`` every particle then pays alike; below
-      1 the let-go is a proposal corrected by importance weights, and the detections decide between
-      the two (0: never tried; paper mode).
+    * ``let_go_moving``: the proposal rate of a let-go in motion: each update, a held object seen
+      moving along its support (faster than 0.2 m/s, not falling) with no tracked hand within reach
+      is let go in that fraction of the particles that hold it (a ball flicked or pushed and then
+      left to roll: physics takes it on from its velocity). The switch is a Place while perceived,
+      whose prior ``place`` the weights keep: the proposal is corrected for (importance weights), so
+      this sets how many particles try it, not how likely it is (0: never tried; paper mode). (An
+      object at rest that starts moving with no tracked hand within reach is not held at all: see
+      ``Move.set_moving``.)
     """
 
     pick: float = 0.02
@@ -119,7 +119,7 @@ class ModePriors:
     put_down_hidden: float = 0.923  # fitted: fit-priors, 11 of the 11 let go while hidden were put down
     put_down_touched: float = 0.955  # fitted: fit-priors, 20 of the 20 set down out of view were let go
     held_out_of_reach: float = 6.7e-05  # fitted: scene-estimator fit-priors (seeds 100-119), 0 of 14828 frames
-    let_go_moving: float = 1.0
+    let_go_moving: float = 0.2
     carry_distance: float = 0.05
 
     def __post_init__(self):

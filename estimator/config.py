@@ -170,8 +170,24 @@ class NoiseConfig:
       particle, by a log-uniform factor in this range: a user rarely knows a ball's or a can's
       rolling friction within a factor of two, and it decides where a rolled object stops. Boxes
       keep theirs. None: not perturbed.
+    * ``velocity_slack`` (m/s): an object seen moving along its support at two updates running is
+      weighed on its perceived velocity against the velocity the particle's physics had given it
+      (:class:`~estimator.likelihood.VelocityTerm`: how fast a rolled ball slows down tells its
+      rolling friction, which a teleport at every update hides from the position); this is added in
+      quadrature to the perceived velocity's standard error. 0: not weighed.
     * ``param_jitter``: after resampling, parameters are shrunk toward their weighted mean by
-      ``a = sqrt(1 - jitter**2)`` and jittered so that their spread is kept (Liu & West); 0 disables.
+      ``a = sqrt(1 - jitter**2)`` and jittered so that their spread is kept (Liu & West; frictions
+      and masses in log space, :mod:`estimator.params`); 0 disables.
+    * ``param_floor``: the Liu-West kernel of a parameter the prior perturbs keeps at least this
+      spread (log units: 0.1 is 10 %; linear for restitution), so that a resampling driven by
+      something else does not fix a parameter for good before the evidence about it arrives.
+    * ``param_widen``: the floor of the frictions' kernel (log units) of an object whose motion
+      surprises every particle the same way (its perceived velocity consistently two standard
+      deviations from theirs: :meth:`~estimator.model.SceneModel.note_surprise`): the evidence says
+      its friction is not where the particles have it; 0.35 is about the spread of a factor-two
+      prior.
+    * ``param_reach``: evidence may carry a parameter beyond its prior range by this factor (a
+      friction prior of 0.3-1.0 bounds it to 0.075-4.0 with the default 4).
     * ``regularisation``: after resampling, hidden free objects are jittered with a Gaussian kernel
       of this bandwidth times their weighted covariance (a regularised particle filter); 0 disables.
     * ``max_jitter_std`` (m): cap of the motion noise and of the regularisation kernel per update,
@@ -214,7 +230,11 @@ class NoiseConfig:
     spinning_friction_range: tuple[float, float] | None = None
     restitution_range: tuple[float, float] | None = (0.0, 0.3)
     mass_scale_range: tuple[float, float] | None = (0.8, 1.25)
+    velocity_slack: float = 0.03
     param_jitter: float = 0.1
+    param_floor: float = 0.1
+    param_widen: float = 0.35
+    param_reach: float = 4.0
     regularisation: float = 0.5
     max_jitter_std: float = 0.01
     outlier_prob: float = 0.05
@@ -226,7 +246,9 @@ class NoiseConfig:
         _check_nonneg(self, "position_std", "orientation_std", "process_position_std",
                       "process_orientation_std", "held_drift_std", "held_offset_std", "param_jitter", "outlier_prob",
                       "miss_prob", "motion_noise", "rest_speed", "covariance_floor_std", "regularisation",
-                      "max_jitter_std", "fusion_floor_std", "covariance_speed_time", "hand_radius")
+                      "max_jitter_std", "fusion_floor_std", "covariance_speed_time", "hand_radius", "param_floor", "velocity_slack", "param_widen")
+        if not (isinstance(self.param_reach, (int, float)) and self.param_reach >= 1):
+            raise ValueError(f"NoiseConfig.param_reach must be >= 1, got {self.param_reach!r}")
         dof = self.position_dof
         if dof is not None and not (isinstance(dof, (int, float)) and math.isfinite(dof) and dof > 2):
             raise ValueError(f"NoiseConfig.position_dof must be > 2 (None: Gaussian), got {dof!r}")

@@ -9,6 +9,7 @@ import math
 import numpy as np
 
 from actions.modes import FREE, HELD, PLACE, RELEASE, ModePriors, switch_events
+from actions.push import PICK_T, lifted
 
 from .config import NoiseConfig
 from .held import hand_offset_walk
@@ -237,6 +238,23 @@ def set_down_behind_cover(modes: np.ndarray, rest_at: np.ndarray, rest_t: np.nda
     return cand & (rng.random(modes.shape) < priors.put_down_touched)
 
 
+def pushes_ended(modes: np.ndarray, holds: np.ndarray, before_z: np.ndarray, hand_z: np.ndarray,
+                 in_tracked_hand: np.ndarray, lift: float) -> np.ndarray:
+    """Held objects whose push has ended out of view: ``(K, M)`` bool.
+
+    A held episode that never lifted its object (``holds (K, M, 6)``: :func:`actions.push.lifted`
+    is false; its record has a Pick time) moved it along its support, pushed or slid, not grasped:
+    a push cannot lift. When the tracked hand that moved such an undetected object
+    (``in_tracked_hand (M,)``) would now carry it (``hand_z (M,)``, m: the height at which it follows
+    the hand, NaN without one) more than ``lift`` (m) above where the particle has it
+    (``before_z (K, M)``), the hand has left it: it is let go where it is. Physics, not a prior:
+    no random draw, no weight. (Had the hand grasped it out of view, it shows when it is seen again.)"""
+    with np.errstate(invalid="ignore"):
+        rose = hand_z[None, :] - before_z > lift
+    pushed = ~lifted(holds, lift) & np.isfinite(holds[..., PICK_T])
+    return (modes == HELD) & pushed & rose & np.asarray(in_tracked_hand, dtype=bool)[None, :]
+
+
 def let_go_where_rested(entries: np.ndarray, state, poses: np.ndarray, vel: np.ndarray, modes: np.ndarray,
                         codes: np.ndarray) -> np.ndarray:
     """Let go, in place, the ``entries (K, M)`` set down out of view (:func:`set_down_behind_cover`)
@@ -279,12 +297,13 @@ def let_go_behind_cover(cover: np.ndarray, state, poses: np.ndarray, vel: np.nda
 def let_go_out_of_view(state, poses: np.ndarray, vel: np.ndarray, modes: np.ndarray, codes: np.ndarray,
                        frame: Frame, memory: PerceptionMemory, following: np.ndarray, perceived: np.ndarray,
                        detected: np.ndarray, priors: ModePriors, noise: NoiseConfig,
-                       rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+                       rng: np.random.Generator, lift: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
     """Held objects in a tracked hand (``following (M,)``) let go out of view, in place on ``poses
     (K, M, 7)``, ``vel (K, M, 6)``, ``modes`` and ``codes (K, M)``: those the hand shows in view
     without (:func:`release_behind_cover`, :func:`let_go_behind_cover`), and those set down where they
-    rested, the hand lifting away (:func:`set_down_behind_cover`, :func:`let_go_where_rested`; not in
-    the paper's mode, ``hand_occlusion`` 1). Returns when each entry was let go ``(K, M)`` (s; NaN
+    rested, the hand lifting away (:func:`set_down_behind_cover`, :func:`let_go_where_rested`), and
+    those pushed along their support whose hand has risen off them (:func:`pushes_ended`, ``lift``
+    m; none of these in the paper's mode, ``hand_occlusion`` 1). Returns when each entry was let go ``(K, M)`` (s; NaN
     for the others: the entries let go are the finite ones) and the proposal's log-weight factors
     ``(K,)``."""
     cover, proposal = release_behind_cover(modes, state.unseen_in_view, state.hidden_n, following & ~perceived,
@@ -293,10 +312,17 @@ def let_go_out_of_view(state, poses: np.ndarray, vel: np.ndarray, modes: np.ndar
     unseen = following & ~detected
     if noise.hand_occlusion >= 1.0 or not np.any(unseen):
         return when, proposal
-    set_down = set_down_behind_cover(modes, state.rest_at, state.rest_t, state.poses[..., 2],
-                                     memory.hand_heights(frame, unseen), unseen, priors, rng)
+    hand_z = memory.hand_heights(frame, unseen)
+    set_down = set_down_behind_cover(modes, state.rest_at, state.rest_t, state.poses[..., 2], hand_z, unseen,
+                                     priors, rng)
     if np.any(set_down):
         when = np.where(set_down, let_go_where_rested(set_down, state, poses, vel, modes, codes), when)
+    ended = pushes_ended(modes, state.holds, state.poses[..., 2], hand_z, unseen, lift)
+    if np.any(ended):  # left where the push took it, at rest: the episode ends as a Push
+        modes[ended] = FREE
+        codes[ended] = PLACE
+        vel[ended] = 0.0
+        when = np.where(ended, frame.t, when)
     return when, proposal
 
 

@@ -58,6 +58,23 @@ def position_log_likelihood(positions: np.ndarray, detected: np.ndarray, std: np
     return _with_outliers(log_n, outlier_prob)
 
 
+def velocity_log_likelihood(velocities: np.ndarray, seen: np.ndarray, std: np.ndarray, mask: np.ndarray,
+                            outlier_prob: float) -> np.ndarray:
+    """Log-likelihood ``(K,)`` float64 of perceived horizontal velocities under the particles'.
+
+    Args:
+        velocities: ``(K, M, 2)`` each particle's horizontal velocity of each object (m/s).
+        seen: ``(M, 2)`` the perceived velocities (m/s).
+        std: ``(M,)`` their standard deviation per axis (m/s).
+        mask: ``(K, M)`` bool, the entries weighed (the others add nothing).
+        outlier_prob: as :func:`position_log_likelihood`, a uniform outlier density of 1 per (m/s)^2.
+    """
+    std = np.asarray(std, dtype=float)
+    z2 = np.sum(((velocities - seen[None]) / std[None, :, None]) ** 2, axis=-1)
+    log_n = -0.5 * z2 - np.log(2 * math.pi * std ** 2)[None, :]
+    return np.where(mask, _with_outliers(log_n, outlier_prob), 0.0).sum(axis=1)
+
+
 def orientation_log_likelihood(orientations: np.ndarray, detected: np.ndarray, orientation_std: float,
                                outlier_prob: float) -> np.ndarray:
     """Log-likelihood ``(K, N)`` float64 of N detected orientations under each particle.
@@ -251,6 +268,14 @@ class Evidence:
     * ``carried (M,)`` bool: objects whose tracked hand has moved more than ``carry_distance`` since
       they were last seen (the person may hide what they carry: ``NoiseConfig.hand_occlusion``
       applies to them only; None: to every held object).
+    * ``velocity_check (K, M)`` bool: objects seen moving along their support at this update and
+      the last, free in the particle at the last one, whose horizontal velocity then,
+      ``predicted_velocity (K, M, 2)`` (m/s, what the particle's physics had made of it, friction
+      included), is weighed against the one perceived now, ``seen_velocity (M, 2)`` with standard
+      deviation ``seen_velocity_std (M,)`` (the line fitted through the detections over 0.2 s,
+      whose slope is the velocity about 0.1 s back: where the particle's is). A teleport in motion
+      gives every particle the perceived velocity again at every update, so the position alone
+      says little about how fast the object slows down; this does (None: none).
     * ``fell (M,)`` bool: objects seen rolling along at the previous update and falling off their
       support in this one (:class:`~estimator.step.Fall`); in the particles where they are free after
       the update (free before, or let go by the Release rule) they are scored on their horizontal
@@ -283,6 +308,10 @@ class Evidence:
     diverged: np.ndarray | None = None
     fell: np.ndarray | None = None
     carried: np.ndarray | None = None
+    velocity_check: np.ndarray | None = None
+    predicted_velocity: np.ndarray | None = None
+    seen_velocity: np.ndarray | None = None
+    seen_velocity_std: np.ndarray | None = None
 
 
 LogWeightTerm = Callable[[Evidence], np.ndarray]
@@ -345,6 +374,24 @@ class NegativeEvidenceTerm:
         return negative_evidence_log_likelihood(ev.visible, ev.modes, ev.queried, ev.in_tracked_hand,
                                                 self.miss_prob, self.visibility_threshold, h,
                                                 ev.unseen_in_view, ev.perceived, ev.fell_unseen)
+
+
+@dataclass(frozen=True)
+class VelocityTerm:
+    """Perceived velocities of objects moving on their support against what the particles' physics
+    made of their velocity over the last update (:func:`velocity_log_likelihood`; ``Evidence
+    .velocity_check``): how fast a rolled ball slows down is its rolling friction. ``slack`` (m/s)
+    is added in quadrature to each perceived velocity's standard error (the model's own error)."""
+
+    slack: float
+    outlier_prob: float
+
+    def __call__(self, ev: Evidence) -> np.ndarray:
+        if ev.velocity_check is None or not np.any(ev.velocity_check):
+            return np.zeros(len(ev.poses))
+        std = np.sqrt(np.asarray(ev.seen_velocity_std, dtype=float) ** 2 + self.slack ** 2)
+        return velocity_log_likelihood(ev.predicted_velocity, ev.seen_velocity, std, ev.velocity_check,
+                                       self.outlier_prob)
 
 
 @dataclass(frozen=True)

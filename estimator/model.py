@@ -22,7 +22,7 @@ import numpy as np
 
 from actions.episodes import EpisodeRule, carried, update_events
 from actions.events import N_ACTIONS
-from actions.modes import FREE, HELD, PLACE
+from actions.modes import FREE, HELD, PLACE, PUSH
 from actions.push import REF_Z, empty_holds
 from physics.penetration import StaticGeometry
 from physics.scene import Scene
@@ -33,6 +33,7 @@ from .fusion import ensemble_kalman_step
 from .holding import dropped_behind_cover, held_targets, let_go_out_of_view, release_on_loss
 from .noise import process_noise, regularisation_kernels
 from .likelihood import (DetectionTerm, Evidence, HandReachTerm, LogWeightTerm, ModeSwitchTerm, NegativeEvidenceTerm, ProposalTerm,
+                         VelocityTerm,
                          add_terms,
                          exploded_log_likelihood)
 from .motion import (MOVING_MAX_VERTICAL_SPEED, let_go_moving, out_of_reach, place, roll_released, rolled_along,
@@ -82,6 +83,12 @@ CARRIER_SHIFT = 0.02
 (:meth:`~estimator.perception_memory.PerceptionMemory.shifted`) carries what is in or on it: those
 get no events of their own (:meth:`SceneModel.settle`)."""
 
+SURPRISE = 4.0
+"""An object whose perceived velocity has been, on average (:meth:`SceneModel.note_surprise`), more
+than two of its standard deviations away from what the particles predicted (squared, per axis, over
+two axes: 4) has its frictions' kernel widened to ``NoiseConfig.param_widen`` at the next
+resampling: every particle is wrong about how it slows down."""
+
 FUSION_SETTLED = 1.5e-3
 """A resting object whose particles' weighted mean is within this (m, horizontally) of the average of
 its detections while still takes no Kalman step: it has converged (:meth:`SceneModel.fuse_resting`)."""
@@ -111,6 +118,8 @@ class SceneModel:
         self.known = initial_poses(scene)[1]
         self.base_params = base_params
         self.param_bounds = param_bounds(config)
+        self.perturbed = np.zeros((self.M, 5), dtype=bool)  # parameters the prior spreads (initial_state)
+        self.surprise = np.zeros(self.M)  # how far the objects' motion is from the particles' (note_surprise)
         hr = config.reasoner
         self.episode_rule = EpisodeRule(hr.push_lift, hr.push_smoothing, hr.place_wait)
         self._just_initialised = np.zeros(self.M, dtype=bool)
@@ -130,7 +139,8 @@ class SceneModel:
         nz, cfg = self.config.noise, self.config
         return (DetectionTerm(nz.position_std, nz.orientation_std, nz.outlier_prob),
                 NegativeEvidenceTerm(nz.miss_prob, cfg.visibility_threshold, nz.hand_occlusion),
-                ModeSwitchTerm(cfg.priors), HandReachTerm(cfg.priors.held_out_of_reach), ProposalTerm())
+                ModeSwitchTerm(cfg.priors), HandReachTerm(cfg.priors.held_out_of_reach), ProposalTerm(),
+                VelocityTerm(nz.velocity_slack, nz.outlier_prob))
 
     # -- the prior ------------------------------------------------------------------------------------
     def initial_state(self, rng: np.random.Generator) -> ParticleState:
@@ -154,6 +164,7 @@ class SceneModel:
         if nz.mass_scale_range is not None:
             lo, hi = nz.mass_scale_range
             params[:, dyn, 4] = base[dyn, 4] * rng.uniform(lo, hi, size=(K, len(dyn)))
+        self.perturbed = np.any(params != params[:1], axis=0) | (np.ptp(params, axis=0) > 0)  # (M, 5)
         if nz.position_std > 0:  # horizontally: pushed into its support or dropped onto it, an object
             known_dyn = np.flatnonzero(self.dynamic & self.known)  # starts by bouncing (a duck tips over)
             poses[:, known_dyn, :2] += rng.normal(0, nz.position_std, (K, len(known_dyn), 2))
@@ -217,6 +228,16 @@ class SceneModel:
             fall = falling & np.isfinite(z0) & ~following
             start[fall, 2], mem.perc_vel[fall, 2] = z0[fall], vz0[fall]
             fall_now = Fall(fall, z1, (z1 - z0) / dt)
+        set_moving = None
+        # how fast it was going in each particle where it was free (its physics, friction included),
+        # to weigh against the velocity now perceived
+        speed_check = None
+        if cfg.moving_teleports and cfg.noise.velocity_slack > 0:
+            along = moving & ~falling & mem.perceived_prev & rolled_along(mem.previous_tick_velocity())
+            if np.any(along):
+                speed_check = along[None, :] & (prev_modes == FREE)
+                speed_check = (speed_check, state.velocities[..., :2].copy(), mem.perc_vel[:, :2].copy(),
+                               mem.velocity_std(cfg.noise.position_std))
         if np.any(tele):
             jitter[:, tele] = self.teleport(poses, vel, np.flatnonzero(tele), newly_known, state.is_in, rng,
                                             spinning, start, prev_modes == HELD)
@@ -226,7 +247,14 @@ class SceneModel:
             if cfg.moving_teleports:  # at rest in a particle, nothing in its world set it moving: an agent
                 started = (spinning[None, :] & (prev_modes == FREE) & (np.linalg.norm(  # did; it stays, diverges
                     state.velocities[..., :2], axis=-1) < MOVING_MAX_VERTICAL_SPEED))  # from its target, held
-                vel[started] = 0.0
+                # ... if one can reach it: a Pick needs an agent within reach (a tracked hand); with
+                # none, it was set moving (flicked, knocked) and physics takes it on at its velocity
+                unreached = np.ones(self.M, dtype=bool) if far is None else far
+                set_moving = started & (moving & unreached)[None, :]
+                fresh = np.isfinite(mem.moving_since) & (mem.moving_since >= frame.t - dt - cfg.reasoner.place_dwell)
+                set_moving &= fresh[None, :] & (np.linalg.norm(state.velocities[..., :3], axis=-1)
+                                                < self.episode_rule.rest_speed)
+                vel[started & ~set_moving] = 0.0
         self.known |= perceived
         left_view = None
         if cfg.moving_teleports:  # seen moving along at the last update (its last two detections, or
@@ -237,7 +265,8 @@ class SceneModel:
             left_view = perceived & ~detected & along & ~following
         modes, release_codes = self.release(prev_modes, perceived, state.supported, rng, following, left_view)
         cover_t, proposal = let_go_out_of_view(state, poses, vel, modes, release_codes, frame, mem, following,
-                                               perceived, detected, cfg.priors, cfg.noise, rng)
+                                               perceived, detected, cfg.priors, cfg.noise, rng,
+                                               cfg.reasoner.push_lift)
         cover = np.isfinite(cover_t)
         flicked, flick_weight = self.let_go_moving(modes, state.supported, detected & perceived, tick_vel, far, rng)
         if np.any(flicked):  # let go in motion: physics takes it on at its velocity
@@ -284,7 +313,25 @@ class SceneModel:
                  | state.jolted | cover) & (modes == FREE)
         return Move(poses, vel, predicted, prev_modes, modes, release_codes, tele, target, target_vel, check,
                     depen, vis_query, hold_error, let_go, cameras, cover_t, proposal, nudged, jitter, far,
-                    fall_now, detections)
+                    fall_now, detections, set_moving if set_moving is not None and set_moving.any() else None,
+                    speed_check)
+
+    def unheld_overrides(self, move: Move, out: BatchOutput, supported: np.ndarray, seen: np.ndarray,
+                         tick_vel: np.ndarray) -> np.ndarray | None:
+        """Entries ``(K, M)`` that physics switched to HELD in this update (free before, they diverged
+        from their detection: Algorithm 1's override) of objects ``seen (M,)`` now moving along their
+        support (tick velocity ``(M, 3)``, :func:`~estimator.motion.rolled_along`), ``supported (K,
+        M)`` in their particle, that no tracked hand can reach (``Move.out_of_reach``; every object
+        when no hand is tracked): a Pick needs an agent within reach, so they stay free (None: none;
+        never in paper mode)."""
+        if not self.config.moving_teleports:
+            return None
+        unreached = np.ones(self.M, dtype=bool) if move.out_of_reach is None else move.out_of_reach
+        cand = seen & unreached & self.dynamic & rolled_along(tick_vel)
+        if not np.any(cand):
+            return None
+        out_mask = (move.modes == FREE) & (out.modes == HELD) & cand[None, :] & supported
+        return out_mask if np.any(out_mask) else None
 
     def clip_targets(self, poses: np.ndarray, target: np.ndarray, target_vel: np.ndarray, which: np.ndarray) -> None:
         """In place on ``target (K, M, 7)`` and ``target_vel (K, M, 6)``: the paths of the entries
@@ -425,6 +472,12 @@ class SceneModel:
             put_down &= supported_mask(out.aabbs, is_in, valid, static=self.static, floor=self.scene.floor,
                                        z_gap=self.episode_rule.lift, config=cfg.relations)
         new_modes[put_down | (held_seen & falling)] = FREE
+        # physics could not follow an object seen moving along its support, but no tracked hand can
+        # reach it: no agent holds it; it goes on free at its perceived velocity (overridden in motion)
+        unheld = self.unheld_overrides(move, out, supported, detected & perceived, vel)
+        if unheld is not None:
+            new_modes[unheld] = FREE
+            after_physics = np.where(unheld, FREE, after_physics).astype(after_physics.dtype)
         # the switches read as actions (actions.episodes): a Pick dated when the object started
         # moving, a Place once physics confirms it (dated when it came to rest), a Push if unlifted
         rule, onset = self.episode_rule, mem.moving_since
@@ -447,7 +500,26 @@ class SceneModel:
             out.poses[..., 2], self._seen_z(t, detected),
             np.where((onset >= t - cfg.event_window) & (onset <= t), onset, t), t, rule, let_go_t=t - hr.place_dwell,
             release_t=move.cover_t, rolled_off=None if move.fall is None else move.fall.mask[None, :])
+        codes, times = ev.codes, ev.times
+        set_moving = move.set_moving
+        if unheld is not None:  # those at rest in their particle before: set moving by an agent nobody tracks
+            at_rest = np.linalg.norm(state.velocities[..., :3], axis=-1) < rule.rest_speed
+            fresh = np.isfinite(onset) & (onset >= t - dt - hr.place_dwell)  # it just started moving, not
+            started = unheld & at_rest & (move.previous_modes == FREE) & fresh[None, :]  # a drift of physics
+            set_moving = started if set_moving is None else (set_moving | started)
+        if set_moving is not None:  # set moving by an agent nobody tracks: a Push when it began
+            pushed = set_moving & (ev.modes == FREE) & (codes == 0)
+            if np.any(pushed):
+                began = np.where(np.isfinite(onset), onset, t)[None, :]
+                codes = np.where(pushed, PUSH, codes).astype(codes.dtype)
+                times = np.where(pushed, np.broadcast_to(began, times.shape), times)
         velocities = out.velocities
+        if unheld is not None:  # at the velocity it is seen moving at, rolling if it is a ball
+            velocities = velocities.copy()
+            kk, mm = np.nonzero(unheld)
+            velocities[kk, mm] = 0.0
+            velocities[kk, mm, :2] = mem.perc_vel[mm, :2]
+            self.roll_released(velocities, unheld, np.ones_like(unheld))
         released = (after_physics == HELD) & (ev.modes == FREE)
         if np.any(released):
             velocities = velocities.copy()
@@ -460,8 +532,7 @@ class SceneModel:
                 vz_now = mem.free_fall((t,), cfg.physics.gravity, cfg.noise.position_std)[1][0]
                 fell &= np.isfinite(vz_now)[None, :]
                 velocities[..., 2] = np.where(fell, vz_now[None, :], velocities[..., 2])
-        return Settled(out.poses, velocities, ev.modes, on_top, is_in, supported, ev.codes, vel, ev.holds,
-                       ev.times)
+        return Settled(out.poses, velocities, ev.modes, on_top, is_in, supported, codes, vel, ev.holds, times)
 
     def out_of_static(self, poses: np.ndarray, velocities: np.ndarray) -> np.ndarray:
         """``poses (K, M, 7)`` after physics with the known dynamic objects that move (faster than
@@ -496,7 +567,11 @@ class SceneModel:
         """What the log-weight terms read for this update (``unseen_in_view (K, M)``: the particles'
         counts before it, see :class:`~estimator.state.ParticleState`)."""
         mem = self.memory
-        visible = self.behind_hands(out.visible, settled.poses, out.aabbs, frame, move.cameras, move.vis_query)
+        carried = mem.hand_travel() > self.config.priors.carry_distance
+        # an object its hand has not moved since it was last detected there is not hidden by that hand
+        seen_in_hand = mem.following_hand(frame) & ~carried
+        visible = self.behind_hands(out.visible, settled.poses, out.aabbs, frame, move.cameras,
+                                    move.vis_query & ~seen_in_hand)
         return Evidence(poses=settled.poses, predicted=move.predicted, previous_modes=move.previous_modes,
                         modes=settled.modes, detected=detected & self.dynamic, teleported=move.teleported,
                         perceived=perceived, detected_poses=mem.last_pose if move.detections is None else move.detections,
@@ -509,7 +584,11 @@ class SceneModel:
                         proposal_log_weight=move.proposal_log_weight, fused=move.fused,
                         out_of_reach=move.out_of_reach, diverged=diverged_by(move, out),
                         fell=None if move.fall is None else move.fall.mask,
-                        carried=mem.hand_travel() > self.config.priors.carry_distance)
+                        carried=carried,
+                        **({} if move.speed_check is None else dict(
+                            velocity_check=move.speed_check[0] & (settled.modes == FREE),
+                            predicted_velocity=move.speed_check[1], seen_velocity=move.speed_check[2],
+                            seen_velocity_std=move.speed_check[3])))
 
     def behind_hands(self, visible: np.ndarray, poses: np.ndarray, aabbs: np.ndarray, frame: Frame,
                      cameras: tuple | None, queried: np.ndarray) -> np.ndarray:
@@ -518,8 +597,9 @@ class SceneModel:
         position in ``poses (K, M, 7)``, keeps ``1 - share`` of its visible fraction, ``share`` being
         the part of its disk a hand (``NoiseConfig.hand_radius``) covers from the camera that sees
         the most of it (:func:`~physics.visibility.sphere_occlusion`; ``cameras``: those of the
-        update, None: the scene's). The worlds hold no hands; a held object is often right behind
-        its own."""
+        update, None: the scene's). The worlds hold no hands. (The caller leaves out an object whose
+        hand has not moved since it was last detected in it: it was seen there, so its hand does
+        not hide it.)"""
         r = self.config.noise.hand_radius
         if not frame.hands or r <= 0 or not np.any(queried):
             return visible
@@ -547,7 +627,30 @@ class SceneModel:
         """New log-weights ``(K,)``: ``previous (K,)`` plus every term of :attr:`terms` (one particle
         has nothing to be weighed against: no terms), and -inf for exploded particles."""
         logw = add_terms(previous, self.terms, ev) if self.K > 1 else previous.copy()
-        return logw + exploded_log_likelihood(ev.finite)
+        logw = logw + exploded_log_likelihood(ev.finite)
+        self.note_surprise(ev, logw)
+        return logw
+
+    def note_surprise(self, ev: Evidence, logw: np.ndarray) -> None:
+        """Track, per object, how far the perceived velocity of an object moving on its support is
+        from what the particles' physics predicted (``Evidence.velocity_check``), in units of its
+        standard deviation, under the new weights ``logw (K,)``: an exponential average (half of the
+        old, half of the new) of the squared mean innovation (:attr:`surprise` ``(M,)``). Calibrated,
+        it stays near 1; a value over :data:`SURPRISE` says every particle gets the object's motion
+        wrong the same way (its friction is outside what the particles hold), and its parameters
+        are widened at the next resampling (:meth:`regularise`)."""
+        if ev.velocity_check is None or self.K < 2 or not np.any(np.isfinite(logw)):
+            return
+        w, _ = normalise_log_weights(logw)
+        nz = self.config.noise
+        std = np.sqrt(np.asarray(ev.seen_velocity_std, float) ** 2 + nz.velocity_slack ** 2)
+        for m in np.flatnonzero(ev.velocity_check.any(axis=0)).tolist():
+            rows = ev.velocity_check[:, m]
+            wm = w * rows
+            if wm.sum() <= 0:
+                continue
+            d = (ev.seen_velocity[m] - (wm[:, None] * ev.predicted_velocity[:, m]).sum(axis=0) / wm.sum()) / std[m]
+            self.surprise[m] = 0.5 * self.surprise[m] + 0.5 * float(d @ d) / 2.0
 
     def reseed(self, poses: np.ndarray, vel: np.ndarray, detected: np.ndarray, rng: np.random.Generator) -> None:
         """Recovery when every particle has zero weight, in place: detected objects ``(M,)`` are put at
@@ -595,7 +698,10 @@ class SceneModel:
             state.jolted[free, m] = True
             if self.geometry is not None and np.any(free):  # not into the table or under the floor
                 state.poses[free, m] = self.geometry.clip(m, before, state.poses[free, m])[0]
-        h = self.config.noise.param_jitter
-        if h > 0:
+        nz = self.config.noise
+        if nz.param_jitter > 0:
             dyn = np.flatnonzero(self.dynamic)
-            state.params[:, dyn] = shrink_params(state.params[:, dyn], h, self.param_bounds, rng)
+            floor = np.full((len(dyn), 5), nz.param_floor)
+            floor[self.surprise[dyn] > SURPRISE, :2] = nz.param_widen  # frictions: surprised by its motion
+            state.params[:, dyn] = shrink_params(state.params[:, dyn], nz.param_jitter, self.param_bounds, rng,
+                                                 floor, self.perturbed[dyn])

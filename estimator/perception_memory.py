@@ -408,8 +408,9 @@ class PerceptionMemory:
         return (vel[:, 2] - self._prev_tick_vel[:, 2]) / max(dt, 1e-9)
 
     def at_rest(self, t: float) -> np.ndarray:
-        """Objects ``(M,)`` whose detections over the last ``place_dwell`` seconds moved less than
-        ``place_speed * place_dwell`` and turned less than ``place_spin * place_dwell``."""
+        """Objects ``(M,)`` detected within ``place_dwell`` of ``t`` whose detections over the
+        ``place_dwell`` seconds up to their latest one moved less than ``place_speed * place_dwell``
+        and turned less than ``place_spin * place_dwell``."""
         return np.array([self._rested(m, t) for m in range(self.M)], dtype=bool)
 
     def shifted(self, distance: float) -> np.ndarray:
@@ -450,7 +451,9 @@ class PerceptionMemory:
         hist = self._history[m]
         if not hist or t - hist[-1][0] > hr.place_dwell:
             return False
-        old = self._dwell_back(m, t)  # the latest one old enough
+        # the latest one place_dwell before the latest detection: detections that stopped coming (the
+        # object left view) say how it moved while seen, not that it came to rest since
+        old = self._dwell_back(m, hist[-1][0])
         if old is None:
             return False
         t0, p0, q0 = old

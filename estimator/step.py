@@ -48,7 +48,12 @@ class Move:
     an edge (:class:`Fall`; None: none); ``detections (M, 7)``: the latest detections, those made in
     an earlier frame of the update carried on to its end by their tracked hand, or, seen moving, at
     their velocity (:meth:`~estimator.perception_memory.PerceptionMemory.detections_now`; None: as
-    detected).
+    detected); ``set_moving (K, M)`` bool: objects at rest in their particle, seen starting to move
+    along their support with no tracked hand within reach, that go on at their perceived velocity
+    (a Push by an agent nobody tracks, not a Pick; None: none); ``speed_check``: ``(mask (K, M),
+    velocities (K, M, 2), seen (M, 2), std (M,))`` for :class:`~estimator.likelihood.VelocityTerm`:
+    objects seen moving along their support, free in the particle before the update, with their
+    velocity in it then and the perceived velocity (None: none).
     """
 
     poses: np.ndarray
@@ -73,6 +78,8 @@ class Move:
     out_of_reach: np.ndarray | None = None
     fall: Fall | None = None
     detections: np.ndarray | None = None
+    set_moving: np.ndarray | None = None
+    speed_check: tuple | None = None
 
     @property
     def behind_cover(self) -> np.ndarray | None:

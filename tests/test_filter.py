@@ -934,3 +934,36 @@ def test_a_ball_let_go_from_a_still_visible_hand_is_not_held_a_second_after_it_v
         [(round(b.t, 2), round(b.objects["ball"].p_held, 2)) for b in beliefs if b.t > last]
     end = later[-1]
     assert end.relation_p("ball", "isIn", "bin") > 0.8
+
+
+def test_a_box_pushed_out_of_view_stays_on_the_table_when_the_hand_rises_off_it():
+    """A tracked hand slides a box 40 cm along the table (never lifting it) and on out of the
+    detector's reach (the box is no longer reported from 1.4 s, while it still moves: no camera, so nothing says where it
+    is but the hand), then rises 30 cm and goes away. A push cannot lift: once the hand is above
+    the box, every particle leaves it where the push took it, on the table, and the episode ends as
+    a Push. (Read as carried, 98 % of the particles kept it in the rising hand: the carry prior.)"""
+    box = {"id": "box", "box": {"size": [0.08, 0.08, 0.08]}, "mass": 0.3,
+           "pose": {"position": [0.2, 0.0, TABLE_TOP + 0.04]}}
+    scene = table_scene(box)
+    z = TABLE_TOP + 0.04
+
+    def box_at(t):
+        s = min(max(0.0, t - 0.5) / 1.8, 1.0)
+        return np.array([0.2 - 0.4 * (3 * s * s - 2 * s ** 3), 0.0, z])
+
+    def hand(t):
+        up = min(max(0.0, t - 2.5) / 0.6, 1.0)
+        return box_at(t) + [0.08, 0.0, 0.3 * up]
+
+    out = []
+    for t in np.arange(0.0, 3.8, 1 / 30):
+        objs = {"box": det(box_at(t))} if t < 1.4 else {}
+        out.append(Frame(float(t), objs, {"human/right": hand(t)}))
+    with SceneEstimator(scene, EstimatorConfig(particles=32, noise=NoiseConfig()), np.random.default_rng(6)) as est:
+        beliefs = est.run(out)
+        timeline = est.timeline.to_json()
+    end = beliefs[-1].objects["box"]
+    assert end.p_held < 0.1
+    assert end.hypotheses[0].support == "table" and abs(end.position[2] - z) < 0.01
+    assert np.linalg.norm(end.position[:2] - box_at(3.8)[:2]) < 0.08
+    assert [e["action"] for e in timeline["events"]] == ["Push"], timeline["events"]

@@ -2,8 +2,9 @@
 import numpy as np
 
 from actions.modes import FREE, HELD, PLACE, ModePriors
+from actions.push import AIRBORNE, PICK_T, REF_Z, SMOOTH_Z, TOP_Z, empty_holds
 from estimator.config import ReasonerConfig
-from estimator.holding import release_on_loss, stratified_uniforms
+from estimator.holding import pushes_ended, release_on_loss, stratified_uniforms
 from estimator.model import initial_poses
 from estimator.observations import Detection, Frame
 from estimator.perception_memory import PerceptionMemory
@@ -202,3 +203,24 @@ def test_release_behind_cover_draws_from_the_posterior_and_weighs_the_move():
     none, zero = release_behind_cover(modes, unseen, hidden_n, np.array([True, True]), priors,
                                       replace(noise, hand_occlusion=1.0), np.random.default_rng(3))
     assert not none.any() and np.all(zero == 0)
+
+
+def test_a_push_ends_when_the_hand_rises_off_an_unlifted_object():
+    """pushes_ended: held, never lifted (its record's top no higher than its rest plus lift), in a
+    tracked hand, undetected, and the hand now 3 cm above where the particle has it: let go. A lifted
+    episode, a free object, a hand still at its height, or no hand: not."""
+    K, M = 4, 2
+    holds = empty_holds((K, M))
+    holds[..., PICK_T] = 1.0
+    holds[..., REF_Z] = 0.66
+    holds[..., SMOOTH_Z] = holds[..., TOP_Z] = 0.665
+    holds[..., AIRBORNE] = 0
+    holds[1, 0, TOP_Z] = 0.72  # that particle's episode lifted it
+    modes = np.full((K, M), HELD, np.int8)
+    modes[2, 0] = FREE
+    before = np.full((K, M), 0.665)
+    hand_z = np.array([0.695, 0.67])  # object 0's hand rose 3 cm, object 1's did not
+    ended = pushes_ended(modes, holds, before, hand_z, np.array([True, True]), 0.02)
+    assert ended[:, 0].tolist() == [True, False, False, True] and not ended[:, 1].any()
+    assert not pushes_ended(modes, holds, before, hand_z, np.array([False, True]), 0.02).any()
+    assert not pushes_ended(modes, holds, before, np.array([np.nan, np.nan]), np.array([True, True]), 0.02).any()

@@ -13,7 +13,7 @@ from experiments.independent import RECORDINGS, TABLE_TOP, record
 from physics.penetration import INVARIANT_DEPTH, StaticGeometry
 from physics.scene import scene_from_dict
 
-K = 32
+K = 64
 
 
 def run(name, seed=0):

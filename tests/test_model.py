@@ -159,8 +159,8 @@ def test_held_target_of_a_perceived_object_is_its_perception_without_drift(movin
     assert np.allclose(target_vel[:, CUP, :3], [0.0, 0.0, velocity])
 
 
-@pytest.mark.parametrize("moving", [True, False])
-def test_an_object_teleported_while_tracked_in_motion_keeps_moving(moving):
+@pytest.mark.parametrize("moving, hand", [(True, True), (True, False), (False, True)])
+def test_an_object_teleported_while_tracked_in_motion_keeps_moving(moving, hand):
     model = make(EstimatorConfig(particles=3, noise=NoiseConfig(position_std=0.0), moving_teleports=moving))
     st = model.initial_state(np.random.default_rng(0))
     mem = model.memory
@@ -169,9 +169,10 @@ def test_an_object_teleported_while_tracked_in_motion_keeps_moving(moving):
         # in particles 0 and 1 it rolls along x at 0.3 m/s; in particle 2 it rests
         st.velocities[:2, BALL] = [0.3, 0.0, 0.0, 0.0, 10.0, 0.0]
         for f in range(3):
-            tf = t + f / 30
-            mem.record(Frame(tf, {"ball": Detection(np.array([0.08 + 0.9 * tf, 0.0, 0.14]))}))
-        frame = Frame(t + 2 / 30)
+            tf = t + f / 30  # a tracked hand beside it, or none
+            hands = {"human/right": np.array([0.1 + 0.9 * tf, 0.0, 0.2])} if hand else {}
+            mem.record(Frame(tf, {"ball": Detection(np.array([0.08 + 0.9 * tf, 0.0, 0.14]))}, hands))
+        frame = Frame(t + 2 / 30, {}, hands)
         detected = np.zeros(5, bool)
         detected[BALL] = True
         perceived = mem.perceived(frame.t)
@@ -184,9 +185,12 @@ def test_an_object_teleported_while_tracked_in_motion_keeps_moving(moving):
         assert np.allclose(mv.poses[:, BALL, :3], [seen[0] - 0.09, 0.0, 0.14])
         # where it rolled: the velocity over the reasoning period, spinning as it rolls (w = z x v / r)
         assert np.allclose(mv.velocities[:2, BALL], [0.9, 0.0, 0.0, 0.0, 0.9 / 0.03, 0.0])
-        # where it rested, nothing in the particle's world set it moving: an agent did; it stays
-        # (and physics will find it diverging from its moving target: held)
-        assert np.all(mv.velocities[2, BALL] == 0.0)
+        if hand:  # where it rested, nothing in the particle's world set it moving: the hand beside it
+            # did; it stays (and physics will find it diverging from its moving target: held)
+            assert np.all(mv.velocities[2, BALL] == 0.0) and mv.set_moving is None
+        else:  # no agent can reach it: it was set moving (flicked) and rolls on, a Push, not a Pick
+            assert np.allclose(mv.velocities[2, BALL, :3], [0.9, 0.0, 0.0])
+            assert mv.set_moving is not None and mv.set_moving[:, BALL].tolist() == [False, False, True]
         assert np.allclose(mv.target_vel[:, BALL, :3], [0.9, 0.0, 0.0])
         assert np.allclose(mv.target[:, BALL, :3], seen)  # the target reaches the detection at the end
     else:  # Algorithm 2 as the paper: at rest at the detection
