@@ -272,6 +272,8 @@ def test_a_malformed_line_on_standard_input_is_located_or_skipped(files):
     res = _run("--scene", scene, "--observations", "-", "--out", "-", "--paper", input=text)
     assert res.returncode == 2 and "Traceback" not in res.stderr
     assert "error: <stdin>:3: objects.box.position[1]: non-finite number NaN is not allowed" in res.stderr
+    res = _run("--scene", scene, "--observations", "-", "--out", "-", "--paper", "--live", input=text)
+    assert res.returncode == 2 and "error: <stdin>:3: objects.box.position[1]: non-finite" in res.stderr  # live too
     res = _run("--scene", scene, "--observations", "-", "--out", "-", "--paper", "--skip-bad-frames", input=text)
     assert res.returncode == 0 and "1 bad frame(s) skipped" in res.stderr
     assert len(res.stdout.splitlines()) == len(_estimates(_run("--scene", scene, "--observations", obs, "--out", "-",

@@ -47,6 +47,7 @@ LIVE_COLUMNS = [("scenario", "scenario", "{}"), ("particles", "K", "{}"), ("fram
                 ("update_ms_median", "step median (ms)", "{:.1f}"), ("update_ms_p95", "step p95 (ms)", "{:.1f}"),
                 ("latency_ms_median", "latency median (ms)", "{:.1f}"),
                 ("latency_ms_p95", "latency p95 (ms)", "{:.1f}"), ("latency_ms_max", "latency max (ms)", "{:.1f}"),
+                ("newest_latency_ms_p95", "newest frame's p95 (ms)", "{:.1f}"),
                 ("p95_over_horizon", "p95 / horizon", "{:.2f}"), ("p95_over_update", "p95 / step", "{:.2f}"),
                 ("rss_mb_half", "RSS half-way (MB)", "{:.0f}"), ("rss_mb_end", "RSS end (MB)", "{:.0f}"),
                 ("load_1min", "load", "{:.2f}")]
