@@ -53,7 +53,9 @@ class ObjectBelief:
     (objects built by hand) means ``position``. ``person`` (only when the scene names a person):
     ``{"id", "p_visible", "p_reachable"}`` (:mod:`estimator.person`). ``position_dof``: the
     position is a multivariate Student-t with these degrees of freedom and covariance
-    ``position_cov`` (``inf``: Gaussian); :meth:`region` gives its ellipsoids.
+    ``position_cov`` (``inf``: Gaussian); :meth:`region` gives its ellipsoids. ``parameters`` (dynamic
+    objects): the posterior of its physical parameters over the particles, ``{name: (mean, std)}``
+    for :data:`REPORTED_PARAMETERS` (lateral and rolling friction, restitution; mass in kg).
     """
 
     position: np.ndarray
@@ -68,6 +70,7 @@ class ObjectBelief:
     mean_position_cov: np.ndarray | None = None
     person: dict | None = None
     position_dof: float = math.inf
+    parameters: dict | None = None
 
     def region(self, level: float) -> float:
         """Squared Mahalanobis radius ``r2`` (with respect to ``position_cov``) of the ellipsoid
@@ -87,6 +90,9 @@ class ObjectBelief:
                "position_dof": None if math.isinf(self.position_dof) else round(float(self.position_dof), 4)}
         if self.person is not None:
             out["person"] = self.person
+        if self.parameters is not None:
+            out["parameters"] = {k: {"mean": round(float(mu), 6), "std": round(float(sd), 6)}
+                                 for k, (mu, sd) in self.parameters.items()}
         return out
 
 
@@ -236,10 +242,26 @@ def _group_stats(positions: np.ndarray, weights: np.ndarray, members: np.ndarray
     return mean, (dev.T * w) @ dev
 
 
+REPORTED_PARAMETERS = {"friction": 0, "rolling_friction": 1, "restitution": 3, "mass": 4}
+"""The physical parameters an object's belief reports (name -> column of the ``(K, M, 5)`` arrays)."""
+
+
+def parameter_posterior(params: np.ndarray, weights: np.ndarray, m: int) -> dict[str, tuple[float, float]]:
+    """Weighted mean and standard deviation of object ``m``'s :data:`REPORTED_PARAMETERS` over the
+    particles: ``params (K, M, 5)``, ``weights (K,)`` normalised."""
+    out = {}
+    for name, col in REPORTED_PARAMETERS.items():
+        x = params[:, m, col]
+        mu = float(weights @ x)
+        out[name] = (mu, float(np.sqrt(max(weights @ (x - mu) ** 2, 0.0))))
+    return out
+
+
 def compute_belief(t: float, object_ids, known: np.ndarray, perceived: np.ndarray, poses: np.ndarray,
                    weights: np.ndarray, modes: np.ndarray, on_top: np.ndarray, is_in: np.ndarray,
                    events: list[EventRecord], ess: float, static: np.ndarray, min_p: float = 0.02,
-                   keep_particles: bool = True, cov_floor: float = 0.0, dof: float = math.inf) -> Belief:
+                   keep_particles: bool = True, cov_floor: float = 0.0, dof: float = math.inf,
+                   params: np.ndarray | None = None) -> Belief:
     """Assemble a :class:`Belief` from particle arrays (K particles, M objects).
 
     ``poses (K, M, 7)``, ``weights (K,)`` normalised, ``modes (K, M)``, ``on_top (K, M, M+1)``,
@@ -248,7 +270,8 @@ def compute_belief(t: float, object_ids, known: np.ndarray, perceived: np.ndarra
     diagonal of the position covariances of dynamic objects, whose positions are then Student-t with
     ``dof`` degrees of freedom (``inf``: Gaussian). A hypothesis is a support label
     (:func:`support_labels`); the headline position and covariance are those of the heaviest one (see
-    :class:`ObjectBelief`), the first of ``hypotheses``.
+    :class:`ObjectBelief`), the first of ``hypotheses``. ``params (K, M, 5)``: the particles'
+    physical parameters, whose posterior each dynamic object reports (None: not reported).
     """
     object_ids = tuple(object_ids)
     k, m_count = modes.shape
@@ -287,7 +310,9 @@ def compute_belief(t: float, object_ids, known: np.ndarray, perceived: np.ndarra
                 hyps.append(Hypothesis(p, rel, sup, pos_lab[m, lab] / p if p > 0 else pos_lab[m, lab]))
             hyps.sort(key=lambda h: -h.p)
         objects[oid] = ObjectBelief(pos, q, pos_cov, ang, bool(perceived[m]), p_plausible, p_held, tuple(hyps),
-                                    mean, cov, position_dof=math.inf if static[m] else float(dof))
+                                    mean, cov, position_dof=math.inf if static[m] else float(dof),
+                                    parameters=None if static[m] or params is None
+                                    else parameter_posterior(params, weights, m))
     p_on = np.tensordot(weights, on_top.astype(float), axes=1)
     p_in = np.tensordot(weights, is_in.astype(float), axes=1) if is_in.any() else np.zeros(is_in.shape[1:])
     relations = relation_list(None, None, object_ids, p_on, p_in, threshold=min_p)

@@ -280,7 +280,7 @@ class SceneEstimator:
         belief = compute_belief(t, self.object_ids, self.known, perceived, settled.poses, weights, settled.modes,
                                 settled.on_top, settled.is_in, step_events, ess, self.static, cfg.hypothesis_min_p,
                                 cov_floor=cfg.noise.covariance_floor_std ** 2,
-                                dof=cfg.noise.position_dof or math.inf)
+                                dof=cfg.noise.position_dof or math.inf, params=self.state.params)
         belief = self._with_speed_variance(belief, detected, dt)
         if self.scene.person is not None:
             belief = self._with_person(belief, settled.poses, weights)

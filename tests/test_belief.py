@@ -161,3 +161,27 @@ def test_beliefs_report_the_degrees_of_freedom_and_take_added_variance():
     for bad in (np.array([0.0]), np.array([0.0, -1.0]), np.array([0.0, np.nan])):
         with pytest.raises(ValueError):
             with_added_variance(b, bad)
+
+
+def test_each_dynamic_object_reports_the_weighted_posterior_of_its_parameters():
+    """``parameters``: weighted mean and standard deviation of friction, rolling friction, restitution
+    and mass over the particles, for dynamic objects only (a static table has none), in the JSON
+    line as {"mean", "std"}; without ``params`` nothing is reported."""
+    rng = np.random.default_rng(7)
+    poses, w, modes, on_top, is_in, _ = _cup_held_or_fallen(rng)
+    K = len(w)
+    params = np.zeros((K, 2, 5))
+    params[:, 1, 1] = rng.uniform(0.001, 0.004, K)  # the cup's rolling friction
+    params[:, 1, 4] = 0.2
+    b = compute_belief(2.0, ["table", "cup"], np.ones(2, bool), np.zeros(2, bool), poses, w, modes, on_top,
+                       is_in, [], 100.0, np.array([True, False]), params=params)
+    rf = b.objects["cup"].parameters["rolling_friction"]
+    mu = np.sum(w * params[:, 1, 1])
+    assert rf[0] == pytest.approx(mu) and rf[1] == pytest.approx(np.sqrt(np.sum(w * (params[:, 1, 1] - mu) ** 2)))
+    assert b.objects["cup"].parameters["mass"] == pytest.approx((0.2, 0.0), abs=1e-12)
+    assert b.objects["table"].parameters is None
+    line = b.to_json()["objects"]["cup"]["parameters"]["rolling_friction"]
+    assert set(line) == {"mean", "std"} and line["mean"] == pytest.approx(mu, abs=1e-6)
+    none = compute_belief(2.0, ["table", "cup"], np.ones(2, bool), np.zeros(2, bool), poses, w, modes, on_top,
+                          is_in, [], 100.0, np.array([True, False]))
+    assert none.objects["cup"].parameters is None and "parameters" not in none.to_json()["objects"]["cup"]
