@@ -160,11 +160,12 @@ class StaticGeometry:
         a sweep test.
 
         Each path whose swept box meets a static body's is sampled every :meth:`spacing` (so that it
-        cannot step over a table top) and its first sample deeper than ``depth`` is found; the path
-        then ends at the last point found clear between it and the sample before (:data:`BISECTIONS`
-        halvings): the object stops at the surface, as a carried object stops on the table a hand
-        pushes it down onto. A path that starts inside static geometry has its end pushed out of it
-        along the deepest contact's normal instead. Returns the new ends ``(N, 7)`` and the fraction
+        cannot step over a table top) and its first entry (a sample deeper than ``depth`` after a
+        clear one) is found; the path then ends at the last point found clear between the two
+        (:data:`BISECTIONS` halvings): the object stops at the surface, as a carried object stops on
+        the table a hand pushes it down onto. A path that starts inside and leaves is kept; one
+        inside from its start to its end has its end pushed out along the deepest contact's normal.
+        Returns the new ends ``(N, 7)`` and the fraction
         of each path kept ``(N,)`` (1 where it is kept; NaN where the end was pushed out)."""
         start = np.asarray(start, dtype=float).reshape(-1, 7)
         end = np.asarray(end, dtype=float).reshape(-1, 7).copy()
@@ -192,16 +193,20 @@ class StaticGeometry:
         fs = np.concatenate([np.arange(n + 1) / n for n in counts.tolist()])
         d = self.depth_of(m, _along(start[rows[owner]], end[rows[owner]], fs), depth)
         bad = d > depth
+        # the first entry into static geometry of each path: a bad sample after a clear one (a path
+        # that starts inside, e.g. a perturbed start, and leaves is no entry)
+        entry = bad & np.concatenate([[False], ~bad[:-1] & (owner[1:] == owner[:-1])])
         first = np.full(len(rows), -1)
-        for j in np.flatnonzero(bad)[::-1].tolist():  # the first bad sample of each path
+        for j in np.flatnonzero(entry)[::-1].tolist():
             first[owner[j]] = j
         hit = first >= 0
-        starts_in = hit & (fs[np.maximum(first, 0)] == 0.0)
-        for j in np.flatnonzero(starts_in).tolist():  # it starts inside: its end goes out along the normal
+        last = np.cumsum(counts + 1) - 1  # each path's end sample
+        starts_in = ~hit & bad[last]  # inside all along to its end: its end goes out along the normal
+        for j in np.flatnonzero(starts_in).tolist():
             r = rows[j]
             end[r] = self._push_out(m, end[r])
             frac[r] = np.nan
-        walk = np.flatnonzero(hit & ~starts_in)
+        walk = np.flatnonzero(hit)
         if len(walk):  # bisection between the last clear sample and the first bad one, all paths at once
             lo, hi = fs[first[walk] - 1], fs[first[walk]]
             r = rows[walk]
