@@ -316,7 +316,10 @@ def test_cli_bad_input_exits_2_with_a_located_message(tmp_path, capsys):
     assert main(["run", "--scene", scene, "--bag", bag, "--topics", str(topics), "--quiet", "--paper"]) == 2
     assert f"error: {topics}:2: sources[0].topic: topic /camera/tags is not in" in capsys.readouterr().err
     assert main(["run", "--scene", scene, "--bag", bag, "--bag-out", bag, "--quiet", "--paper"]) == 2
-    assert f"error: {bag}: output bag already exists" in capsys.readouterr().err
+    assert f"error: --bag-out: {bag} is the same file as --bag {bag} (an input)" in capsys.readouterr().err
+    other = frames_to_tf_bag(tmp_path / "other.bag", lift_frames(3))
+    assert main(["run", "--scene", scene, "--bag", bag, "--bag-out", other, "--quiet", "--paper"]) == 2
+    assert f"error: {other}: output bag already exists" in capsys.readouterr().err
     assert main(["run", "--scene", scene, "--observations", "o.jsonl", "--topics", str(topics), "--paper"]) == 2
     assert "error: --topics needs --bag" in capsys.readouterr().err
     with pytest.raises(SystemExit) as exc:
