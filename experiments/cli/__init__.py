@@ -5,7 +5,8 @@ Subcommands: ``run`` (estimate a recorded stream), ``config`` (the configuration
 (scenario simulator), ``evaluate`` (statistics over scenarios, seeds and methods), ``bench`` (speed
 against bare pybullet stepping), ``track`` (a Kalman pose tracker, fed back by the estimator),
 ``search`` (where to look first for a hidden object), ``search-eval`` (the search experiment),
-``predictability`` (which scenarios allow a 5 cm answer at all).
+``predictability`` (which scenarios allow a 5 cm answer at all), ``ros`` (a live ROS 1 node; needs
+rospy).
 """
 from __future__ import annotations
 
@@ -38,6 +39,7 @@ def main(argv: list[str] | None = None) -> int:
     from experiments.cli.evaluate import add_evaluate_arguments, run_evaluate
     from experiments.cli.fit import add_fit_arguments, run_fit
     from experiments.cli.predictability import add_predictability_arguments, run_predictability
+    from experiments.cli.ros import add_ros_arguments, run_ros
     from experiments.cli.search import add_search_arguments, run_search
     from experiments.cli.search_eval import add_search_eval_arguments, run_search_eval
     from experiments.cli.simulate import add_simulate_arguments, run_simulate
@@ -58,7 +60,9 @@ def main(argv: list[str] | None = None) -> int:
             ("search", "where to look first for a hidden object: ranked places and a look plan",
              add_search_arguments, run_search),
             ("search-eval", "the search experiment: a simulated robot camera looks for hidden objects, by method",
-             add_search_eval_arguments, run_search_eval)]:
+             add_search_eval_arguments, run_search_eval),
+            ("ros", "a live ROS 1 node: perception topics in (as `run --bag --topics`), estimates out (TF, poses "
+             "with covariance, RViz markers, the estimate line); needs rospy", add_ros_arguments, run_ros)]:
         p_sub = sub.add_parser(name, help=text)
         add(p_sub)
         p_sub.set_defaults(func=run)

@@ -1,0 +1,96 @@
+"""Finding ROS 1's Python packages (rospy and the message modules) for ``scene-estimator ros``.
+
+Debian (bookworm) and Ubuntu package ROS 1 Noetic for their own Python 3 (``apt-get install
+ros-core python3-rospy ...``): the modules land in ``/usr/lib/python3/dist-packages``, which a Python
+built elsewhere (pyenv, a virtual environment) does not search. :func:`import_ros` first tries a
+plain import and only when that fails appends that directory (or the directories in
+``$SCENE_ESTIMATOR_ROS_PATH``, separated by ``:``) to the *end* of ``sys.path``, so that the
+packages installed for this Python always win over Debian's copies of them.
+
+Nothing here is imported by the core install: only ``scene-estimator ros`` and its tests call
+:func:`import_ros`.
+"""
+from __future__ import annotations
+
+import importlib
+import os
+import sys
+from types import SimpleNamespace
+
+DIST_PACKAGES = ("/usr/lib/python3/dist-packages",)
+"""Where Debian's and Ubuntu's ``python3-*`` packages install (searched when a plain import fails)."""
+PATH_VARIABLE = "SCENE_ESTIMATOR_ROS_PATH"
+
+#: module -> the Debian / Ubuntu package that provides it
+PACKAGES = {
+    "rospy": "python3-rospy",
+    "rosgraph": "python3-rosgraph",
+    "genpy": "python3-genpy",
+    "tf2_ros": "python3-tf2-ros",
+    "tf2_msgs.msg": "python3-tf2-msgs",
+    "geometry_msgs.msg": "python3-geometry-msgs",
+    "visualization_msgs.msg": "python3-visualization-msgs",
+    "std_msgs.msg": "python3-std-msgs",
+}
+APT_PACKAGES = ("ros-core", "python3-rospy", "python3-tf2-ros", "python3-tf2-msgs", "python3-geometry-msgs",
+                "python3-visualization-msgs", "python3-std-msgs")
+INSTALL_COMMAND = "sudo apt-get install " + " ".join(APT_PACKAGES)
+INSTALL_HINT = (f"install ROS 1 (Noetic) from Debian bookworm's or Ubuntu's packages: `{INSTALL_COMMAND}` "
+                f"(they install into /usr/lib/python3/dist-packages, which is searched automatically; set "
+                f"{PATH_VARIABLE}=DIR[:DIR] if they are elsewhere); this Python must be the same minor version "
+                f"as the system's python3 (tf2_ros has a compiled part)")
+
+
+class RosUnavailable(ImportError):
+    """ROS 1's Python packages cannot be imported; the message says what to install."""
+
+
+def _search_dirs() -> list[str]:
+    extra = [d for d in os.environ.get(PATH_VARIABLE, "").split(os.pathsep) if d]
+    return extra + [d for d in DIST_PACKAGES if os.path.isdir(d)]
+
+
+def _add_search_dirs() -> list[str]:
+    added = []
+    for d in _search_dirs():
+        if d not in sys.path:
+            sys.path.append(d)  # last: this Python's own packages win
+            added.append(d)
+    importlib.invalidate_caches()
+    return added
+
+
+def import_ros() -> SimpleNamespace:
+    """Import rospy, rosgraph, tf2_ros and the message modules the node uses, adding Debian's
+    dist-packages to the search path if a plain import fails. Returns them as attributes
+    (``rospy``, ``rosgraph``, ``tf2_ros``, ``tf2_msgs``, ``geometry_msgs``, ``visualization_msgs``,
+    ``std_msgs``: the ``.msg`` modules for the last four). Raises :class:`RosUnavailable` naming
+    the missing package and the command that installs it."""
+    mods = {}
+    for name, package in PACKAGES.items():
+        try:
+            mods[name] = importlib.import_module(name)
+            continue
+        except ImportError:
+            _add_search_dirs()
+        try:
+            mods[name] = importlib.import_module(name)
+        except ImportError as exc:
+            found = any(os.path.exists(os.path.join(d, name.split(".")[0])) for d in _search_dirs())
+            detail = (f"{name} is installed in {', '.join(_search_dirs())} but does not import into Python "
+                      f"{sys.version.split()[0]} ({sys.executable}): {exc}" if found
+                      else f"the Python module {name} (Debian package {package}) is not installed")
+            raise RosUnavailable(f"ROS 1 is not available: {detail}. To run the ROS node, {INSTALL_HINT}.") from None
+    return SimpleNamespace(rospy=mods["rospy"], rosgraph=mods["rosgraph"], genpy=mods["genpy"],
+                           tf2_ros=mods["tf2_ros"], tf2_msgs=mods["tf2_msgs.msg"],
+                           geometry_msgs=mods["geometry_msgs.msg"],
+                           visualization_msgs=mods["visualization_msgs.msg"], std_msgs=mods["std_msgs.msg"])
+
+
+def ros_available() -> tuple[bool, str]:
+    """(True, "") when :func:`import_ros` works, else (False, the reason with what to install)."""
+    try:
+        import_ros()
+    except RosUnavailable as exc:
+        return False, str(exc)
+    return True, ""
