@@ -100,7 +100,11 @@ class TfTree:
 
 
 def _stamp_ns(stamp) -> int:
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    """A header stamp in ns: rosbags' ``builtin_interfaces/Time`` (``sec``, ``nanosec``) or rospy's
+    ``Time`` (``secs``, ``nsecs``)."""
+    if hasattr(stamp, "nanosec"):
+        return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    return int(stamp.secs) * 1_000_000_000 + int(stamp.nsecs)
 
 
 def _pose7(translation, rotation) -> np.ndarray:
@@ -120,6 +124,159 @@ class _Item:
     transforms: tuple = ()
     frame_id: str = ""
     pose: np.ndarray | None = None
+
+
+def decode_message(msg, tf: bool, topic: str, source: int, seq: int) -> _Item:
+    """A ``tf2_msgs/TFMessage`` (``tf``) or ``geometry_msgs/PoseStamped`` as an :class:`_Item`, from a
+    bag (rosbags' messages) or live (rospy's: the same fields). ``source``: index of the topic's
+    source in the topics file (-1: TF only); ``seq``: arrival order. A TF message's stamp is the
+    latest of its transforms'."""
+    if tf:
+        tfs = tuple((t.header.frame_id, t.child_frame_id, _pose7(t.transform.translation, t.transform.rotation))
+                    for t in msg.transforms)
+        stamp = max((_stamp_ns(t.header.stamp) for t in msg.transforms), default=0)
+        return _Item(stamp, seq, "tf", source, topic, transforms=tfs)
+    p = msg.pose
+    return _Item(_stamp_ns(msg.header.stamp), seq, "pose", source, topic, frame_id=msg.header.frame_id,
+                 pose=_pose7(p.position, p.orientation))
+
+
+class FrameAssembler:
+    """Decoded messages (:class:`_Item`) in, :class:`Frame` s out: the part of the module docstring
+    that does not depend on where the messages come from (the reorder window, TF chains at each
+    message's time, timestamp windows, fusion). Shared by :class:`BagFrameReader` and the live ROS
+    node (:mod:`experiments.ros.node`).
+
+    ``t0_ns``: stamp of ``t = 0``. ``report(kind, topic, message)`` is called for each message or
+    pose that is not used: kind ``"late"`` (stamped before what has been released), ``"unknown_frame"``
+    (no transform chain to the world frame), ``"non_finite"`` (a NaN or a zero quaternion after
+    chaining); it may raise to stop.
+
+    :meth:`push` takes messages in arrival order; a message is *released* (applied to the TF tree
+    and grouped) once the newest stamp has passed it by ``reorder``, or (live) once :meth:`advance`
+    is told that the time has; :meth:`finish` releases everything at the end of a stream.
+    """
+
+    def __init__(self, topics: TopicsSpec, t0_ns: int, report: Callable[[str, str, str], None]):
+        self.topics = topics
+        self.t0_ns = int(t0_ns)
+        self.report = report
+        self.tf = TfTree()
+        self.late = 0
+        self.reorder_ns = int(round(topics.reorder * 1e9))
+        self.window_ns = int(round(topics.window * 1e9))
+        self.newest = -math.inf
+        self.released = -math.inf  # every message stamped before this has been released
+        self._heap: list = []
+        self._frames = [dict(s.frames) for s in topics.sources]
+        self._hands = dict(topics.hands)
+        self._start = self._last = None
+        self._objects: dict[tuple[int, str], np.ndarray] = {}
+        self._hand_pos: dict[str, np.ndarray] = {}
+
+    def t(self, stamp_ns: int) -> float:
+        return (stamp_ns - self.t0_ns) / 1e9
+
+    def push(self, item: _Item) -> Iterator[Frame]:
+        """Take one message; yields the frames it completes (in bag order: stamp order within the
+        reorder window)."""
+        if item.kind == "tf" and not item.transforms:
+            return  # an empty TF message has no time and places nothing
+        if item.stamp_ns < self.released:
+            self.late += 1
+            self.report("late", item.topic, f"message stamped {self.t(item.stamp_ns):.3f} s arrived more than "
+                                             f"{self.topics.reorder} s late; dropped")
+            return
+        self.newest = max(self.newest, item.stamp_ns)
+        heapq.heappush(self._heap, (item.stamp_ns, 0 if item.kind == "tf" else 1, item.seq, item))
+        yield from self._release(self.newest - self.reorder_ns)
+
+    def advance(self, now_ns: int) -> Iterator[Frame]:
+        """Live: the time is ``now_ns`` (in stamp time): release the messages stamped more than
+        ``reorder`` before it, and close the pending frame once no message may join it any more."""
+        yield from self._release(now_ns - self.reorder_ns)
+        if (self._start is not None and self.released > self._last
+                and self.released >= self._start + self.window_ns):
+            yield self._close()
+
+    def finish(self) -> Iterator[Frame]:
+        """The end of the stream: release everything, close the last frame."""
+        yield from self._release(math.inf)
+        if self._start is not None:
+            yield self._close()
+
+    def _release(self, threshold) -> Iterator[Frame]:
+        self.released = max(self.released, threshold)
+        while self._heap and self._heap[0][0] < threshold:
+            item = heapq.heappop(self._heap)[3]
+            for stamp, obs in self._observations(item):
+                yield from self._group(stamp, obs)
+
+    def _group(self, stamp: int, obs: tuple) -> Iterator[Frame]:
+        if (self._start is not None and stamp - self._start >= self.window_ns and stamp > self._last):
+            yield self._close()
+        if self._start is None:
+            self._start = stamp
+        self._last = stamp
+        if obs[0] == "object":
+            self._objects[(obs[1], obs[2])] = obs[3]
+        else:
+            self._hand_pos[obs[1]] = obs[2]
+
+    def _close(self) -> Frame:
+        frame = self._frame(self._last, self._objects, self._hand_pos)
+        self._start, self._objects, self._hand_pos = None, {}, {}
+        return frame
+
+    def _place(self, frame_id: str, pose: np.ndarray | None, t: float, topic: str, what: str) -> np.ndarray | None:
+        """World pose of ``pose`` given in ``frame_id`` (``None``: the frame itself), or ``None``
+        after reporting a missing transform or a zero quaternion."""
+        world = self.topics.world_frame
+        chain = self.tf.lookup(world, frame_id)
+        if chain is None:
+            self.report("unknown_frame", topic,
+                        f"t={t:.3f} s: no transform from {world!r} to {frame_id!r} to place {what} (the TF tree "
+                        f"joins {frame_id!r} to {self.tf.root(frame_id)!r}, {world!r} to {self.tf.root(world)!r})")
+            return None
+        out = chain if pose is None else pose_compose(chain, pose)
+        q = out[3:]
+        n = float(np.linalg.norm(q))
+        if not np.all(np.isfinite(out)) or n < 1e-9:
+            self.report("non_finite", topic,
+                        f"t={t:.3f} s: non-finite pose or zero-length quaternion for {what} in {frame_id!r}")
+            return None
+        q = q / n
+        return np.concatenate([out[:3], -q if q[3] < 0 else q])
+
+    def _observations(self, item: _Item) -> Iterator[tuple[int, tuple]]:
+        """(stamp ns, ("object", source, id, pose) | ("hand", name, position)) of one released message."""
+        t = self.t(item.stamp_ns)
+        hands = self._hands
+        if item.kind == "tf":
+            for parent, child, pose in item.transforms:
+                self.tf.set(parent, child, pose)
+            for parent, child, _ in item.transforms:
+                oid = self._frames[item.source].get(child) if item.source >= 0 else None
+                if oid is not None or child in hands:
+                    placed = self._place(child, None, t, item.topic, f"frame {child!r}")
+                    if placed is None:
+                        continue
+                    if oid is not None:
+                        yield item.stamp_ns, ("object", item.source, oid, placed)
+                    if child in hands:
+                        yield item.stamp_ns, ("hand", hands[child], placed[:3])
+        else:
+            oid = self.topics.sources[item.source].object
+            placed = self._place(item.frame_id, item.pose, t, item.topic, f"object {oid!r}")
+            if placed is not None:
+                yield item.stamp_ns, ("object", item.source, oid, placed)
+
+    def _frame(self, stamp_ns: int, objects: dict, hands: dict) -> Frame:
+        by_object: dict[str, list[Detection]] = {}
+        for (source, oid), pose in objects.items():
+            det = Detection(pose[:3], pose[3:], self.topics.sources[source].position_std)
+            by_object.setdefault(oid, []).append(det)
+        return Frame(self.t(stamp_ns), {oid: fuse(d) for oid, d in sorted(by_object.items())}, dict(hands))
 
 
 def open_reader(path: str):
@@ -223,121 +380,32 @@ class BagFrameReader:
                 raise ObservationError(f"cannot read the bag: {type(exc).__name__}: {exc}", path=self.path) from None
             yield conn, msg
 
-    def _decode(self, conn, msg, source: int, seq: int) -> _Item:
-        if conn.msgtype == TF_TYPE:
-            tfs = tuple((t.header.frame_id, t.child_frame_id, _pose7(t.transform.translation, t.transform.rotation))
-                        for t in msg.transforms)
-            stamp = max((_stamp_ns(t.header.stamp) for t in msg.transforms), default=0)
-            return _Item(stamp, seq, "tf", source, conn.topic, transforms=tfs)
-        p = msg.pose
-        return _Item(_stamp_ns(msg.header.stamp), seq, "pose", source, conn.topic, frame_id=msg.header.frame_id,
-                     pose=_pose7(p.position, p.orientation))
-
-    def _items(self, reader) -> Iterator[_Item]:
-        """Messages in stamp order (sorted within the reorder window; later ones dropped, counted)."""
-        self.tf = TfTree()
-        self.late = self.skipped = self.frames_read = 0
-        conns, sources = self._connections(reader)
-        statics = [c for c in reader.connections if c.topic == TF_STATIC_TOPIC and c.msgtype == TF_TYPE]
-        for conn, msg in self._messages(reader, statics):
-            for parent, child, pose in self._decode(conn, msg, -1, 0).transforms:
-                self.tf.set(parent, child, pose)
-        reorder_ns = int(round(self.topics.reorder * 1e9))
-        heap: list = []
-        newest = -math.inf
-        for seq, (conn, msg) in enumerate(self._messages(reader, conns)):
-            item = self._decode(conn, msg, sources[conn.id], seq)
-            if item.kind == "tf" and not item.transforms:
-                continue  # an empty TF message has no time and places nothing
-            if item.stamp_ns < newest - reorder_ns:
-                self.late += 1
-                self.warn(f"{self.path}: {item.topic}: message stamped {self._t(item.stamp_ns):.3f} s arrived "
-                          f"more than {self.topics.reorder} s late; dropped")
-                continue
-            newest = max(newest, item.stamp_ns)
-            heapq.heappush(heap, (item.stamp_ns, 0 if item.kind == "tf" else 1, seq, item))
-            while heap and heap[0][0] < newest - reorder_ns:
-                yield heapq.heappop(heap)[3]
-        while heap:
-            yield heapq.heappop(heap)[3]
-
-    def _t(self, stamp_ns: int) -> float:
-        return (stamp_ns - self.t0_ns) / 1e9
-
-    def _place(self, frame_id: str, pose: np.ndarray | None, t: float, topic: str, what: str) -> np.ndarray | None:
-        """World pose of ``pose`` given in ``frame_id`` (``None``: the frame itself), or ``None``
-        after reporting a missing transform or a zero quaternion."""
-        world = self.topics.world_frame
-        chain = self.tf.lookup(world, frame_id)
-        if chain is None:
-            self._bad(f"t={t:.3f} s: no transform from {world!r} to {frame_id!r} to place {what} (the TF tree "
-                      f"joins {frame_id!r} to {self.tf.root(frame_id)!r}, {world!r} to {self.tf.root(world)!r})",
-                      topic)
-            return None
-        out = chain if pose is None else pose_compose(chain, pose)
-        q = out[3:]
-        n = float(np.linalg.norm(q))
-        if not np.all(np.isfinite(out)) or n < 1e-9:
-            self._bad(f"t={t:.3f} s: non-finite pose or zero-length quaternion for {what} in {frame_id!r}", topic)
-            return None
-        q = q / n
-        return np.concatenate([out[:3], -q if q[3] < 0 else q])
-
-    def _observations(self, reader) -> Iterator[tuple[int, tuple]]:
-        """(stamp ns, ("object", source, id, pose) | ("hand", name, position)) in stamp order."""
-        specs = self.topics.sources
-        frames = [dict(s.frames) for s in specs]
-        hands = dict(self.topics.hands)
-        for item in self._items(reader):
-            t = self._t(item.stamp_ns)
-            if item.kind == "tf":
-                for parent, child, pose in item.transforms:
-                    self.tf.set(parent, child, pose)
-                for parent, child, _ in item.transforms:
-                    oid = frames[item.source].get(child) if item.source >= 0 else None
-                    if oid is not None or child in hands:
-                        placed = self._place(child, None, t, item.topic, f"frame {child!r}")
-                        if placed is None:
-                            continue
-                        if oid is not None:
-                            yield item.stamp_ns, ("object", item.source, oid, placed)
-                        if child in hands:
-                            yield item.stamp_ns, ("hand", hands[child], placed[:3])
-            else:
-                oid = specs[item.source].object
-                placed = self._place(item.frame_id, item.pose, t, item.topic, f"object {oid!r}")
-                if placed is not None:
-                    yield item.stamp_ns, ("object", item.source, oid, placed)
-
-    def _frame(self, stamp_ns: int, objects: dict, hands: dict) -> Frame:
-        by_object: dict[str, list[Detection]] = {}
-        for (source, oid), pose in objects.items():
-            det = Detection(pose[:3], pose[3:], self.topics.sources[source].position_std)
-            by_object.setdefault(oid, []).append(det)
-        return Frame(self._t(stamp_ns), {oid: fuse(d) for oid, d in sorted(by_object.items())}, dict(hands))
+    def _report(self, kind: str, topic: str, message: str) -> None:
+        if kind == "late":
+            self.late += 1
+            self.warn(f"{self.path}: {topic}: {message}")
+        else:
+            self._bad(message, topic)
 
     def __iter__(self) -> Iterator[Frame]:
         reader = open_reader(self.path)
         try:
-            window_ns = int(round(self.topics.window * 1e9))
-            start = last = None
-            objects: dict[tuple[int, str], np.ndarray] = {}
-            hands: dict[str, np.ndarray] = {}
-            for stamp, obs in self._observations(reader):
-                if start is not None and stamp - start >= window_ns and stamp > last and (objects or hands):
+            self.late = self.skipped = self.frames_read = 0
+            asm = FrameAssembler(self.topics, self.t0_ns, self._report)
+            self.tf = asm.tf
+            conns, sources = self._connections(reader)
+            statics = [c for c in reader.connections if c.topic == TF_STATIC_TOPIC and c.msgtype == TF_TYPE]
+            for conn, msg in self._messages(reader, statics) if statics else ():  # []: rosbags reads all
+                for parent, child, pose in decode_message(msg, True, conn.topic, -1, 0).transforms:
+                    asm.tf.set(parent, child, pose)
+            for seq, (conn, msg) in enumerate(self._messages(reader, conns)):
+                item = decode_message(msg, conn.msgtype == TF_TYPE, conn.topic, sources[conn.id], seq)
+                for frame in asm.push(item):
                     self.frames_read += 1
-                    yield self._frame(last, objects, hands)
-                    start, objects, hands = None, {}, {}
-                if start is None:
-                    start = stamp
-                last = stamp
-                if obs[0] == "object":
-                    objects[(obs[1], obs[2])] = obs[3]
-                else:
-                    hands[obs[1]] = obs[2]
-            if objects or hands:
+                    yield frame
+            for frame in asm.finish():
                 self.frames_read += 1
-                yield self._frame(last, objects, hands)
+                yield frame
         finally:
             reader.close()
 
