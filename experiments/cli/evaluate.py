@@ -9,6 +9,9 @@ console script as the ``evaluate`` subcommand::
     scene-estimator evaluate --scenarios cup_falls_behind_box --seeds 5 --particles 8,16,32,64 \\
         --methods paper,particles --out results/scaling/
     scene-estimator evaluate ... --backend ray --address auto      # join a running Ray cluster
+    scene-estimator evaluate --scenarios all --seeds 20 --truth-engine bullet,mujoco \
+        --methods paper,particles --out results/                     # both truth engines side by side
+    scene-estimator evaluate ... --param-scale 0.5,1,2,4             # the truth's frictions scaled
 
 Interrupted (Ctrl-C, a killed job), the same command continues where it stopped: finished trials
 are read back from ``OUT/trials.jsonl`` and skipped.
@@ -82,6 +85,13 @@ def add_evaluate_arguments(parser: argparse.ArgumentParser) -> None:
                         help="estimator configuration file (YAML or JSON) for the particle methods, on top "
                              "of each one's own settings (K comes from --particles); last-seen and paper "
                              "are left as they are. Trials run with a file are keyed by its content.")
+    parser.add_argument("--truth-engine", default="bullet", metavar="ENGINE[,ENGINE]",
+                        help="physics engine(s) of the ground truth: bullet (the estimator's own engine), "
+                             "mujoco, or both (bullet,mujoco: reported side by side); the estimator is never "
+                             "told (default bullet)")
+    parser.add_argument("--param-scale", default="1", metavar="S[,S...]",
+                        help="factors on the truth's friction, rolling friction and restitution against the "
+                             "nominal values the estimator's scene states, e.g. 0.5,1,2,4 (default 1)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar, no summary on stdout")
 
 
@@ -111,6 +121,11 @@ def run_evaluate(args: argparse.Namespace) -> int:
     if args.address and args.backend != "ray":
         return fail("--address needs --backend ray")
     seeds = tuple(range(args.first_seed, args.first_seed + args.seeds))
+    engines = tuple(e.strip() for e in args.truth_engine.split(",") if e.strip())
+    try:
+        scales = tuple(float(v) for v in args.param_scale.split(",") if v.strip())
+    except ValueError:
+        return fail(f"--param-scale: expected comma-separated numbers, got {args.param_scale!r}")
     estimator_config = None
     if args.config:
         try:
@@ -119,7 +134,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
             return fail(str(exc))
     try:
         config = SweepConfig(scenarios, seeds, methods, tuple(args.particles), args.duration,
-                             trace_seeds=seeds[:max(args.trace_seeds, 0)], config=estimator_config)
+                             trace_seeds=seeds[:max(args.trace_seeds, 0)], config=estimator_config,
+                             engines=engines, param_scales=scales)
     except ValueError as exc:
         return fail(str(exc))
     if args.rerun_dir:
@@ -130,8 +146,10 @@ def run_evaluate(args: argparse.Namespace) -> int:
     n = len(config.trials())
     if not args.quiet:
         print(f"{n} trials: {len(scenarios)} scenario(s) x {len(seeds)} seed(s) x methods "
-              f"{', '.join(methods)} (K = {', '.join(map(str, config.particles))}); backend {args.backend}; "
-              f"results in {args.out}/", file=sys.stderr)
+              f"{', '.join(methods)} (K = {', '.join(map(str, config.particles))}) x truth "
+              f"{', '.join(engines)}" + (f" x parameter scales {', '.join(f'{v:g}' for v in scales)}"
+                                         if scales != (1.0,) else "")
+              + f"; backend {args.backend}; results in {args.out}/", file=sys.stderr)
     start = time.perf_counter()
     try:
         run_sweep(config, args.out, backend=args.backend, workers=args.workers, address=args.address,

@@ -7,6 +7,7 @@ console script as the ``simulate`` subcommand::
     scene-estimator simulate cup_falls_behind_box --seed 3 --out runs/cup3/
     scene-estimator simulate path/to/my_scenario.yaml --duration 2
     scene-estimator simulate ball_dropped_into_box --rerun truth.rrd   # also a rerun recording
+    scene-estimator simulate cup_falls_behind_box --seed 3 --engine mujoco --out runs/cup3/
 """
 from __future__ import annotations
 
@@ -27,6 +28,12 @@ def add_simulate_arguments(parser: argparse.ArgumentParser) -> None:
                         help="output folder (default runs/<scenario>_seed<seed>/)")
     parser.add_argument("--duration", type=float, default=None,
                         help="seconds to simulate (default: the scenario's duration)")
+    parser.add_argument("--engine", choices=("bullet", "mujoco"), default="bullet",
+                        help="physics engine of the ground truth: bullet (the estimator's own) or mujoco "
+                             "(soft contacts, another friction model; the estimator is never told) (default bullet)")
+    parser.add_argument("--param-scale", type=float, default=1.0, metavar="S",
+                        help="multiply the truth's frictions, rolling frictions and restitutions by S against "
+                             "the nominal values the scene file states (default 1)")
     parser.add_argument("--rerun", metavar="PATH", default=None,
                         help="also write a rerun recording (.rrd) of the truth and the perception frames")
     parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
@@ -54,7 +61,8 @@ def run_simulate(args: argparse.Namespace) -> int:
     try:
         scenario = load_scenario(args.scenario)
         start = time.perf_counter()
-        result = simulate(scenario, seed=args.seed, duration=args.duration)
+        result = simulate(scenario, seed=args.seed, duration=args.duration, engine=args.engine,
+                          param_scale=args.param_scale)
         out = args.out or f"runs/{scenario.name}_seed{args.seed}"
         paths = write_outputs(result, out)
         if getattr(args, "rerun", None):
@@ -70,7 +78,7 @@ def run_simulate(args: argparse.Namespace) -> int:
     if not args.quiet:
         elapsed = time.perf_counter() - start
         events = ", ".join(f"{e['action']} {e['subject']} at {e['t']:.2f} s" for e in result.events) or "none"
-        print(f"{scenario.name} (seed {args.seed}): {len(result.truth)} frames, "
+        print(f"{scenario.name} (seed {args.seed}, {args.engine}): {len(result.truth)} frames, "
               f"{result.meta['duration']:.2f} s simulated in {elapsed:.2f} s; events: {events}")
         for name, p in paths.items():
             print(f"  wrote {p}")

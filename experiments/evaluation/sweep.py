@@ -42,8 +42,11 @@ class TrialFailures(RuntimeError):
 
 @dataclass(frozen=True)
 class SweepConfig:
-    """The trials of a sweep: every scenario x seed x method, each particle method once per K in
-    ``particles`` (last-seen and paper once). ``trace_seeds``: seeds whose trials write traces for
+    """The trials of a sweep: every truth engine x parameter scale x scenario x seed x method, each
+    particle method once per K in ``particles`` (last-seen and paper once). ``engines``: the physics
+    engines of the ground truth (:data:`~experiments.simulation.simulator.ENGINES`); ``param_scales``:
+    factors on the truth's frictions and restitution against the nominal values the estimator is
+    given. ``trace_seeds``: seeds whose trials write traces for
     the per-scenario figures (default: the first seed). ``config``: estimator configuration data
     (canonical JSON) for the particle methods, on top of each one's own settings; last-seen and the
     paper's reasoner, the references, are left as they are."""
@@ -55,10 +58,17 @@ class SweepConfig:
     duration: float | None = None
     trace_seeds: tuple[int, ...] | None = None
     config: str | None = None
+    engines: tuple[str, ...] = ("bullet",)
+    param_scales: tuple[float, ...] = (1.0,)
 
     def __post_init__(self):
         if not self.scenarios or not self.seeds or not self.methods or not self.particles:
             raise ValueError("a sweep needs at least one scenario, seed, method and particle count")
+        from experiments.simulation.simulator import ENGINES
+        if not self.engines or any(e not in ENGINES for e in self.engines):
+            raise ValueError(f"truth engines must be among {', '.join(ENGINES)}, got {', '.join(self.engines)}")
+        if not self.param_scales or any(not (0 < s < float("inf")) for s in self.param_scales):
+            raise ValueError(f"parameter scales must be > 0, got {self.param_scales}")
         for m in self.methods:
             get_method(m)
         if any(k < 1 for k in self.particles):
@@ -67,19 +77,23 @@ class SweepConfig:
             raise ValueError(f"duration must be > 0, got {self.duration}")
 
     def trials(self, rerun_dir: str | None = None) -> list[TrialSpec]:
-        """The sweep's trials in canonical order (scenario, seed, method, K), without duplicates."""
+        """The sweep's trials in canonical order (engine, scale, scenario, seed, method, K), without
+        duplicates."""
         traces = set(self.trace_seeds if self.trace_seeds is not None else self.seeds[:1])
         out, seen = [], set()
-        for sc in self.scenarios:
-            for seed in self.seeds:
-                for m in self.methods:
-                    for k in self.particles:
-                        cfg = self.config if get_method(m).uses_particles else None
-                        spec = TrialSpec(sc, int(seed), m, effective_particles(m, k), self.duration,
-                                         trace=seed in traces, rerun_dir=rerun_dir, config=cfg)
-                        if spec.key not in seen:
-                            seen.add(spec.key)
-                            out.append(spec)
+        for engine in self.engines:
+            for scale in self.param_scales:
+                for sc in self.scenarios:
+                    for seed in self.seeds:
+                        for m in self.methods:
+                            for k in self.particles:
+                                cfg = self.config if get_method(m).uses_particles else None
+                                spec = TrialSpec(sc, int(seed), m, effective_particles(m, k), self.duration,
+                                                 trace=seed in traces, rerun_dir=rerun_dir, config=cfg,
+                                                 engine=engine, param_scale=float(scale))
+                                if spec.key not in seen:
+                                    seen.add(spec.key)
+                                    out.append(spec)
         return out
 
 

@@ -35,7 +35,10 @@ class TrialSpec:
     ``duration`` (s) overrides the scenario's; ``trace`` asks for the data of the per-scenario
     figures; ``rerun_dir`` records the trial as ``<rerun_dir>/<key>.rrd``; ``config`` is estimator
     configuration data (canonical JSON, see :mod:`estimator.config`) applied on top of the method's
-    own configuration."""
+    own configuration; ``engine`` is the physics engine of the ground truth (``"bullet"`` or
+    ``"mujoco"``, :data:`experiments.simulation.simulator.ENGINES`: the estimator is never told) and
+    ``param_scale`` multiplies the truth's frictions and restitution against the nominal values the
+    estimator's scene states."""
 
     scenario: str
     seed: int
@@ -45,14 +48,22 @@ class TrialSpec:
     trace: bool = False
     rerun_dir: str | None = None
     config: str | None = None
+    engine: str = "bullet"
+    param_scale: float = 1.0
 
     @property
     def key(self) -> str:
-        """Identity of the trial in ``trials.jsonl`` (also a safe file name)."""
+        """Identity of the trial in ``trials.jsonl`` (also a safe file name). The truth engine and the
+        parameter scale appear only when they are not the defaults (Bullet, 1), so that the keys of
+        rows written before they existed stay what they were."""
         d = "full" if self.duration is None else f"{self.duration:g}s"
         key = f"{self.scenario}__s{self.seed}__{self.method}__K{self.particles}__{d}"
         if self.config is not None:
             key += f"__cfg{zlib.crc32(self.config.encode()):08x}"
+        if self.engine != "bullet":
+            key += f"__{self.engine}"
+        if self.param_scale != 1.0:
+            key += f"__ps{self.param_scale:g}"
         return key
 
 
@@ -67,9 +78,11 @@ def trial_rng(seed: int, method: str) -> np.random.Generator:
 
 
 @functools.lru_cache(maxsize=2)
-def _simulation(scenario: str, seed: int, duration: float | None):
+def _simulation(scenario: str, seed: int, duration: float | None, engine: str = "bullet", param_scale: float = 1.0):
     from experiments.simulation.simulator import simulate
-    return simulate(scenario, seed, duration)
+    if engine == "bullet" and param_scale == 1.0:
+        return simulate(scenario, seed, duration)
+    return simulate(scenario, seed, duration, engine=engine, param_scale=param_scale)
 
 
 def _release_memory() -> None:
@@ -176,11 +189,46 @@ def _recorder_hook(spec: TrialSpec, sim):
     return Recorder(os.path.join(spec.rerun_dir, f"{spec.key}.rrd"), sim.scene)
 
 
+class InvariantCount:
+    """Counts, over a run's beliefs, the particle entries (update, particle, object) more than
+    :data:`~physics.penetration.INVARIANT_DEPTH` inside static geometry or the floor (an impossible
+    state; :class:`~physics.penetration.StaticGeometry`), and the deepest one. Beliefs without
+    particles (last-seen, the tracker alone) are not counted."""
+
+    def __init__(self, scene):
+        from physics.penetration import StaticGeometry
+        self.geometry = StaticGeometry(scene)
+        self.updates = 0
+        self.violations = 0
+        self.deepest = 0.0
+
+    def observe(self, belief) -> None:
+        if belief is None or belief.particles is None:
+            return
+        from physics.penetration import INVARIANT_DEPTH
+        known = np.array([oid in belief.objects for oid in belief.object_ids])
+        d = self.geometry.depths(belief.particles, known)
+        self.updates += 1
+        self.violations += int((d > INVARIANT_DEPTH).sum())
+        self.deepest = max(self.deepest, float(d.max(initial=0.0)))
+
+    def fields(self) -> dict:
+        """Row fields: ``invariant_violations`` (count), ``invariant_depth_max`` (m); None where no
+        belief had particles."""
+        if self.updates == 0:
+            return {"invariant_violations": None, "invariant_depth_max": None}
+        return {"invariant_violations": self.violations, "invariant_depth_max": self.deepest}
+
+    def close(self) -> None:
+        self.geometry.close()
+
+
 def run_trial(spec: TrialSpec) -> dict:
     """Run one trial; returns ``{"row": row, "trace": trace or None}``.
 
-    The row: ``key``, ``scenario``, ``seed``, ``method``, ``particles``, ``duration``, ``version``,
-    the metrics of :func:`score_run`, and ``timing`` (wall clock, not reproducible):
+    The row: ``key``, ``scenario``, ``seed``, ``method``, ``particles``, ``duration``, ``engine``,
+    ``param_scale``, ``version``, the metrics of :func:`score_run`, the invariant's counts
+    (:class:`InvariantCount`), and ``timing`` (wall clock, not reproducible):
     ``update_ms_median`` / ``update_ms_p95`` (per reasoning step), ``peak_rss_mb`` (peak resident
     memory of the process during the trial, after giving memory freed by earlier trials back to the
     OS; Linux. Where the peak cannot be reset, ``peak_rss_per_trial`` is false and it is the peak
@@ -192,7 +240,7 @@ def run_trial(spec: TrialSpec) -> dict:
     reset = _peak_rss_reset()
     rss_start = _rss_mb()
     t_start = time.perf_counter()
-    sim = _simulation(spec.scenario, spec.seed, spec.duration)
+    sim = _simulation(spec.scenario, spec.seed, spec.duration, spec.engine, spec.param_scale)
     t_sim = time.perf_counter() - t_start
     scene = sim.scene
     frames = [parse_frame(f, known_ids=scene.object_ids) for f in sim.observations]
@@ -214,6 +262,13 @@ def run_trial(spec: TrialSpec) -> dict:
             flush(step.t)
             if belief is not None:
                 rec.log_belief(belief)
+    invariant = InvariantCount(scene)
+    inner = on_step
+
+    def on_step(step, belief):  # noqa: F811 - the recorder's hook (if any), then the invariant's
+        if inner is not None:
+            inner(step, belief)
+        invariant.observe(belief)
     try:
         run = run_method(spec.method, scene, frames, spec.particles, trial_rng(spec.seed, spec.method),
                          keep_particles=spec.trace, on_step=on_step, config=spec.config)
@@ -223,12 +278,15 @@ def run_trial(spec: TrialSpec) -> dict:
                 rec.log_timeline({"t_end": run.steps[-1].t if run.steps else 0.0, "facts": [],
                                   "events": run.events})
     finally:
+        invariant.close()
         if rec is not None:
             rec.close()
     scores = score_run(scene, sim.truth, sim.events, run, frames)
+    scores.update(invariant.fields())
     ms = 1e3 * np.asarray(run.step_seconds)
     row = {"key": spec.key, "version": ROW_VERSION, "scenario": spec.scenario, "seed": spec.seed,
-           "method": spec.method, "particles": spec.particles, "duration": spec.duration}
+           "method": spec.method, "particles": spec.particles, "duration": spec.duration,
+           "engine": spec.engine, "param_scale": spec.param_scale}
     if spec.config is not None:
         row["config"] = spec.config
     row.update(scores)

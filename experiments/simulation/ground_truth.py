@@ -45,7 +45,7 @@ class GroundTruth:
         self.variant = variant
         self.scenario = variant.scenario
         self.world = World(variant.scene, settings or PhysicsSettings())
-        self.dt = self.world.settings.time_step
+        self.dt = self._time_step()
         self.hand_uid = -1
         self.torso_uid = -1
         self.held: dict[int, int] = {}  # object index -> constraint id
@@ -73,6 +73,20 @@ class GroundTruth:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+    # -- the engine that moves the bodies (Bullet: this world itself; see also
+    # experiments.simulation.mujoco_truth, whose engine moves them and this world mirrors it) ------
+    def _time_step(self) -> float:
+        """s: the truth's simulation step."""
+        return self.world.settings.time_step
+
+    def _step(self) -> None:
+        """Advance the truth by one step of :attr:`dt`."""
+        self.world.step(1)
+
+    def _sync(self) -> None:
+        """Bring this world (poses, contacts) up to date before it is read (nothing to do when it is
+        the engine itself)."""
 
     # -- bodies -------------------------------------------------------------------------------------
     def _all_bodies(self) -> list[tuple[int, int]]:
@@ -128,10 +142,12 @@ class GroundTruth:
     def hand_position(self) -> np.ndarray | None:
         if self.hand_uid < 0:
             return None
+        self._sync()
         p, _q = pb.getBasePositionAndOrientation(self.hand_uid, physicsClientId=self.world.client)
         return np.array(p, dtype=float)
 
     def _grasp(self, index: int, step: int, event: bool = True, where: str = "hand.holding") -> None:
+        self._sync()
         c = self.world.client
         uid = self.world.uids[index]
         hp, hq = pb.getBasePositionAndOrientation(self.hand_uid, physicsClientId=c)
@@ -155,6 +171,7 @@ class GroundTruth:
             self._event(step, "Pick", index)
 
     def _release(self, index: int, step: int) -> None:
+        self._sync()
         c = self.world.client
         uid = self.world.uids[index]
         pb.removeConstraint(self.held.pop(index), physicsClientId=c)
@@ -181,6 +198,7 @@ class GroundTruth:
         contents of a container the hand holds or touches start no episode."""
         if self.hand_uid < 0 or (not self.collide and not self.pushes.active):
             return
+        self._sync()
         touched: set[int] = set()
         if self.collide:
             world = self.world
@@ -218,6 +236,7 @@ class GroundTruth:
             return np.asarray(target.position, dtype=float)
         if target.by is not None:
             return previous + np.asarray(target.by, dtype=float)
+        self._sync()
         pos = self.world.get_poses([self.world.index(target.object)])[0, :3]
         return pos + np.asarray(target.offset, dtype=float)
 
@@ -280,7 +299,7 @@ class GroundTruth:
         for _ in range(n):
             if self.hand_uid >= 0:
                 self._drive_hand(0.0)
-            self.world.step(1)
+            self._step()
         if self.hand_uid >= 0:
             self._start_segment(0.0)
             self._advance_script(0.0, 0)
@@ -288,6 +307,7 @@ class GroundTruth:
     def look(self, camera: CameraSpec) -> np.ndarray:
         """Visible fractions ``(M,)`` of every object to ``camera`` in the world's present state
         (hand and torso occlude; the scenario's sample points and nothing else changed)."""
+        self._sync()
         cfg = self.scenario.perception
         base = self.camera or SyntheticCamera(self.world, camera, points_per_object=cfg.points_per_object,
                                               threshold=cfg.visibility_threshold)
@@ -319,6 +339,7 @@ class GroundTruth:
         cfg = self.scenario.perception
         world = self.world
         self.settle()
+        self._sync()
         initial_poses = world.get_poses()
         n_steps = int(round(duration / self.dt))
         n_frames = int(math.floor(duration * cfg.rate_hz + 1e-9))
@@ -335,6 +356,7 @@ class GroundTruth:
         truth_steps: list[int] = []
 
         def snapshot() -> tuple:
+            self._sync()
             poses = world.get_poses()
             frac = self.visible_fractions(poses)
             return poses, frac, self.hand_position()
@@ -345,7 +367,7 @@ class GroundTruth:
             t = step * self.dt
             if self.hand_uid >= 0:
                 self._drive_hand(t)
-            world.step(1)
+            self._step()
             if self.hand_uid >= 0:
                 self._advance_script(t, step)
                 self._track_pushes(step)

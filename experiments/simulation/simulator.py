@@ -53,6 +53,54 @@ from experiments.simulation.ground_truth import HAND_ID, GroundTruth  # noqa: F4
 from experiments.simulation.variants import Variant, sample_variant
 from experiments.scenarios import Scenario, load_scenario
 
+ENGINES = ("bullet", "mujoco")
+"""Physics engines a ground truth can be simulated with: ``bullet`` (pybullet, the estimator's own
+engine, :class:`~experiments.simulation.ground_truth.GroundTruth`) and ``mujoco`` (MuJoCo's soft
+contacts, :class:`~experiments.simulation.mujoco_truth.MujocoGroundTruth`)."""
+
+SCALED_PARAMETERS = ("friction", "rolling_friction", "restitution")
+"""The dynamic objects' parameters :func:`scale_parameters` multiplies."""
+DEFAULT_FRICTION = 0.5
+"""Friction of an object whose scene states none (Bullet's default), before it is scaled."""
+MAX_RESTITUTION = 0.95
+"""A scaled restitution is capped here."""
+
+
+def scale_parameters(variant: Variant, scale: float) -> Variant:
+    """``variant`` with every dynamic object's friction, rolling friction and restitution
+    (:data:`SCALED_PARAMETERS`, the values it has after the seed's draw) multiplied by ``scale``: the
+    truth's parameters off the nominal ones the estimator's scene states. An unstated friction is
+    :data:`DEFAULT_FRICTION` scaled; an unstated rolling friction or restitution stays unstated (0
+    scaled); restitution is capped at :data:`MAX_RESTITUTION`. Static objects keep theirs (under
+    Bullet's product rule a contact with one is then scaled by ``scale``)."""
+    if not (scale > 0 and math.isfinite(scale)):
+        raise InputError(f"must be a finite number > 0, got {scale}", field="param_scale")
+    if scale == 1.0:
+        return variant
+    objects = []
+    for spec in variant.scene.objects:
+        if spec.static:
+            objects.append(spec)
+            continue
+        friction = DEFAULT_FRICTION if spec.friction is None else spec.friction
+        kw = {"friction": _r(friction * scale)}
+        if spec.rolling_friction is not None:
+            kw["rolling_friction"] = _r(spec.rolling_friction * scale)
+        if spec.restitution is not None:
+            kw["restitution"] = _r(min(spec.restitution * scale, MAX_RESTITUTION))
+        objects.append(replace(spec, **kw))
+    return replace(variant, scene=variant.scene.with_objects(objects))
+
+
+def truth_class(engine: str):
+    """The ground-truth class of ``engine`` (one of :data:`ENGINES`)."""
+    if engine == "bullet":
+        return GroundTruth
+    if engine == "mujoco":
+        from experiments.simulation.mujoco_truth import MujocoGroundTruth
+        return MujocoGroundTruth
+    raise InputError(f"unknown engine {engine!r} (one of {', '.join(ENGINES)})", field="engine")
+
 
 # --------------------------------------------------------------------------------------------------
 # the run
@@ -80,20 +128,26 @@ def estimator_scene(variant: Variant, initial_poses: np.ndarray) -> Scene:
 
 @contextlib.contextmanager
 def open_simulation(scenario: Scenario | str, seed: int = 0, duration: float | None = None,
-                    settings: PhysicsSettings | None = None) -> Iterator[tuple[SimulationResult, GroundTruth]]:
+                    settings: PhysicsSettings | None = None, *, engine: str = "bullet",
+                    param_scale: float = 1.0) -> Iterator[tuple[SimulationResult, GroundTruth]]:
     """Run ``scenario`` as :func:`simulate` does and keep its ground-truth world open while in the
     ``with`` block: yields ``(result, truth)``, ``truth`` being the :class:`GroundTruth` in its final
     state (hand and torso included), e.g. to ask what another camera would see at the end."""
+    cls = truth_class(engine)
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
     if duration is not None and not (duration > 0 and math.isfinite(duration)):
         raise InputError(f"duration must be > 0, got {duration}", field="duration")
     length = scenario.duration if duration is None else float(duration)
-    variant = sample_variant(scenario, seed)
+    variant = scale_parameters(sample_variant(scenario, seed), param_scale)
     perception_rng = np.random.default_rng([int(seed), 1])
-    with GroundTruth(variant, settings) as gt:
+    with cls(variant, settings) as gt:
         result = gt.run(length, perception_rng)
         _fill_result(result, scenario, seed, variant, gt, length)
+        if engine != "bullet":  # recorded only off the defaults: Bullet files stay what they were
+            result.meta["engine"] = engine
+        if param_scale != 1.0:
+            result.meta["param_scale"] = _r(param_scale)
         yield result, gt
 
 
@@ -125,15 +179,20 @@ def _fill_result(result: SimulationResult, scenario: Scenario, seed: int, varian
 
 
 def simulate(scenario: Scenario | str, seed: int = 0, duration: float | None = None,
-             settings: PhysicsSettings | None = None) -> SimulationResult:
-    """Run ``scenario`` (object or name/path) for ``seed``; ``duration`` (s) overrides the file's."""
-    with open_simulation(scenario, seed, duration, settings) as (result, _truth):
+             settings: PhysicsSettings | None = None, *, engine: str = "bullet",
+             param_scale: float = 1.0) -> SimulationResult:
+    """Run ``scenario`` (object or name/path) for ``seed``; ``duration`` (s) overrides the file's.
+    ``engine`` (:data:`ENGINES`) simulates the truth; ``param_scale`` multiplies the truth's frictions
+    and restitution (:func:`scale_parameters`). The estimator's scene is the same for every engine and
+    scale: nothing in the files but meta.json says which truth made them."""
+    with open_simulation(scenario, seed, duration, settings, engine=engine, param_scale=param_scale) as (result, _t):
         return result
 
 
 def run_scenario(scenario: Scenario | str, seed: int, out_dir: str | os.PathLike,
-                 duration: float | None = None) -> SimulationResult:
+                 duration: float | None = None, *, engine: str = "bullet",
+                 param_scale: float = 1.0) -> SimulationResult:
     """:func:`simulate` then :func:`write_outputs`."""
-    result = simulate(scenario, seed, duration)
+    result = simulate(scenario, seed, duration, engine=engine, param_scale=param_scale)
     write_outputs(result, out_dir)
     return result
