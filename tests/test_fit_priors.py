@@ -213,3 +213,65 @@ def test_accelerations_of_held_objects_are_sampled_per_axis_from_the_truth():
     s = np.asarray(samples).reshape(-1, 3)
     np.testing.assert_allclose(s[:, 0], a, rtol=1e-6)
     np.testing.assert_allclose(s[:, 1:], 0.0, atol=1e-9)
+
+
+def test_hand_occlusion_counts_only_carried_objects_that_the_scene_alone_would_show():
+    """A held cup in plain view of the camera: frames count once the true hand has moved more than
+    carry_distance since the cup was last visible (then, hidden is a hit); a still hand's do not."""
+    from experiments.evaluation.fit_priors import count_hand_occlusion
+
+    scene = scene_from_dict({"name": "occ", "camera": {"position": [1.5, 0, 1.0], "target": [0, 0, 0.3]},
+                             "objects": [{"id": "cup", "box": {"size": [0.06, 0.06, 0.1]},
+                                          "pose": {"position": [0, 0, 0.05]}}]})
+
+    def row(t, hand, visible):
+        return {"t": t, "hands": {"human/right": hand}, "relations": [],
+                "objects": {"cup": {"position": [hand[0], hand[1], hand[2] - 0.08], "orientation": [0, 0, 0, 1],
+                                    "held": True, "visible": visible}}}
+    still = [row(0.0, [0, 0, 0.4], True)] + [row(0.1 * i, [0, 0, 0.4], False) for i in range(1, 6)]
+    moved = [row(0.0, [0, 0, 0.4], True)] + [row(0.1 * i, [0, 0.02 * i, 0.4], i > 3) for i in range(1, 6)]
+    counts = Counts()
+    count_hand_occlusion(SimpleNamespace(scene=scene, truth=still), 0.3, counts, carry_distance=0.05)
+    assert counts.n == 0
+    count_hand_occlusion(SimpleNamespace(scene=scene, truth=moved), 0.3, counts, carry_distance=0.05)
+    # carried from i = 3 (6 cm): i = 3 hidden (a hit) is counted; i = 4 is visible (a miss, and the
+    # cup's hand is reset there), i = 5 has moved 2 cm since: not carried
+    assert (counts.hits, counts.n) == (1, 2)
+
+
+def test_held_out_log_likelihood_is_best_for_the_runs_own_fit():
+    from experiments.evaluation.fit_priors import Tally, fitted, held_out
+
+    a, b = Tally(), Tally()
+    a.occluded, b.occluded = Counts(2, 20), Counts(12, 20)
+    a.spread, b.spread = Spread(3 * 100 * 0.01 ** 2, 100), Spread(3 * 100 * 0.03 ** 2, 100)
+    fit_a = fitted(a, [], [])
+    out = held_out(fit_a, b)
+    p_a, p_b = fit_a["hand_occlusion"], 13 / 22
+    assert p_a == round(3 / 22, 3)  # Laplace's rule
+    ll = (12 * np.log(p_a) + 8 * np.log(1 - p_a)) / 20
+    assert out["hand_occlusion"]["ll"] == pytest.approx(ll, abs=1e-4)
+    assert out["hand_occlusion"]["ll_own"] == pytest.approx((12 * np.log(p_b) + 8 * np.log(1 - p_b)) / 20, abs=2e-3)
+    assert out["hand_occlusion"]["ll"] < out["hand_occlusion"]["ll_own"]
+    assert out["held_offset_std"]["ll"] < out["held_offset_std"]["ll_own"]
+    assert "release_on_loss_still" not in out  # no samples there
+    both = a.merge(b)
+    assert (both.occluded.hits, both.occluded.n) == (14, 40) and both.spread.n == 200
+
+
+def test_the_command_fits_on_both_engines_and_reports_held_out_fits(capsys):
+    import json
+
+    from experiments.cli.fit import run_fit
+    args = SimpleNamespace(scenarios="cup_carried_behind_box", seeds="100-100", regions=False, particles=64,
+                           workers=1, samples=None, config=None, engines="bullet,mujoco")
+    assert run_fit(args) == 0
+    fit = json.loads(capsys.readouterr().out)
+    assert fit["engines"] == ["bullet", "mujoco"] and set(fit["by_engine"]) == {"bullet", "mujoco"}
+    assert set(fit["held_out"]) == {"bullet->mujoco", "mujoco->bullet"}
+    for direction in fit["held_out"].values():
+        for prior in direction.values():
+            if "ll" in prior:
+                assert prior["ll"] <= prior["ll_own"] + 1e-9  # the runs' own fit is the best there is
+    with pytest.raises(ValueError, match="--engines"):
+        run_fit(SimpleNamespace(**{**vars(args), "engines": "ode"}))

@@ -32,6 +32,10 @@ def add_fit_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenarios", default="all",
                    help="'all' (every built-in scenario with tracked hands; with --regions, every one) or "
                         "comma-separated names")
+    p.add_argument("--engines", default="bullet", metavar="ENGINE[,ENGINE]",
+                   help="truth engines whose runs the priors are fitted on together (bullet, mujoco, or "
+                        "bullet,mujoco: then also the fit on each alone and its held-out log-likelihood on the "
+                        "other's runs) (default bullet); not with --regions")
     p.add_argument("--regions", action="store_true",
                    help="fit the position regions instead (covariance floor, speed term, Student-t degrees of "
                         "freedom): runs the particle estimator on every scenario x seed")
@@ -71,6 +75,11 @@ def run_fit(args) -> int:
             fit.update(seeds=[int(s) for s in seed_range(args.seeds)], particles=args.particles)
         print(json.dumps(fit, indent=1))
         return 0
+    from experiments.simulation.simulator import ENGINES
+    text = getattr(args, "engines", "bullet")
+    engines = tuple(e.strip() for e in text.split(",") if e.strip())
+    if not engines or any(e not in ENGINES for e in engines):
+        raise ValueError(f"--engines: expected engines among {', '.join(ENGINES)}, got {text!r}")
     config = load_config(args.config) if args.config else None
-    print(json.dumps(fit_priors(names, seed_range(args.seeds), config), indent=1))
+    print(json.dumps(fit_priors(names, seed_range(args.seeds), config, engines), indent=1))
     return 0

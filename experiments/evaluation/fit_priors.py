@@ -28,9 +28,11 @@ What is fitted (see :class:`actions.modes.ModePriors` and :class:`estimator.conf
 * ``held_out_of_reach``: over the frames with a tracked hand where an object is held in truth and
   detected, the fraction where its detection lies farther than
   :data:`~estimator.perception_memory.HAND_RADIUS` from every tracked hand; Laplace's rule.
-* ``hand_occlusion``: over the frames where an object is held in truth and the scene alone (the
-  estimator's worlds: no hand, no person) would show it to the camera, the fraction where the truth
-  (with the hand and the person) does not; again with Laplace's rule.
+* ``hand_occlusion``: over the frames where an object is held in truth, its hand has carried it
+  (moved more than ``carry_distance`` since the object was last visible: when the estimator's
+  allowance applies) and the scene alone (the estimator's worlds: no hand, no person) would show it
+  to the camera, the fraction where the truth (with the hand and the person) does not; again with
+  Laplace's rule.
 * ``release_accel`` (:class:`~estimator.config.ReasonerConfig`, m/s^2): the estimator's perception
   memory replayed on the stream, reasoning every ``horizon`` as the estimator does, and again on
   the stream as the Kalman tracker filters it (the estimator takes both: a filtered drop
@@ -48,11 +50,13 @@ What is fitted (see :class:`actions.modes.ModePriors` and :class:`estimator.conf
   carry's start and stop by little; the RMS is reported beside it.
 
 Only scenarios whose perception tracks hands count. Pure counting over simulated streams, seeded by
-the scenario's seed; the result is a dictionary of the fitted values and their counts.
+the scenario's seed, under one or several truth engines (Bullet, MuJoCo: all runs counted together);
+the result is a dictionary of the fitted values and their counts, and with several engines the fit
+on each engine alone and its held-out log-likelihood on the other's runs (:func:`held_out`).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -244,25 +248,35 @@ def count_out_of_reach(obs: list[dict], truth: list[dict], out_of_reach: Counts)
                 out_of_reach.add(bool(d > HAND_RADIUS))
 
 
-def count_hand_occlusion(result, threshold: float, occluded: Counts) -> None:
-    """Add the frames of one run where a truly held object would be in view of the scene alone."""
+def count_hand_occlusion(result, threshold: float, occluded: Counts, carry_distance: float = 0.05) -> None:
+    """Add the frames of one run where a truly held object would be in view of the scene alone (the
+    estimator's worlds: no hand, no person) while its hand *carries* it: the true hand has moved more
+    than ``carry_distance`` (m) since the object was last visible in truth, which is when the
+    estimator's allowance applies (a still hand hides its object only with itself). A hit when the
+    truth does not show it. Objects not yet visible while held are not counted."""
     scene = result.scene
     if scene.camera is None:
         return
     camera = Camera(scene.camera)
+    last_hand: dict[str, np.ndarray] = {}  # the true hand when each object was last visible
     with World(scene, PhysicsSettings()) as world:
         points: dict[int, np.ndarray] = {}
         for row in result.truth:
+            hands = row.get("hands") or {}
+            hand = np.asarray(next(iter(hands.values())), float) if hands else None
             for oid, o in row["objects"].items():
-                if not o.get("held"):
-                    continue
-                m = scene.index(oid)
-                if m not in points:
-                    points[m] = local_sample_points(world, m, 2)
-                pose = np.concatenate([o["position"], o["orientation"]])[None]
-                world.set_poses(pose, [m])
-                if visible_fraction(world, camera, [m], points, pose)[0] >= threshold:
-                    occluded.add(not o["visible"])
+                carried = (o.get("held") and hand is not None and oid in last_hand
+                           and float(np.linalg.norm(hand - last_hand[oid])) > carry_distance)
+                if carried:
+                    m = scene.index(oid)
+                    if m not in points:
+                        points[m] = local_sample_points(world, m, 2)
+                    pose = np.concatenate([o["position"], o["orientation"]])[None]
+                    world.set_poses(pose, [m])
+                    if visible_fraction(world, camera, [m], points, pose)[0] >= threshold:
+                        occluded.add(not o["visible"])
+                if o.get("visible") and hand is not None:
+                    last_hand[oid] = hand
 
 
 def count_accelerations(truth: list[dict], samples: list[float]) -> None:
@@ -348,55 +362,151 @@ def best_threshold(negatives: list[float], positives: list[float]) -> tuple[floa
     return float(0.5 * (edges[i] + edges[j + 1])), int(errors[i])
 
 
-def fit_priors(scenarios: list[str] | None = None, seeds=FIT_SEEDS, config: EstimatorConfig | None = None) -> dict:
-    """Fit on ``scenarios`` (default: every built-in one with tracked hands) x ``seeds``.
+@dataclass
+class Tally:
+    """Everything the fit counts over a set of runs (:meth:`add` one run; :meth:`merge`)."""
+
+    carried: Counts = field(default_factory=Counts)
+    still: Counts = field(default_factory=Counts)
+    hidden: Counts = field(default_factory=Counts)
+    occluded: Counts = field(default_factory=Counts)
+    put_down: Counts = field(default_factory=Counts)
+    touched: Counts = field(default_factory=Counts)
+    reach: Counts = field(default_factory=Counts)
+    spread: Spread = field(default_factory=Spread)
+    hand_error: Spread = field(default_factory=Spread)
+    held_down: list = field(default_factory=list)
+    let_go_down: list = field(default_factory=list)
+    accels: list = field(default_factory=list)
+
+    def add(self, result, cfg: EstimatorConfig) -> None:
+        """Count one run (``result``: the simulator's) replayed with ``cfg``."""
+        for filtered in (False, True):  # raw detections, and as the Kalman tracker filters them
+            count_descents(result, cfg.reasoner, self.held_down, self.let_go_down, filtered=filtered)
+        count_losses(result.observations, result.truth, cfg.reasoner, cfg.priors, self.carried, self.still,
+                     self.hidden, self.put_down, cfg.hands)
+        count_offsets(result, cfg, self.spread, self.hand_error)
+        count_set_downs(result.observations, result.truth, cfg.priors, self.touched, cfg.hands)
+        count_hand_occlusion(result, cfg.visibility_threshold, self.occluded, cfg.priors.carry_distance)
+        count_out_of_reach(result.observations, result.truth, self.reach)
+        count_accelerations(result.truth, self.accels)
+
+    def merge(self, other: "Tally") -> "Tally":
+        """The counts of both tallies together (a new tally)."""
+        out = Tally()
+        for name in BERNOULLI_PRIORS.values():
+            a, b = getattr(self, name), getattr(other, name)
+            setattr(out, name, Counts(a.hits + b.hits, a.n + b.n))
+        for name in GAUSSIAN_PRIORS.values():
+            a, b = getattr(self, name), getattr(other, name)
+            setattr(out, name, Spread(a.ss + b.ss, a.n + b.n))
+        for name in ("held_down", "let_go_down", "accels"):
+            setattr(out, name, list(getattr(self, name)) + list(getattr(other, name)))
+        return out
+
+
+BERNOULLI_PRIORS = {"release_on_loss_carried": "carried", "release_on_loss_still": "still",
+                    "release_hidden": "hidden", "put_down_hidden": "put_down", "put_down_touched": "touched",
+                    "held_out_of_reach": "reach", "hand_occlusion": "occluded"}
+"""Priors that are a probability (Laplace's rule over :class:`Counts`), by the tally field they count."""
+GAUSSIAN_PRIORS = {"held_offset_std": "spread", "hand_std": "hand_error"}
+"""Priors that are a standard deviation per axis (over :class:`Spread`), by their tally field."""
+
+
+def fitted(t: Tally, names: list[str], seeds, engines=("bullet",)) -> dict:
+    """The fitted values of a tally, with their counts (the format of :func:`fit_priors`)."""
+    # no held object perceived moving down in these runs (one scenario, say): nothing to fit
+    accel, accel_errors = (best_threshold(t.held_down, t.let_go_down) if t.held_down or t.let_go_down
+                           else (None, 0))
+    carry = np.abs(np.asarray(t.accels, float))
+    return {"release_on_loss_carried": round(t.carried.p, 3), "release_on_loss_still": round(t.still.p, 3),
+            "release_hidden": round(t.hidden.p, 3), "put_down_hidden": round(t.put_down.p, 3),
+            "put_down_touched": round(t.touched.p, 3), "held_out_of_reach": float(f"{t.reach.p:.2g}"),
+            "hand_occlusion": round(t.occluded.p, 3), "held_offset_std": round(t.spread.std, 4),
+            "hand_std": round(t.hand_error.std, 4),
+            "release_accel": None if accel is None else round(accel, 2),
+            "accel_std": round(float(np.percentile(carry, 99)), 1) if carry.size else float("nan"),
+            "counts": {"accel_std": {"samples": int(carry.size),
+                                     "rms": round(float(np.sqrt(np.mean(carry ** 2))), 2) if carry.size else None},
+                       "held_offset_std": [round(t.spread.ss, 6), t.spread.n],
+                       "hand_std": [round(t.hand_error.ss, 6), t.hand_error.n],
+                       **{k: [getattr(t, v).hits, getattr(t, v).n] for k, v in BERNOULLI_PRIORS.items()},
+                       "release_accel": {"errors": accel_errors, "held": len(t.held_down), "let_go": len(t.let_go_down),
+                                         "held_max": round(max(t.held_down, default=float("nan")), 2),
+                                         "let_go_min": round(min(t.let_go_down, default=float("nan")), 2)}},
+            "scenarios": names, "seeds": [int(s) for s in seeds], "engines": list(engines)}
+
+
+def _bernoulli_ll(p: float, c: Counts) -> float:
+    p = min(max(p, 1e-12), 1 - 1e-12)
+    return (c.hits * np.log(p) + (c.n - c.hits) * np.log(1 - p)) / c.n
+
+
+def _gaussian_ll(std: float, s: Spread) -> float:
+    var = std * std
+    return float(-0.5 * np.log(2 * np.pi * var) - s.ss / (3 * s.n) / (2 * var))
+
+
+def held_out(fit: dict, t: Tally) -> dict:
+    """How well ``fit`` (:func:`fitted` of other runs) explains the runs of ``t``: per prior, the
+    mean log-likelihood per sample under ``fit`` (``ll``) and under the fit of ``t`` itself
+    (``ll_own``, the best any value does on these samples; their difference is what fitting on the
+    other runs costs), and ``n`` samples. Probabilities are Bernoulli, standard deviations zero-mean
+    Gaussian per axis; ``release_accel`` reports the fraction of ``t``'s samples the fitted threshold
+    misclassifies (``error_rate``, ``error_rate_own``). Priors without samples in ``t`` are left out."""
+    own = fitted(t, [], [])
+    out: dict[str, dict] = {}
+    for key, name in BERNOULLI_PRIORS.items():
+        c = getattr(t, name)
+        if c.n:
+            out[key] = {"ll": round(float(_bernoulli_ll(fit[key], c)), 4),
+                        "ll_own": round(float(_bernoulli_ll(own[key], c)), 4), "n": c.n}
+    for key, name in GAUSSIAN_PRIORS.items():
+        sp = getattr(t, name)
+        if sp.n and fit[key] > 0:
+            out[key] = {"ll": round(_gaussian_ll(fit[key], sp), 3), "ll_own": round(_gaussian_ll(own[key], sp), 3),
+                        "n": sp.n}
+    if fit.get("release_accel") is not None and (t.held_down or t.let_go_down):
+        def rate(a):
+            wrong = np.sum(np.asarray(t.held_down) > a) + np.sum(np.asarray(t.let_go_down) <= a)
+            return round(float(wrong) / (len(t.held_down) + len(t.let_go_down)), 4)
+        out["release_accel"] = {"error_rate": rate(fit["release_accel"]), "error_rate_own": rate(own["release_accel"]),
+                                "n": len(t.held_down) + len(t.let_go_down)}
+    return out
+
+
+def fit_priors(scenarios: list[str] | None = None, seeds=FIT_SEEDS, config: EstimatorConfig | None = None,
+               engines=("bullet",)) -> dict:
+    """Fit on ``scenarios`` (default: every built-in one with tracked hands) x ``seeds`` x truth
+    ``engines`` (:data:`~experiments.simulation.simulator.ENGINES`), all runs together.
 
     Returns ``{"release_on_loss_carried": p, "release_on_loss_still": p, "release_hidden": p, "put_down_hidden": p,
     "put_down_touched": p,
     "held_out_of_reach": p, "hand_occlusion": p, "held_offset_std": m, "hand_std": m, "release_accel": m/s^2,
     "accel_std": m/s^2,
     "counts": {name: [hits, n] (release_accel: errors, samples, extremes)}, "scenarios": [...],
-    "seeds": [...]}``; ``release_accel`` is None when no held object was perceived moving down.
-    ``config``: the estimator configuration replayed (reasoner, priors, hands; default
-    :class:`~estimator.config.EstimatorConfig`)."""
+    "seeds": [...], "engines": [...]}``; ``release_accel`` is None when no held object was perceived
+    moving down. With several engines also ``"by_engine": {engine: fit on its runs alone}`` and
+    ``"held_out": {"A->B": held_out(fit on A's runs, B's runs)}`` for every ordered pair (how well a
+    fit on one engine's worlds explains the other's). ``config``: the estimator configuration
+    replayed (reasoner, priors, hands; default :class:`~estimator.config.EstimatorConfig`)."""
     cfg = config or EstimatorConfig()
     names = [n for n in (scenarios or list_scenarios()) if load_scenario(n).perception.hands_tracked]
-    carried, still, hidden, occluded, spread, hand_error = Counts(), Counts(), Counts(), Counts(), Spread(), Spread()
-    put_down, touched = Counts(), Counts()
-    reach, held_down, let_go_down, accels = Counts(), [], [], []
-    for name in names:
-        for seed in seeds:
-            result = simulate(name, int(seed))
-            for filtered in (False, True):  # raw detections, and as the Kalman tracker filters them
-                count_descents(result, cfg.reasoner, held_down, let_go_down, filtered=filtered)
-            count_losses(result.observations, result.truth, cfg.reasoner, cfg.priors, carried, still, hidden,
-                         put_down, cfg.hands)
-            count_offsets(result, cfg, spread, hand_error)
-            count_set_downs(result.observations, result.truth, cfg.priors, touched, cfg.hands)
-            count_hand_occlusion(result, cfg.visibility_threshold, occluded)
-            count_out_of_reach(result.observations, result.truth, reach)
-            count_accelerations(result.truth, accels)
-    # no held object perceived moving down in these runs (one scenario, say): nothing to fit
-    accel, accel_errors = best_threshold(held_down, let_go_down) if held_down or let_go_down else (None, 0)
-    carry = np.abs(np.asarray(accels, float))
-    return {"release_on_loss_carried": round(carried.p, 3), "release_on_loss_still": round(still.p, 3),
-            "release_hidden": round(hidden.p, 3), "put_down_hidden": round(put_down.p, 3),
-            "put_down_touched": round(touched.p, 3), "held_out_of_reach": float(f"{reach.p:.2g}"),
-            "hand_occlusion": round(occluded.p, 3), "held_offset_std": round(spread.std, 4),
-            "hand_std": round(hand_error.std, 4),
-            "release_accel": None if accel is None else round(accel, 2),
-            "accel_std": round(float(np.percentile(carry, 99)), 1) if carry.size else float("nan"),
-            "counts": {"accel_std": {"samples": int(carry.size),
-                                     "rms": round(float(np.sqrt(np.mean(carry ** 2))), 2) if carry.size else None},
-                       "held_offset_std": [round(spread.ss, 6), spread.n],
-                       "hand_std": [round(hand_error.ss, 6), hand_error.n],
-                       "release_on_loss_carried": [carried.hits, carried.n],
-                       "release_on_loss_still": [still.hits, still.n], "release_hidden": [hidden.hits, hidden.n],
-                       "put_down_hidden": [put_down.hits, put_down.n],
-                       "put_down_touched": [touched.hits, touched.n],
-                       "held_out_of_reach": [reach.hits, reach.n],
-                       "hand_occlusion": [occluded.hits, occluded.n],
-                       "release_accel": {"errors": accel_errors, "held": len(held_down), "let_go": len(let_go_down),
-                                         "held_max": round(max(held_down, default=float("nan")), 2),
-                                         "let_go_min": round(min(let_go_down, default=float("nan")), 2)}},
-            "scenarios": names, "seeds": [int(s) for s in seeds]}
+    tallies = {}
+    for engine in engines:
+        tally = Tally()
+        for name in names:
+            for seed in seeds:
+                tally.add(simulate(name, int(seed), engine=engine), cfg)
+        tallies[engine] = tally
+    pooled = Tally()
+    for tally in tallies.values():
+        pooled = pooled.merge(tally)
+    out = fitted(pooled, names, seeds, engines)
+    if len(tallies) > 1:
+        alone = {e: fitted(t, names, seeds, (e,)) for e, t in tallies.items()}
+        out["by_engine"] = {e: {k: v for k, v in f.items() if k not in ("counts", "scenarios", "seeds")}
+                            for e, f in alone.items()}
+        out["held_out"] = {f"{a}->{b}": held_out(alone[a], tallies[b])
+                           for a in tallies for b in tallies if a != b}
+    return out
