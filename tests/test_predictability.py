@@ -146,3 +146,20 @@ def test_cli_refuses_a_missing_evaluation_and_an_unknown_scenario(tmp_path, caps
     assert "trials.jsonl" in capsys.readouterr().err
     assert main(["predictability", "--scenarios", "no_such_scene", "--seeds", "1", "--out", str(tmp_path)]) == 2
     assert "no_such_scene" in capsys.readouterr().err
+
+
+def test_twins_under_mujoco_and_only_that_engines_trials_beside_them():
+    cfg = TwinConfig(twins=2, engine="mujoco")
+    row = twin_row(("static_floating", 0, cfg))
+    assert row["engine"] == "mujoco" and row["key"].endswith("__mujoco") and row["agreement"] == 1.0
+    assert TwinConfig(twins=2).key("a", 0) != cfg.key("a", 0)
+    with pytest.raises(ValueError, match="engine"):
+        TwinConfig(engine="ode")
+    twins = _twins("steady", [1.0, 1.0])
+    for r in twins:
+        r["engine"] = "mujoco"
+    trials = (_trials("steady", [1.0, 0.0]) +  # Bullet's truth (rows without an engine): not these twins
+              [dict(r, engine="mujoco") for r in _trials("steady", [1.0, 1.0])]
+              + [dict(r, engine="mujoco", param_scale=4.0) for r in _trials("steady", [0.0, 0.0])])
+    s = summarise(twins, trials, threshold=0.85)
+    assert s["pooled"]["particles (K=64)"]["success"] == [1.0, 1.0]

@@ -36,6 +36,9 @@ def add_predictability_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threshold", type=float, default=d.threshold,
                    help=f"an object's agreement below which its scenario is unpredictable to 5 cm "
                         f"(default {d.threshold:g})")
+    p.add_argument("--engine", choices=("bullet", "mujoco"), default=d.engine,
+                   help="physics engine of the truth and its twins (default bullet); with --evaluation, only "
+                        "that engine's trials (unscaled parameters) are set beside the agreement")
     p.add_argument("--workers", type=int, default=1, help="processes (default 1); results do not depend on it")
     p.add_argument("--out", default="results", help="output folder: twins.jsonl, predictability.md/.csv")
     p.add_argument("--evaluation", default=None,
@@ -49,7 +52,8 @@ def run_predictability(args) -> int:
     from experiments.scenarios import resolve_scenarios
 
     config = TwinConfig(twins=args.twins, at=args.at, position_std=args.position_std, params=args.params,
-                        param_scale=args.param_scale, threshold=args.threshold)
+                        param_scale=args.param_scale, threshold=args.threshold,
+                        engine=getattr(args, "engine", "bullet"))
     if args.seeds < 1 or args.workers < 1:
         raise ValueError(f"--seeds and --workers must be >= 1, got {args.seeds}, {args.workers}")
     trials = []

@@ -95,6 +95,7 @@ class TwinConfig:
     params: str = "scenario"
     param_scale: float = 0.01
     threshold: float = 0.85
+    engine: str = "bullet"
 
     def __post_init__(self):
         if not (isinstance(self.twins, int) and self.twins >= 1):
@@ -109,12 +110,16 @@ class TwinConfig:
             raise ValueError(f"param_scale must be in [0, 1), got {self.param_scale}")
         if not (0 < self.threshold <= 1):
             raise ValueError(f"threshold must be in (0, 1], got {self.threshold}")
+        from experiments.simulation.simulator import ENGINES
+        if self.engine not in ENGINES:
+            raise ValueError(f"engine must be one of {ENGINES}, got {self.engine!r}")
 
     def key(self, scenario: str, seed: int) -> str:
         """Identity of a (scenario, seed) row under these settings (``threshold`` is not part of it)."""
         p = "scene" if self.position_std is None else f"{self.position_std:g}"
         redrawn = "__rscenario" if self.params == "scenario" else ""  # rows of the older runs: "scale"
-        return f"{scenario}__s{seed}__n{self.twins}__{self.at}__p{p}__q{self.param_scale:g}{redrawn}"
+        engine = "" if self.engine == "bullet" else f"__{self.engine}"
+        return f"{scenario}__s{seed}__n{self.twins}__{self.at}__p{p}__q{self.param_scale:g}{redrawn}{engine}"
 
 
 def twin_rng(scenario: str, seed: int) -> np.random.Generator:
@@ -122,12 +127,12 @@ def twin_rng(scenario: str, seed: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([int(seed), zlib.crc32(f"twins:{scenario}".encode())]))
 
 
-def _run(variant, duration: float, seed: int, perturbations=None) -> tuple[list[dict], float]:
-    """The truth rows of a run of ``variant`` (as the simulator records them, with
+def _run(variant, duration: float, seed: int, perturbations=None, engine: str = "bullet") -> tuple[list[dict], float]:
+    """The truth rows of a run of ``variant`` under ``engine`` (as the simulator records them, with
     ``perturbations``, see :meth:`GroundTruth.run`) and its time step (s)."""
-    from experiments.simulation.ground_truth import GroundTruth
+    from experiments.simulation.simulator import truth_class
 
-    with GroundTruth(variant) as gt:
+    with truth_class(engine)(variant) as gt:
         result = gt.run(duration, np.random.default_rng([int(seed), 1]), perturbations)
         return result.truth, gt.dt
 
@@ -194,7 +199,7 @@ def twin_row(job: tuple[str, int, TwinConfig]) -> dict:
     variant = sample_variant(scenario, seed)
     ids = [o.id for o in variant.scene.objects if not o.static]
     index = {o: variant.scene.index(o) for o in ids}
-    truth, dt = _run(variant, scenario.duration, seed)
+    truth, dt = _run(variant, scenario.duration, seed, engine=cfg.engine)
     base = truth[-1]
     noise = scenario.perception
     object_std = noise.position_std if cfg.position_std is None else cfg.position_std
@@ -212,12 +217,13 @@ def twin_row(job: tuple[str, int, TwinConfig]) -> dict:
             twin = twin_variant(variant, rng, 0.0, cfg.param_scale)
             params = draw_parameters(variant, rng) if cfg.params == "scenario" else None
             moves = _perturbations(sightings, index, object_std, hand_std, rng, params)
-        ok[k], dist[k] = agreement(base, _run(twin, scenario.duration, seed, moves)[0][-1], ids)
+        ok[k], dist[k] = agreement(base, _run(twin, scenario.duration, seed, moves, cfg.engine)[0][-1], ids)
     agree = ok.mean(axis=0)
     return {"key": cfg.key(name, seed), "scenario": name, "seed": int(seed), "objects": ids,
             "agree": [float(a) for a in agree], "distance_median": [float(d) for d in np.median(dist, axis=0)],
             "agreement": float(agree.mean()) if ids else math.nan, "twins": cfg.twins, "at": cfg.at,
             "position_std": cfg.position_std, "params": cfg.params, "param_scale": cfg.param_scale,
+            "engine": cfg.engine,
             "last_seen_s": {o: (None if w is None else round(w[0] * dt, 4)) for o, w in sightings.items()}}
 
 
@@ -280,14 +286,16 @@ def summarise(twins: list[dict], trials: list[dict], threshold: float) -> dict:
         s["distance"].append(max(r["distance_median"], default=math.nan))
         for o, a in zip(r["objects"], r["agree"]):
             s["objects"].setdefault(o, []).append(a)
-        pairs.add((r["scenario"], r["seed"]))
+        pairs.add((r["scenario"], r["seed"], r.get("engine", "bullet")))
     for s in scen.values():
         means = [(o, float(np.mean(v))) for o, v in s["objects"].items()]
         s["least"] = min(means, key=lambda m: m[1]) if means else None
         s["predictable"] = bool((s["least"][1] if means else np.mean(s["agreement"])) >= threshold)
     methods: list[str] = []
     for r in trials:
-        if (r.get("scenario"), r.get("seed")) not in pairs:  # only the (scenario, seed) pairs twinned
+        # only the (scenario, seed) pairs twinned, under the same truth engine, parameters unscaled
+        if (r.get("scenario"), r.get("seed"), r.get("engine") or "bullet") not in pairs \
+                or float(r.get("param_scale") or 1.0) != 1.0:
             continue
         s = scen[r["scenario"]]
         label = method_label(r["method"], r["particles"])
