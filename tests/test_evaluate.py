@@ -230,6 +230,9 @@ def test_the_ray_backend_gives_the_same_rows(reference, tmp_path):
     (["--scenarios", "no_such_scenario"], ""),
     (["--seeds", "0"], "--seeds"),
     (["--address", "auto"], "--backend ray"),
+    (["--truth-engine", "bullet,ode"], "truth engines must be among bullet, mujoco"),
+    (["--param-scale", "1,x"], "--param-scale"),
+    (["--param-scale", "0"], "parameter scales must be > 0"),
 ])
 def test_cli_rejects_bad_arguments(args, message, tmp_path, capsys):
     assert evaluate_cli.main([*args, "--out", str(tmp_path), "--quiet"]) == 2
@@ -329,3 +332,29 @@ def test_pooled_event_counts_add_up_over_trials():
     md = markdown_event_section(rows)
     assert "| particles (K=4) | Push | 2 | 1 | 1 | 1.00 | 0.50 | 0.67 |" in md
     assert markdown_event_section([]) == ""
+
+
+def test_truth_conditions_are_trials_of_their_own_reported_side_by_side(tmp_path):
+    """--truth-engine bullet,mujoco --param-scale 1,2: each (engine, scale) is a condition whose
+    trials are keyed apart (Bullet's at scale 1 keep their keys), summarised and tested on their own,
+    and set side by side at the top of summary.md."""
+    cfg = SweepConfig(("ball_rolls_behind_box",), (0,), ("paper", "particles"), (K,), 1.5,
+                      engines=("bullet", "mujoco"), param_scales=(1.0, 2.0))
+    specs = cfg.trials()
+    assert len(specs) == 8 and len({s.key for s in specs}) == 8
+    plain = [s for s in specs if s.engine == "bullet" and s.param_scale == 1.0]
+    assert all("mujoco" not in s.key and "__ps" not in s.key for s in plain)
+    rows = run_sweep(cfg, tmp_path, workers=1, progress=False)
+    assert {(r["engine"], r["param_scale"]) for r in rows} == {("bullet", 1.0), ("bullet", 2.0), ("mujoco", 1.0),
+                                                               ("mujoco", 2.0)}
+    for r in rows:
+        if r["method"] == "particles":
+            assert r["invariant_violations"] == 0  # no particle ever inside the table
+    text = (tmp_path / "summary.md").read_text()
+    table = text.split("## The truth conditions side by side")[1].split("\n# ")[0]
+    for label in ("MuJoCo truth |", "MuJoCo truth, parameters x2 |", "Bullet truth |", "Bullet truth, parameters x2 |"):
+        assert label in table
+    assert text.index("# MuJoCo truth") < text.index("# Bullet truth")
+    summary = list(csv.DictReader(open(tmp_path / "summary.csv")))
+    assert {(r["engine"], r["param_scale"]) for r in summary} == {("bullet", "1.0"), ("bullet", "2.0"),
+                                                                  ("mujoco", "1.0"), ("mujoco", "2.0")}
