@@ -148,13 +148,15 @@ class FrameAssembler:
     node (:mod:`experiments.ros.node`).
 
     ``t0_ns``: stamp of ``t = 0``. ``report(kind, topic, message)`` is called for each message or
-    pose that is not used: kind ``"late"`` (stamped before what has been released), ``"unknown_frame"``
+    pose that is not used: kind ``"late"`` (stamped more than ``reorder`` before the newest message,
+    or at or before the last frame closed: frame times strictly increase), ``"unknown_frame"``
     (no transform chain to the world frame), ``"non_finite"`` (a NaN or a zero quaternion after
     chaining); it may raise to stop.
 
     :meth:`push` takes messages in arrival order; a message is *released* (applied to the TF tree
     and grouped) once the newest stamp has passed it by ``reorder``, or (live) once :meth:`advance`
-    is told that the time has; :meth:`finish` releases everything at the end of a stream.
+    is told that the time has (a message released that way is not late yet: it is used unless its
+    frame was closed); :meth:`finish` releases everything at the end of a stream.
     """
 
     def __init__(self, topics: TopicsSpec, t0_ns: int, report: Callable[[str, str, str], None]):
@@ -167,6 +169,7 @@ class FrameAssembler:
         self.window_ns = int(round(topics.window * 1e9))
         self.newest = -math.inf
         self.released = -math.inf  # every message stamped before this has been released
+        self.closed = -math.inf  # stamp of the last frame closed
         self._heap: list = []
         self._frames = [dict(s.frames) for s in topics.sources]
         self._hands = dict(topics.hands)
@@ -182,10 +185,11 @@ class FrameAssembler:
         reorder window)."""
         if item.kind == "tf" and not item.transforms:
             return  # an empty TF message has no time and places nothing
-        if item.stamp_ns < self.released:
+        if item.stamp_ns < self.newest - self.reorder_ns or item.stamp_ns <= self.closed:
             self.late += 1
-            self.report("late", item.topic, f"message stamped {self.t(item.stamp_ns):.3f} s arrived more than "
-                                             f"{self.topics.reorder} s late; dropped")
+            why = (f"more than {self.topics.reorder} s late" if item.stamp_ns < self.newest - self.reorder_ns
+                   else f"after the frame at {self.t(self.closed):.3f} s was closed")
+            self.report("late", item.topic, f"message stamped {self.t(item.stamp_ns):.3f} s arrived {why}; dropped")
             return
         self.newest = max(self.newest, item.stamp_ns)
         heapq.heappush(self._heap, (item.stamp_ns, 0 if item.kind == "tf" else 1, item.seq, item))
@@ -225,6 +229,7 @@ class FrameAssembler:
 
     def _close(self) -> Frame:
         frame = self._frame(self._last, self._objects, self._hand_pos)
+        self.closed = self._last
         self._start, self._objects, self._hand_pos = None, {}, {}
         return frame
 
