@@ -3,9 +3,12 @@
 Debian (bookworm) and Ubuntu package ROS 1 Noetic for their own Python 3 (``apt-get install
 ros-core python3-rospy ...``): the modules land in ``/usr/lib/python3/dist-packages``, which a Python
 built elsewhere (pyenv, a virtual environment) does not search. :func:`import_ros` first tries a
-plain import and only when that fails appends that directory (or the directories in
-``$SCENE_ESTIMATOR_ROS_PATH``, separated by ``:``) to the *end* of ``sys.path``, so that the
-packages installed for this Python always win over Debian's copies of them.
+plain import and only when that fails installs an import hook (last on ``sys.meta_path``) that finds
+*only* ROS's own top-level modules (:data:`ROS_MODULES`, any ``*_msgs`` / ``*_srvs``) and the few
+pure dependencies this Python may lack (:data:`ROS_DEPENDENCIES`) in that directory (or in the
+directories of ``$SCENE_ESTIMATOR_ROS_PATH``, separated by ``:``). The directory is not put on
+``sys.path``: nothing else of Debian's (other modules, their entry points) becomes visible, and the
+packages installed for this Python always win.
 
 Nothing here is imported by the core install: only ``scene-estimator ros`` and its tests call
 :func:`import_ros`.
@@ -13,6 +16,8 @@ Nothing here is imported by the core install: only ``scene-estimator ros`` and i
 from __future__ import annotations
 
 import importlib
+import importlib.abc
+import importlib.machinery
 import os
 import sys
 from types import SimpleNamespace
@@ -36,7 +41,7 @@ APT_PACKAGES = ("ros-core", "python3-rospy", "python3-tf2-ros", "python3-tf2-msg
                 "python3-visualization-msgs", "python3-std-msgs")
 INSTALL_COMMAND = "sudo apt-get install " + " ".join(APT_PACKAGES)
 INSTALL_HINT = (f"install ROS 1 (Noetic) from Debian bookworm's or Ubuntu's packages: `{INSTALL_COMMAND}` "
-                f"(they install into /usr/lib/python3/dist-packages, which is searched automatically; set "
+                f"(they install into /usr/lib/python3/dist-packages, where their modules are found automatically; set "
                 f"{PATH_VARIABLE}=DIR[:DIR] if they are elsewhere); this Python must be the same minor version "
                 f"as the system's python3 (tf2_ros has a compiled part)")
 
@@ -45,19 +50,40 @@ class RosUnavailable(ImportError):
     """ROS 1's Python packages cannot be imported; the message says what to install."""
 
 
+ROS_MODULES = frozenset({"rospy", "rosgraph", "genpy", "genmsg", "roslib", "rospkg", "catkin_pkg", "catkin", "roscpp",
+                         "tf2_ros", "tf2_py", "actionlib", "message_filters", "rosbag", "roslz4", "rosmaster",
+                         "rosparam", "rostopic", "rosnode", "rosservice", "rosmsg", "roslaunch"})
+"""ROS 1's own top-level Python modules (with any name ending in ``_msgs`` or ``_srvs``)."""
+ROS_DEPENDENCIES = frozenset({"distro", "defusedxml", "netifaces", "Cryptodome", "gnupg"})
+"""Dependencies of rospkg, rosgraph and rosbag that a pip-installed Python often lacks; taken from
+Debian's directory only when this Python has none of its own."""
+
+
 def _search_dirs() -> list[str]:
     extra = [d for d in os.environ.get(PATH_VARIABLE, "").split(os.pathsep) if d]
     return extra + [d for d in DIST_PACKAGES if os.path.isdir(d)]
 
 
-def _add_search_dirs() -> list[str]:
-    added = []
-    for d in _search_dirs():
-        if d not in sys.path:
-            sys.path.append(d)  # last: this Python's own packages win
-            added.append(d)
+def _is_ros_module(name: str) -> bool:
+    return name in ROS_MODULES or name in ROS_DEPENDENCIES or name.endswith(("_msgs", "_srvs"))
+
+
+class DebianRosFinder(importlib.abc.MetaPathFinder):
+    """Finds ROS's top-level modules (:func:`_is_ros_module`) in ``dirs``; asked last."""
+
+    def __init__(self, dirs: list[str]):
+        self.dirs = list(dirs)
+
+    def find_spec(self, fullname, path=None, target=None):
+        if path is not None or not _is_ros_module(fullname):
+            return None  # submodules are found through their package's __path__
+        return importlib.machinery.PathFinder.find_spec(fullname, self.dirs)
+
+
+def _add_search_dirs() -> None:
+    if not any(isinstance(f, DebianRosFinder) for f in sys.meta_path):
+        sys.meta_path.append(DebianRosFinder(_search_dirs()))
     importlib.invalidate_caches()
-    return added
 
 
 def import_ros() -> SimpleNamespace:
