@@ -136,6 +136,20 @@ def held_targets(frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: n
     return target, target_vel, new_error
 
 
+def push_cannot_lift(target: np.ndarray, target_vel: np.ndarray, poses: np.ndarray, modes: np.ndarray,
+                     holds: np.ndarray, detected: np.ndarray, lift: float) -> None:
+    """In place on ``target (K, M, 7)`` and ``target_vel (K, M, 6)``: a held object that its episode
+    has never lifted (:func:`_pushed`: pushed or slid along its support) and that is not detected
+    follows its hand along the support, not up: its target is no higher than where the particle
+    has it (``poses (K, M, 7)``) and rises at no speed. A hand rising off a pushed object out of
+    view leaves it there (:func:`pushes_ended`, once the rise is beyond the hand's noise); had it
+    grasped it, the object shows when it is seen again."""
+    rows = (modes == HELD) & ~np.asarray(detected, dtype=bool)[None, :] & _pushed(holds, lift)
+    if np.any(rows):
+        target[..., 2] = np.where(rows, np.minimum(target[..., 2], poses[..., 2]), target[..., 2])
+        target_vel[..., 2] = np.where(rows, np.minimum(target_vel[..., 2], 0.0), target_vel[..., 2])
+
+
 def hidden_places(hidden_at: np.ndarray, hidden_t: np.ndarray, hidden_n: np.ndarray, poses: np.ndarray,
                   hidden: np.ndarray, reset: np.ndarray, t: float,
                   rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -246,13 +260,19 @@ def pushes_ended(modes: np.ndarray, holds: np.ndarray, before_z: np.ndarray, han
     is false; its record has a Pick time) moved it along its support, pushed or slid, not grasped:
     a push cannot lift. When the tracked hand that moved such an undetected object
     (``in_tracked_hand (M,)``) would now carry it (``hand_z (M,)``, m: the height at which it follows
-    the hand, NaN without one) more than ``lift`` (m) above where the particle has it
-    (``before_z (K, M)``), the hand has left it: it is let go where it is. Physics, not a prior:
-    no random draw, no weight. (Had the hand grasped it out of view, it shows when it is seen again.)"""
+    the hand, NaN without one) more than ``lift`` (m) above ``before_z`` (``(M,)`` or ``(K, M)``, m:
+    the height it was last seen at, in the tracker's frame as ``hand_z`` is: the hand has risen),
+    the hand has left it: it is let go where it is. Physics, not a prior: no random draw, no
+    weight. (Had the hand grasped it out of view, it shows when it is seen again.)"""
     with np.errstate(invalid="ignore"):
-        rose = hand_z[None, :] - before_z > lift
-    pushed = ~lifted(holds, lift) & np.isfinite(holds[..., PICK_T])
-    return (modes == HELD) & pushed & rose & np.asarray(in_tracked_hand, dtype=bool)[None, :]
+        rose = hand_z[None, :] - np.asarray(before_z, dtype=float) > lift
+    return (modes == HELD) & _pushed(holds, lift) & rose & np.asarray(in_tracked_hand, dtype=bool)[None, :]
+
+
+def _pushed(holds: np.ndarray, lift: float) -> np.ndarray:
+    """``(K, M)`` bool: held episodes (``holds (K, M, 6)``, with a Pick time) that never lifted their
+    object more than ``lift`` (m): pushed or slid along its support."""
+    return ~lifted(holds, lift) & np.isfinite(holds[..., PICK_T])
 
 
 def let_go_where_rested(entries: np.ndarray, state, poses: np.ndarray, vel: np.ndarray, modes: np.ndarray,
@@ -266,6 +286,11 @@ def let_go_where_rested(entries: np.ndarray, state, poses: np.ndarray, vel: np.n
     vel[entries] = 0.0
     return np.where(entries, state.rest_t, np.nan)
 
+
+PUSH_END_SIGMAS = 3.0
+"""A pushed object's hand has risen off it when it rose more than ``push_lift`` plus this many
+standard deviations of the difference of two tracked hand heights (``HandConfig.measurement_std``
+each): a hand tracked to 1 cm jitters by 2 cm between two updates, and a push must not end on that."""
 
 COVER_DROP = 0.10
 """m: an object let go behind cover where it was lowest (put down: ``ModePriors.put_down_hidden``)
@@ -297,13 +322,15 @@ def let_go_behind_cover(cover: np.ndarray, state, poses: np.ndarray, vel: np.nda
 def let_go_out_of_view(state, poses: np.ndarray, vel: np.ndarray, modes: np.ndarray, codes: np.ndarray,
                        frame: Frame, memory: PerceptionMemory, following: np.ndarray, perceived: np.ndarray,
                        detected: np.ndarray, priors: ModePriors, noise: NoiseConfig,
-                       rng: np.random.Generator, lift: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+                       rng: np.random.Generator, lift: float = 0.02,
+                       hand_std: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Held objects in a tracked hand (``following (M,)``) let go out of view, in place on ``poses
     (K, M, 7)``, ``vel (K, M, 6)``, ``modes`` and ``codes (K, M)``: those the hand shows in view
     without (:func:`release_behind_cover`, :func:`let_go_behind_cover`), and those set down where they
     rested, the hand lifting away (:func:`set_down_behind_cover`, :func:`let_go_where_rested`), and
     those pushed along their support whose hand has risen off them (:func:`pushes_ended`, ``lift``
-    m; none of these in the paper's mode, ``hand_occlusion`` 1). Returns when each entry was let go ``(K, M)`` (s; NaN
+    m beyond the noise of a tracked hand's height, ``hand_std`` m; none of these in the paper's
+    mode, ``hand_occlusion`` 1). Returns when each entry was let go ``(K, M)`` (s; NaN
     for the others: the entries let go are the finite ones) and the proposal's log-weight factors
     ``(K,)``."""
     cover, proposal = release_behind_cover(modes, state.unseen_in_view, state.hidden_n, following & ~perceived,
@@ -315,9 +342,13 @@ def let_go_out_of_view(state, poses: np.ndarray, vel: np.ndarray, modes: np.ndar
     hand_z = memory.hand_heights(frame, unseen)
     set_down = set_down_behind_cover(modes, state.rest_at, state.rest_t, state.poses[..., 2], hand_z, unseen,
                                      priors, rng)
+    set_down &= ~_pushed(state.holds, lift)  # never lifted: not set down, its push ends (below)
     if np.any(set_down):
         when = np.where(set_down, let_go_where_rested(set_down, state, poses, vel, modes, codes), when)
-    ended = pushes_ended(modes, state.holds, state.poses[..., 2], hand_z, unseen, lift)
+    # the hand's rise since the object was last seen: both heights in the tracker's frame (where
+    # the hand would carry it now, where it was seen), so that its height bias cancels
+    ended = pushes_ended(modes, state.holds, memory.last_pose[:, 2], hand_z, unseen,
+                         lift + PUSH_END_SIGMAS * math.sqrt(2.0) * hand_std)
     if np.any(ended):  # left where the push took it, at rest: the episode ends as a Push
         modes[ended] = FREE
         codes[ended] = PLACE

@@ -30,7 +30,7 @@ from physics.visibility import sphere_occlusion
 
 from .config import RELEASE_DOWN_SPEED, EstimatorConfig
 from .fusion import ensemble_kalman_step
-from .holding import dropped_behind_cover, held_targets, let_go_out_of_view, release_on_loss
+from .holding import dropped_behind_cover, held_targets, let_go_out_of_view, push_cannot_lift, release_on_loss
 from .noise import process_noise, regularisation_kernels
 from .likelihood import (DetectionTerm, Evidence, HandReachTerm, LogWeightTerm, ModeSwitchTerm, NegativeEvidenceTerm, ProposalTerm,
                          VelocityTerm,
@@ -266,7 +266,7 @@ class SceneModel:
         modes, release_codes = self.release(prev_modes, perceived, state.supported, rng, following, left_view)
         cover_t, proposal = let_go_out_of_view(state, poses, vel, modes, release_codes, frame, mem, following,
                                                perceived, detected, cfg.priors, cfg.noise, rng,
-                                               cfg.reasoner.push_lift)
+                                               cfg.reasoner.push_lift, cfg.hands.measurement_std)
         cover = np.isfinite(cover_t)
         flicked, flick_weight = self.let_go_moving(modes, state.supported, detected & perceived, tick_vel, far, rng)
         if np.any(flicked):  # let go in motion: physics takes it on at its velocity
@@ -297,6 +297,8 @@ class SceneModel:
         detections = mem.detections_now(stale, frame.t, detected if cfg.moving_teleports else None)
         target, target_vel, hold_error = self.held_targets(frame, poses, modes, detected, perceived, dt, rng,
                                                            state.hold_error, tele, fall_now, detections, stale)
+        if cfg.noise.hand_occlusion < 1.0:  # as let_go_out_of_view: not in the paper's mode
+            push_cannot_lift(target, target_vel, poses, modes, state.holds, detected, cfg.reasoner.push_lift)
         jolted = self.process_noise(poses, modes, perceived, state.supported, resting, state.last_motion, dt, rng)
         # what physics checks and reports
         vis_query = self.known & self.dynamic & ~detected
