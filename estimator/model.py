@@ -93,6 +93,12 @@ FUSION_SETTLED = 1.5e-3
 """A resting object whose particles' weighted mean is within this (m, horizontally) of the average of
 its detections while still takes no Kalman step: it has converged (:meth:`SceneModel.fuse_resting`)."""
 
+SET_MOVING_SIGMAS = 3.0
+"""An object at rest is set moving by an agent nobody tracks only when its perceived horizontal
+speed exceeds this many standard errors of the fitted velocity (per axis): the speed pure detection
+noise gives a still object exceeds it about once in a hundred updates (Rayleigh: exp(-9/2))."""
+
+
 class SceneModel:
     """How the particles of ``scene`` move and are weighed (see the module docstring).
 
@@ -250,7 +256,9 @@ class SceneModel:
                 # ... if one can reach it: a Pick needs an agent within reach (a tracked hand); with
                 # none, it was set moving (flicked, knocked) and physics takes it on at its velocity
                 unreached = np.ones(self.M, dtype=bool) if far is None else far
-                set_moving = started & (moving & unreached)[None, :]
+                # seen moving beyond what the detection noise makes of a still object (a horizontal
+                # speed past SET_MOVING_SIGMAS standard errors of the fitted velocity): noise is no agent
+                set_moving = started & (moving & unreached & self.moving_beyond_noise())[None, :]
                 fresh = np.isfinite(mem.moving_since) & (mem.moving_since >= frame.t - dt - cfg.reasoner.place_dwell)
                 set_moving &= fresh[None, :] & (np.linalg.norm(state.velocities[..., :3], axis=-1)
                                                 < self.episode_rule.rest_speed)
@@ -318,6 +326,13 @@ class SceneModel:
                     fall_now, detections, set_moving if set_moving is not None and set_moving.any() else None,
                     speed_check)
 
+    def moving_beyond_noise(self) -> np.ndarray:
+        """``(M,)`` bool: objects whose perceived horizontal speed exceeds :data:`SET_MOVING_SIGMAS`
+        standard errors of their fitted velocity (per axis): seen moving, not merely noisy."""
+        mem = self.memory
+        speed = np.linalg.norm(mem.perc_vel[:, :2], axis=1)
+        return speed > SET_MOVING_SIGMAS * mem.velocity_std(self.config.noise.position_std)
+
     def unheld_overrides(self, move: Move, out: BatchOutput, supported: np.ndarray, seen: np.ndarray,
                          tick_vel: np.ndarray) -> np.ndarray | None:
         """Entries ``(K, M)`` that physics switched to HELD in this update (free before, they diverged
@@ -329,7 +344,7 @@ class SceneModel:
         if not self.config.moving_teleports:
             return None
         unreached = np.ones(self.M, dtype=bool) if move.out_of_reach is None else move.out_of_reach
-        cand = seen & unreached & self.dynamic & rolled_along(tick_vel)
+        cand = seen & unreached & self.dynamic & rolled_along(tick_vel) & self.moving_beyond_noise()
         if not np.any(cand):
             return None
         out_mask = (move.modes == FREE) & (out.modes == HELD) & cand[None, :] & supported

@@ -52,11 +52,14 @@ def test_no_particle_ever_holds_an_object_inside_static_geometry(name):
 def test_a_flicked_ball_with_no_hand_is_never_picked_and_rolls_on_the_table():
     """No hand anywhere: the ball is seen at rest, then rolling (something flicked it) until it
     vanishes behind the box. A Pick needs an agent that can reach the object: the timeline has no
-    Pick, the ball is not held from the update after its roll began, and it ends on the table."""
+    Pick, the ball is hardly held once its roll is beyond the detection noise (a few detections after
+    it began: the first ones cannot tell a 1 m/s roll from noise) and not at all after that, and it
+    ends on the table."""
     beliefs, timeline, _ = run("flicked_ball")
     assert not [e for e in timeline["events"] if e["action"] == "Pick"], timeline["events"]
-    rolling = [b for b, _ in beliefs if b.t >= 0.5 + 0.2]
-    assert all(b.objects["ball"].p_held < 0.05 for b in rolling), [round(b.objects["ball"].p_held, 2) for b in rolling]
+    held = [(b.t, round(b.objects["ball"].p_held, 2)) for b, _ in beliefs if b.t >= 0.5 + 0.2]
+    assert all(p < 0.1 for _t, p in held), held
+    assert all(p < 0.01 for t, p in held if t >= 0.5 + 0.3), held
     end = beliefs[-1][0].objects["ball"]
     assert end.hypotheses[0].relation == "isOnTop" and end.hypotheses[0].support == "table"
     assert end.position[2] > TABLE_TOP
