@@ -10,11 +10,11 @@ import shutil
 import socketserver
 import subprocess
 import sys
-import tempfile
 import threading
 from pathlib import Path
 
 import pytest
+from helpers import headless_chromium
 
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / "docs"
@@ -153,30 +153,11 @@ class _Quiet(http.server.SimpleHTTPRequestHandler):
         pass
 
 
-def _browser():
-    """A headless chromium driven by selenium, or None when chromium or its driver is absent."""
-    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
-    driver = shutil.which("chromedriver")
-    if chromium is None or driver is None:
-        return None
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
-    opts = webdriver.ChromeOptions()
-    opts.binary_location = chromium
-    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                "--disable-component-update", "--disable-sync", "--no-first-run", "--window-size=1280,800",
-                f"--user-data-dir={tempfile.mkdtemp(prefix='chromium-')}"):
-        opts.add_argument(arg)
-    opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-    return webdriver.Chrome(service=Service(driver), options=opts)
-
-
 def test_the_built_site_opens_in_a_headless_browser(site):
     out, proc = site
     assert proc.returncode == 0
     pytest.importorskip("selenium")
-    browser = _browser()
+    browser = headless_chromium()
     if browser is None:
         pytest.skip("chromium and chromedriver are not installed (apt-get install chromium chromium-driver): "
                     "the built site was not opened in a browser")

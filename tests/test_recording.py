@@ -4,12 +4,10 @@ scene, particles, two recorders in one process, ``simulate --rerun``; the live v
 import argparse
 import math
 import os
-import shutil
 import signal
 import socket
 import subprocess
 import sys
-import tempfile
 import time
 from collections import defaultdict
 
@@ -26,7 +24,7 @@ from experiments.recording import APPLICATION_ID, Recorder, RecorderOptions
 from experiments.recording_geometry import covariance_ellipsoids
 from experiments.cli.simulate import add_simulate_arguments, run_simulate
 
-from helpers import TABLE_TOP, frames, table_scene
+from helpers import TABLE_TOP, frames, table_scene, headless_chromium
 
 pytestmark = pytest.mark.filterwarnings("error::rerun.error_utils.RerunWarning")
 
@@ -411,25 +409,6 @@ def test_a_bad_live_view_address_or_a_busy_port_is_an_error(tmp_path, capsys):
         assert f"cannot listen on 0.0.0.0:{port}" in capsys.readouterr().err
 
 
-def _browser():
-    """A headless chromium driven by selenium, or None when chromium or its driver is absent."""
-    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
-    driver = shutil.which("chromedriver")
-    if chromium is None or driver is None:
-        return None
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
-    opts = webdriver.ChromeOptions()
-    opts.binary_location = chromium
-    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                "--disable-component-update", "--disable-sync", "--no-first-run", "--window-size=1280,800",
-                f"--user-data-dir={tempfile.mkdtemp(prefix='chromium-')}"):
-        opts.add_argument(arg)
-    opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-    return webdriver.Chrome(service=Service(driver), options=opts)
-
-
 def _pink_pixels(png: bytes) -> int:
     """Pixels of the screenshot drawn in the perceived colour (pink: detections and tracked hands)."""
     import io
@@ -446,7 +425,7 @@ def test_the_live_view_opens_in_a_headless_browser(tmp_path):
     from the printed address (title, canvas, no error in its console but the web font it cannot
     fetch offline) and draws the perceived box and hand in pink; a rerun client connected to the
     served stream receives the scene's entities (``world/scene/*``, ``world/belief/*``)."""
-    driver = _browser()
+    driver = headless_chromium()
     if driver is None:
         pytest.skip("chromium and chromedriver are not installed (apt-get install chromium chromium-driver): "
                     "the live view is not opened in a browser")
