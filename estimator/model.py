@@ -93,10 +93,12 @@ FUSION_SETTLED = 1.5e-3
 """A resting object whose particles' weighted mean is within this (m, horizontally) of the average of
 its detections while still takes no Kalman step: it has converged (:meth:`SceneModel.fuse_resting`)."""
 
-SET_MOVING_SIGMAS = 3.0
+SET_MOVING_SIGMAS = 4.0
 """An object at rest is set moving by an agent nobody tracks only when its perceived horizontal
-speed exceeds this many standard errors of the fitted velocity (per axis): the speed pure detection
-noise gives a still object exceeds it about once in a hundred updates (Rayleigh: exp(-9/2))."""
+speed exceeds this many standard errors of the fitted velocity (per axis). The speed pure detection
+noise gives a still object is Rayleigh: it exceeds k errors with probability exp(-k^2 / 2), and a
+run checks every still object at every update (ten objects over 50 updates: 500 checks), so k = 3
+(1 %) would set a few still objects moving per run; k = 4 (3e-4), one run in seven."""
 
 
 class SceneModel:
@@ -502,6 +504,8 @@ class SceneModel:
         # yet held in this particle), is carried: whoever moves it moves its support
         carrier = np.where((mem.shifted(CARRIER_SHIFT) & perceived)[None, :], HELD, after_physics)
         silent = carried(state.is_in, state.on_top, carrier)
+        if move.out_of_reach is not None:  # hands are tracked, none within reach of it: an action needs
+            silent = silent | move.out_of_reach[None, :]  # an agent; its particle's physics moved it
         if cfg.still_unacted:  # seen still, and at rest in its particle before or on a support where
             # it is seen: no one moved it, its particle's physics did (no events); one held still in
             # the air is held
