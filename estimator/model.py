@@ -470,7 +470,7 @@ class SceneModel:
         falling (fast, or accelerating down with nothing under it) was let go; the events."""
         hr, cfg, mem = self.config.reasoner, self.config, self.memory
         if self.geometry is not None:
-            out.poses = self.out_of_static(out.poses, out.velocities)
+            out.poses = self.out_of_static(out.poses, out.aabbs)
         new_modes = out.modes.copy()  # out.modes stays what physics made (Evidence.diverged)
         valid = np.broadcast_to(self.known, (self.K, self.M))
         on_top, is_in, supported = relations_and_support(
@@ -555,7 +555,7 @@ class SceneModel:
                 velocities[..., 2] = np.where(fell, vz_now[None, :], velocities[..., 2])
         return Settled(out.poses, velocities, ev.modes, on_top, is_in, supported, codes, vel, ev.holds, times)
 
-    def out_of_static(self, poses: np.ndarray, velocities: np.ndarray) -> np.ndarray:
+    def out_of_static(self, poses: np.ndarray, aabbs: np.ndarray) -> np.ndarray:
         """``poses (K, M, 7)`` after physics with the known dynamic objects more than
         :data:`~physics.penetration.INVARIANT_DEPTH` deep inside static geometry pushed out of it
         (:meth:`~physics.penetration.StaticGeometry.push_out`; a box test leaves out, cheaply, every
@@ -563,9 +563,10 @@ class SceneModel:
         70 cm reaches the floor at 3.7 m/s, 1.5 cm per step), and a stack whose blocks the prior
         perturbed apart is pressed into its support while the blocks separate; no particle may
         report an object inside the table or the floor. A new array when any moves; the worlds
-        reload them at the next update (they differ from what the worlds hold). ``velocities``
-        ``(K, M, 6)`` are not used (kept for the callers)."""
-        check = np.broadcast_to((self.dynamic & self.known)[None, :], poses.shape[:2])
+        reload them at the next update (they differ from what the worlds hold). ``aabbs (K, M, 2, 3)``:
+        the objects' bounding boxes after physics, which pick the candidates in one test
+        (:meth:`~physics.penetration.StaticGeometry.may_be_inside`)."""
+        check = (self.dynamic & self.known)[None, :] & self.geometry.may_be_inside(aabbs)
         if not np.any(check):
             return poses
         out = poses

@@ -99,6 +99,17 @@ class StaticGeometry:
         return np.all((lo[:, None, :] <= self._static_hi[None] - margin)
                       & (hi[:, None, :] >= self._static_lo[None] + margin), axis=2)
 
+    def may_be_inside(self, aabbs: np.ndarray, depth: float = INVARIANT_DEPTH) -> np.ndarray:
+        """``(...)`` bool: which world bounding boxes ``aabbs (..., 2, 3)`` (m, ``[min, max]``; Bullet's,
+        a little larger than the shapes) overlap a static body's box, or the floor, by more than
+        ``depth`` (m) on every axis: a superset of the objects that can be that deep inside static
+        geometry, found without a query per object."""
+        lo, hi = np.asarray(aabbs, dtype=float)[..., 0, :], np.asarray(aabbs, dtype=float)[..., 1, :]
+        if len(self._static_lo) == 0:
+            return np.zeros(lo.shape[:-1], dtype=bool)
+        over = (lo[..., None, :] <= self._static_hi - depth) & (hi[..., None, :] >= self._static_lo + depth)
+        return np.any(np.all(over, axis=-1), axis=-1)
+
     def depth_of(self, m: int, poses: np.ndarray, beyond: float = 0.0) -> np.ndarray:
         """Penetration depths ``(N,)`` (m, >= 0) of dynamic object ``m`` at link-frame ``poses (N, 7)``
         into the static bodies and the floor; 0 for non-finite and parked poses, and (skipped by the

@@ -84,3 +84,28 @@ def test_a_mesh_object_is_stopped_too(geometry):
     assert 0 < frac[0] < 1
     assert geometry.depth_of(3, new)[0] <= 0.004 + 1e-4
     assert new[0, 2] > TABLE_TOP - 0.01
+
+
+def test_the_box_prefilter_keeps_every_object_that_is_deep_inside(geometry):
+    # random poses of the ball, the box and the duck around the table top and the floor: every one
+    # more than INVARIANT_DEPTH deep must pass the prefilter (it may pass more: boxes are loose)
+    rng = np.random.default_rng(7)
+    w = geometry.world
+    n = 200
+    for m in (1, 2, 3):
+        p = np.zeros((n, 7))
+        p[:, 0] = rng.uniform(-0.9, 0.9, n)
+        p[:, 1] = rng.uniform(-0.6, 0.6, n)
+        p[:, 2] = rng.choice([TABLE_TOP, 0.0], n) + rng.uniform(-0.08, 0.08, n)
+        q = rng.normal(size=(n, 4))
+        p[:, 3:] = q / np.linalg.norm(q, axis=1, keepdims=True)
+        boxes = np.empty((n, 2, 3))
+        for i in range(n):
+            w.set_poses(p[i:i + 1], [m])
+            boxes[i] = w.aabbs([m])[0]
+        w.set_poses(w.parked_pose[[m]], [m])
+        deep = geometry.depth_of(m, p) > INVARIANT_DEPTH
+        kept = geometry.may_be_inside(boxes)
+        assert deep.sum() > 10 and not np.any(deep & ~kept)
+        assert kept.sum() < n  # and it does leave some out
+    assert geometry.may_be_inside(np.zeros((2, 3, 2, 3)) + [[0, 0, 5.0], [0.1, 0.1, 5.1]]).shape == (2, 3)
