@@ -101,7 +101,8 @@ class Belief:
     """The estimator's output at time ``t`` (s), one line of the estimate stream.
 
     ``particles`` ``(K, M, 7)`` poses and ``weights`` ``(K,)`` are kept for visualisation and search;
-    ``object_ids`` names the M columns.
+    ``object_ids`` names the M columns. ``n_particles``: with an adaptive particle count, the K of
+    this update (written to the stream as ``particles``); 0 otherwise (not written).
     """
 
     t: float
@@ -112,13 +113,17 @@ class Belief:
     object_ids: tuple[str, ...] = ()
     particles: np.ndarray | None = field(default=None, repr=False)
     weights: np.ndarray | None = field(default=None, repr=False)
+    n_particles: int = 0
 
     def to_json(self) -> dict:
-        return {"t": round(float(self.t), 6),
-                "objects": {k: v.to_json() for k, v in self.objects.items()},
-                "relations": self.relations,
-                "events": [e.to_json() for e in self.events],
-                "ess": round(float(self.ess), 3)}
+        out = {"t": round(float(self.t), 6),
+               "objects": {k: v.to_json() for k, v in self.objects.items()},
+               "relations": self.relations,
+               "events": [e.to_json() for e in self.events],
+               "ess": round(float(self.ess), 3)}
+        if self.n_particles:
+            out["particles"] = int(self.n_particles)
+        return out
 
     def relation_p(self, subject: str, predicate: str, obj: str) -> float:
         """Probability of a relation (0 when it is not listed)."""

@@ -324,10 +324,65 @@ class HandConfig:
 
 
 @dataclass(frozen=True)
+class AdaptiveConfig:
+    """A particle count that follows the belief's spread: KLD-sampling (Fox, 2003), per object.
+
+    At every update each known dynamic object's particles are put in bins: a cube of ``bin_size``
+    (m) centred on the object's weighted mean position (an object whose spread is under half a bin
+    fills one bin, wherever it stands), one set of bins per mode (free, held). A bin counts when its
+    weight is at least half a particle's share (``1 / (2 K)``). With ``k`` bins counted, Fox's bound
+
+        n(k) = (k - 1) / (2 epsilon) * (1 - 2 / (9 (k - 1)) + sqrt(2 / (9 (k - 1))) * z)^3
+
+    (``z`` the standard normal quantile of ``1 - delta``; the Wilson-Hilferty approximation of the
+    chi-square quantile) is the number of samples that keeps the Kullback-Leibler divergence between
+    that object's binned marginal and its sample estimate under ``epsilon`` with probability ``1 -
+    delta``. The filter needs the largest ``n`` over the objects, clipped to ``[min_particles,
+    max_particles]``: a joint bound over every object would count the product of their bins. The
+    orientation and the physical parameters are not binned.
+
+    The filter resamples to that count when its effective sample size falls under the threshold, as
+    always, and also when the count exceeds the present K (an object vanished in motion, a
+    hypothesis split) or falls under ``shrink_below`` times it (everything seen and at rest).
+
+    * ``enabled``: False keeps K fixed at ``EstimatorConfig.particles`` (the default).
+    * ``min_particles``, ``max_particles``: bounds on K (the worlds are built for the maximum as K
+      first reaches it, and parked, not destroyed, when K falls).
+    * ``epsilon``, ``delta``, ``bin_size`` (m), ``shrink_below``: as above.
+    """
+
+    enabled: bool = False
+    min_particles: int = 16
+    max_particles: int = 1024
+    epsilon: float = 0.05
+    delta: float = 0.01
+    bin_size: float = 0.05
+    shrink_below: float = 0.5
+
+    def __post_init__(self):
+        if not isinstance(self.enabled, bool):
+            raise ValueError(f"AdaptiveConfig.enabled must be true or false, got {self.enabled!r}")
+        for n in ("min_particles", "max_particles"):
+            v = getattr(self, n)
+            if not isinstance(v, int) or isinstance(v, bool) or v < 2:
+                raise ValueError(f"AdaptiveConfig.{n} must be an integer >= 2, got {v!r}")
+        if self.max_particles < self.min_particles:
+            raise ValueError(f"AdaptiveConfig.max_particles ({self.max_particles}) must be >= min_particles "
+                             f"({self.min_particles})")
+        _check_positive(self, "epsilon", "bin_size")
+        for n in ("delta", "shrink_below"):
+            v = getattr(self, n)
+            if not 0.0 < v < 1.0:
+                raise ValueError(f"AdaptiveConfig.{n} must be in (0, 1), got {v!r}")
+
+
+@dataclass(frozen=True)
 class EstimatorConfig:
     """Everything the estimator needs besides the scene.
 
-    * ``particles``: number of particle worlds K (1 with :meth:`NoiseConfig.off` is paper mode).
+    * ``particles``: number of particle worlds K (1 with :meth:`NoiseConfig.off` is paper mode);
+      with ``adaptive.enabled``, the count the filter starts with (clipped to its bounds).
+    * ``adaptive``: a particle count that follows the belief's spread (:class:`AdaptiveConfig`).
     * ``workers``: worker processes holding the particle worlds (0 = in this process; results do
       not depend on it).
     * ``worlds``: pybullet clients the K particle worlds are packed into, side by side (at most K;
@@ -397,6 +452,7 @@ class EstimatorConfig:
     static_clip: bool = True
     visibility_threshold: float = 0.3
     hypothesis_min_p: float = 0.02
+    adaptive: AdaptiveConfig = field(default_factory=AdaptiveConfig)
 
     def __post_init__(self):
         if not isinstance(self.particles, int) or self.particles < 1:
@@ -414,9 +470,21 @@ class EstimatorConfig:
                 raise ValueError(f"EstimatorConfig.{n} must be in [0, 1], got {v!r}")
 
     @property
+    def initial_particles(self) -> int:
+        """The number of particles the filter starts with."""
+        a = self.adaptive
+        return min(max(self.particles, a.min_particles), a.max_particles) if a.enabled else self.particles
+
+    @property
+    def max_particles(self) -> int:
+        """The most particles the filter may hold (its worlds' capacity)."""
+        return self.adaptive.max_particles if self.adaptive.enabled else self.particles
+
+    @property
     def paper_mode(self) -> bool:
         """True when this configuration is the paper's reasoner (one world, no noise)."""
-        return self.particles == 1 and self.noise.is_off and self.priors.release_on_loss == 1.0
+        return (self.particles == 1 and not self.adaptive.enabled and self.noise.is_off
+                and self.priors.release_on_loss == 1.0)
 
     @classmethod
     def paper(cls, reasoner: ReasonerConfig | None = None) -> "EstimatorConfig":
@@ -429,7 +497,8 @@ class EstimatorConfig:
 
 
 SECTIONS: dict[str, type] = {"reasoner": ReasonerConfig, "noise": NoiseConfig, "priors": ModePriors,
-                             "hands": HandConfig, "relations": RelationConfig, "physics": PhysicsSettings}
+                             "hands": HandConfig, "relations": RelationConfig, "physics": PhysicsSettings,
+                             "adaptive": AdaptiveConfig}
 """The nested sections of :class:`EstimatorConfig`, by field name."""
 
 BASES = ("paper", "particles")

@@ -19,6 +19,12 @@ One update (time t, previous update at t0, ``n = round((t - t0) / time_step)`` s
 first update simulates nothing, so that simulated time is the stream's time): perceive -> move (model)
 -> propagate (pool) -> settle and weigh (model) -> summarise (belief, timeline) -> resample when the
 effective sample size is below the threshold, then regularise (model).
+
+With :class:`~estimator.config.AdaptiveConfig` enabled the number of particles K changes at
+resampling: each update computes the count the belief needs (:func:`~estimator.adaptive.particles_needed`,
+KLD-sampling) and resamples to it when it exceeds K or falls under ``shrink_below`` K (and, at
+every resampling, resamples to it). Particle ``i`` always lives in the same world slot; the pool
+parks the worlds of the slots beyond K and builds new ones as K first reaches them.
 """
 from __future__ import annotations
 
@@ -32,6 +38,7 @@ from actions.events import recent_events, record_event_times
 from actions.modes import FREE, HELD
 from physics.scene import Scene
 
+from .adaptive import particles_needed
 from .belief import Belief, compute_belief, headline_positions, with_added_variance
 from .config import EstimatorConfig, reasoning_due
 from .holding import hidden_places, lowest_hidden_place, resting_place
@@ -94,9 +101,10 @@ class SceneEstimator:
         self.config = cfg = config or EstimatorConfig.paper()
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self.object_ids = scene.object_ids
-        K, M = cfg.particles, len(scene.objects)
+        K, M = cfg.initial_particles, len(scene.objects)
         self.K, self.M = K, M
-        self.pool = WorldPool(scene, K, cfg.workers, cfg.physics, cfg.worlds)
+        self.pool = WorldPool(scene, K, cfg.workers, cfg.physics, cfg.worlds,
+                              max_particles=cfg.max_particles if cfg.adaptive.enabled else None)
         try:
             self.memory = PerceptionMemory(scene, initial_poses(scene)[0], cfg.reasoner, cfg.follow_hands,
                                            from_onset=cfg.moving_teleports, hands=cfg.hands)
@@ -112,6 +120,9 @@ class SceneEstimator:
         self.recoveries = 0
         self._weighed = np.zeros(self.M, dtype=bool)  # objects some evidence weighed since the last resampling
         self.reseeded = 0  # particles re-seeded from survivors (exploded simulations, dead workers)
+        self.needed = K  # with adaptive K: the count the belief needed at the last update
+        self.bins = np.zeros(M, dtype=int)  # with adaptive K: each object's bins counted then
+        self.k_range = [K, K, 0]  # the fewest and the most particles over the updates, and their sum
         self.n_updates = 0
         self.last_belief: Belief | None = None
         self.t_frame: float | None = None
@@ -282,13 +293,22 @@ class SceneEstimator:
                                 cov_floor=cfg.noise.covariance_floor_std ** 2,
                                 dof=cfg.noise.position_dof or math.inf, params=self.state.params)
         belief = self._with_speed_variance(belief, detected, dt)
+        if cfg.adaptive.enabled:  # the count this belief needs, and the K that made it
+            self.needed, self.bins = particles_needed(settled.poses, settled.modes, weights,
+                                                      self.known & self.dynamic, cfg.adaptive)
+            belief = dataclasses.replace(belief, n_particles=K)
+        self.k_range = [min(self.k_range[0], K), max(self.k_range[1], K), self.k_range[2] + K]
         if self.scene.person is not None:
             belief = self._with_person(belief, settled.poses, weights)
         self._update_timeline(t, belief)
         # resample; particles whose simulation exploded or whose worker died take a survivor's state
         self._weighed |= detected | np.any(evidence.visible >= cfg.visibility_threshold, axis=0)
-        if K > 1 and ess < cfg.resample_threshold * K:
-            self._resample(weights, self.known & self.dynamic & ~perceived, settled)
+        n, resize = K, False
+        if cfg.adaptive.enabled:
+            n = self.needed
+            resize = n > K or n < cfg.adaptive.shrink_below * K
+        if K > 1 and (ess < cfg.resample_threshold * K or resize):
+            self._resample(weights, self.known & self.dynamic & ~perceived, settled, n)
         elif K > 1 and np.any(bad) and np.any(weights > 0):
             self._reseed(bad, weights)
         if K > 1 and np.any(bad) and np.any(weights > 0):
@@ -380,23 +400,39 @@ class SceneEstimator:
             push_decided=s.push_decided, holds=settled.holds,
             jitter=move.jitter * (settled.modes == FREE)[..., None])  # held: at the target, no noise
 
-    def _resample(self, weights: np.ndarray, hidden: np.ndarray, settled: Settled) -> None:
-        """Systematic resampling, then the model's regularisation of hidden objects ``hidden (M,)`` and
-        of the physical parameters. The worlds keep what they hold (``_world_poses``).
+    def _resample(self, weights: np.ndarray, hidden: np.ndarray, settled: Settled, n: int | None = None) -> None:
+        """Systematic resampling to ``n`` particles (default K), then the model's regularisation of
+        hidden objects ``hidden (M,)`` and of the physical parameters. The worlds keep what they hold
+        (``_world_poses``).
 
         Hidden objects that nothing weighed since the last resampling (never detected nor in view in
         any particle since, see :attr:`_weighed`), free and at rest in every particle, and supporting
         nothing, keep each particle's own values (:meth:`ParticleState.take`): the weights are about
         other objects, and resampling them too would only lose their spread (a cube picked up in
         plain view left a marble hidden in a bin one particle's position). They need no kernel."""
-        anc = keep_survivors_in_place(systematic_resample(weights, self.rng))
+        anc = keep_survivors_in_place(systematic_resample(weights, self.rng, n))
         own = hidden & ~self._weighed & self.model.unweighable(settled)
         kernels = self.model.regularisation_kernels(self.state.poses, weights, hidden & ~own)
         self.state = self.state.take(anc, own)
         self._weighed = np.zeros(self.M, dtype=bool)
         if self._produced is not None:
             self._produced = (self._produced[0][anc], self._produced[1][anc])
+        if len(anc) != self.K:
+            self._resize(len(anc))
         self.model.regularise(self.state, kernels, self.rng)
+
+    def _resize(self, n: int) -> None:
+        """K becomes ``n`` (the state already has ``n`` rows): the slots beyond ``n`` will be parked
+        by the pool (what their worlds held is forgotten: they load in full when K grows again)."""
+        log.debug("particles: %d -> %d", self.K, n)
+        old = self.K
+        self.K = self.model.K = n
+        if self._world_poses is not None:
+            keep = min(old, n)
+            poses = np.full((n, self.M, 7), np.nan)
+            vel = np.full((n, self.M, 6), np.nan)
+            poses[:keep], vel[:keep] = self._world_poses[:keep], self._world_vel[:keep]
+            self._world_poses, self._world_vel = poses, vel
 
     def _reseed(self, bad: np.ndarray, weights: np.ndarray) -> None:
         """Particles ``bad (K,)`` take the state (and weight) of survivors drawn by ``weights (K,)``

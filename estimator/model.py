@@ -117,7 +117,7 @@ class SceneModel:
         self.scene = scene
         self.config = config
         self.memory = memory
-        self.K, self.M = config.particles, len(scene.objects)
+        self.K, self.M = config.initial_particles, len(scene.objects)  # K changes with adaptive K (the filter sets it)
         self.static = np.array([o.static for o in scene.objects], dtype=bool)
         self.dynamic = ~self.static
         self.hollow = np.array(scene.hollow, dtype=bool)

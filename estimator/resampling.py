@@ -29,17 +29,21 @@ def effective_sample_size(weights: np.ndarray) -> float:
     return float(1.0 / np.sum(w * w))
 
 
-def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Ancestor indices ``(K,)`` by systematic resampling (one uniform draw, K evenly spaced points).
+def systematic_resample(weights: np.ndarray, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
+    """Ancestor indices ``(n,)`` (default ``n = K``, the length of ``weights``) by systematic
+    resampling: one uniform draw, ``n`` evenly spaced points.
 
     The cumulative sum is pinned to exactly 1 at its end so that round-off never yields index K.
     """
     w = np.asarray(weights, dtype=float)
     k = len(w)
+    n = k if n is None else int(n)
+    if n < 1:
+        raise ValueError(f"systematic_resample needs n >= 1, got {n}")
     cum = np.cumsum(w)
     cum /= cum[-1]
     cum[-1] = 1.0
-    points = (rng.random() + np.arange(k)) / k
+    points = (rng.random() + np.arange(n)) / n
     return np.searchsorted(cum, points, side="right").clip(0, k - 1)
 
 
@@ -50,17 +54,19 @@ def multinomial_resample(weights: np.ndarray, rng: np.random.Generator) -> np.nd
 
 
 def keep_survivors_in_place(ancestors: np.ndarray) -> np.ndarray:
-    """The same multiset of ancestor indices ``(K,)``, permuted so that every ancestor that survives
-    is copied into its own slot (``out[a] == a`` for each ``a`` in ``ancestors``); the extra copies
-    fill the slots of the particles that died, in increasing order. A particle world keeps what it
-    holds when its slot keeps its particle, so fewer worlds must load a new state (and wake).
-    Deterministic; the slots' order carries no meaning for the filter."""
+    """The same multiset of ancestor indices ``(n,)``, permuted so that every ancestor ``a < n`` that
+    survives is copied into its own slot (``out[a] == a``); the other copies fill the remaining
+    slots in increasing order of ancestor. A particle world keeps what it holds when its slot keeps
+    its particle, so fewer worlds must load a new state (and wake). Deterministic; the slots' order
+    carries no meaning for the filter. (``n`` may differ from the number of particles resampled, when
+    the filter changes its particle count.)"""
     anc = np.asarray(ancestors)
-    k = len(anc)
-    out = np.full(k, -1, dtype=anc.dtype)
-    survivors = np.unique(anc)
+    n = len(anc)
+    out = np.full(n, -1, dtype=anc.dtype)
+    survivors = np.unique(anc[anc < n])
     out[survivors] = survivors
-    counts = np.bincount(anc, minlength=k)
-    extra = np.repeat(np.arange(k), np.maximum(counts - 1, 0))  # one entry per extra copy, sorted
+    counts = np.bincount(anc, minlength=n)
+    counts[survivors] -= 1
+    extra = np.repeat(np.arange(len(counts)), counts)  # one entry per copy not yet placed, sorted
     out[out < 0] = extra
     return out

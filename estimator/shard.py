@@ -18,7 +18,7 @@ from physics.visibility import (Camera, local_box, local_sample_points, rays_cle
                                 solid_box, visible_enough, visible_fractions)
 from physics.world import PhysicsSettings, World
 
-from .propagate import BatchInput, BatchOutput, ParticleWorld, propagate_batch
+from .propagate import PER_PARTICLE, BatchInput, BatchOutput, ParticleWorld, propagate_batch
 from .shared_batch import SharedBatch
 
 log = logging.getLogger(__name__)
@@ -50,18 +50,32 @@ def camera_key(spec: CameraSpec) -> tuple:
 
 class _Shard:
     """The particle slots of consecutive groups ``[(lo, hi), ...]`` (one client each); runs in a
-    worker process or in the caller's."""
+    worker process or in the caller's.
 
-    def __init__(self, scene: Scene, settings: PhysicsSettings, groups: list[tuple[int, int]]):
+    ``active`` ``(n,)`` bool over the shard's ``n`` slots (default all): the slots in use. A group
+    builds its copies up to its last slot in use (at least one), and more as later runs use more
+    (:meth:`WorldGroup.grow`); a slot that falls out of use has its objects parked (asleep, no
+    collisions: stepping its client costs next to nothing for it)."""
+
+    def __init__(self, scene: Scene, settings: PhysicsSettings, groups: list[tuple[int, int]],
+                 active: np.ndarray | None = None):
+        n = groups[-1][1] - groups[0][0]
+        active = np.ones(n, bool) if active is None else np.asarray(active, bool)
         self.groups: list[WorldGroup] = []
+        self._first = [lo - groups[0][0] for lo, _ in groups]  # each group's first slot, shard-local
+        self._group_of = [j for j, (lo, hi) in enumerate(groups) for _ in range(lo, hi)]  # slot -> its client
+        self.worlds: list[ParticleWorld | None] = [None] * n
+        self._active = np.zeros(n, bool)
         try:
-            for lo, hi in groups:
-                self.groups.append(WorldGroup(scene, settings, hi - lo))
+            for j, (lo, hi) in enumerate(groups):
+                used = np.flatnonzero(active[self._first[j]:self._first[j] + hi - lo])
+                g = WorldGroup(scene, settings, 1 + (int(used[-1]) if len(used) else 0), capacity=hi - lo)
+                self.groups.append(g)
+                for c, w in enumerate(g.worlds):
+                    self.worlds[self._first[j] + c] = ParticleWorld(w)
         except BaseException:
             self.close()
             raise
-        self.worlds = [ParticleWorld(w) for g in self.groups for w in g.worlds]
-        self._group_of = [j for j, g in enumerate(self.groups) for _ in g.worlds]  # slot -> its client
         self.scene_boxes = self.worlds[0].world.aabbs()  # (M, 2, 3): as built, at the scene's poses
         self._saved: list[int] = []
         # per camera: world -> (poses, fractions) of its last ray tests (the most recent cameras)
@@ -72,6 +86,8 @@ class _Shard:
         self.points = None
         if self.camera is not None:
             self._sample_points(self.worlds[0].world)
+        self._active = np.array([w is not None for w in self.worlds])
+        self.use(active)  # a copy built for its group but not in use is parked
 
     def _sample_points(self, w: World) -> None:
         """Sample points, box centres and radii of every object, read from world ``w``."""
@@ -109,16 +125,52 @@ class _Shard:
                       d["restitution"], d["mass"]]
         return out
 
+    def use(self, active: np.ndarray) -> list[int]:
+        """Put the slots ``active (n,)`` bool in use (building their copies where missing) and park
+        the objects of those that fall out of use; returns the slots in use, in increasing order."""
+        active = np.asarray(active, bool)
+        for k in np.flatnonzero(self._active & ~active).tolist():
+            w = self.worlds[k].world
+            dyn = [int(i) for i in w.dynamic_indices]
+            w.set_poses(w.parked_pose[dyn], dyn)
+            for cache in self._vis_caches.values():
+                cache.pop(k, None)
+        for k in np.flatnonzero(active).tolist():
+            if self.worlds[k] is None:
+                j = self._group_of[k]
+                g = self.groups[j]
+                g.grow(k - self._first[j] + 1)
+                for c, w in enumerate(g.worlds):
+                    if self.worlds[self._first[j] + c] is None:
+                        self.worlds[self._first[j] + c] = ParticleWorld(w)
+        self._active = active.copy()
+        return np.flatnonzero(active).tolist()
+
     def run(self, batch: BatchInput, n_steps: int, d_sim_perc: float, lazy: bool = False,
-            moving: bool = False, cameras: tuple[CameraSpec, ...] | None = None) -> BatchOutput:
-        out = propagate_batch(self.worlds, batch, n_steps, d_sim_perc, lazy, moving)
+            moving: bool = False, cameras: tuple[CameraSpec, ...] | None = None,
+            active: np.ndarray | None = None) -> BatchOutput:
+        """Propagate the worlds of the slots ``active (n,)`` bool (None: all of them) from their rows
+        of ``batch`` (one row per slot of the shard); the output has one row per slot in use, in
+        increasing order of slot."""
+        if active is None:
+            slots = list(range(len(self.worlds)))
+        else:
+            slots = self.use(active)
+            if len(slots) < len(self.worlds):
+                batch = BatchInput(*(getattr(batch, f)[slots] if getattr(batch, f) is not None else None
+                                     for f in PER_PARTICLE), batch.vis_query)
+        if not slots:  # none of this shard's slots in use (few particles)
+            M = batch.poses.shape[1]
+            return BatchOutput(np.zeros((0, M, 7)), np.zeros((0, M, 6)), np.zeros((0, M), np.int8), np.zeros((0, M)),
+                               np.zeros((0, M, 2, 3)), np.zeros(0, bool), np.zeros((0, M)))
+        out = propagate_batch([self.worlds[k] for k in slots], batch, n_steps, d_sim_perc, lazy, moving)
         q = np.flatnonzero(batch.vis_query) if batch.vis_query is not None else np.zeros(0, int)
         if cameras is None:
             cams = [self.camera] if self.camera is not None else []
         else:
             cams = [self.camera_for(c) for c in cameras]
         if cams and len(q):  # several cameras: an object is as visible as the best of them shows it
-            out.visible[:, q] = np.max([self._visibility(c, out.poses, out.finite, q) for c in cams], axis=0)
+            out.visible[:, q] = np.max([self._visibility(c, out.poses, out.finite, q, slots) for c in cams], axis=0)
         return out
 
     def look(self, poses: np.ndarray, place: np.ndarray, targets: np.ndarray, cameras: tuple[CameraSpec, ...],
@@ -132,7 +184,7 @@ class _Shard:
         cams = [self.camera_for(c) for c in cameras]
         place = [int(i) for i in place]
         targets = [int(i) for i in targets]
-        slots = np.flatnonzero(np.ones(len(self.worlds), bool) if only is None else only).tolist()
+        slots = np.flatnonzero((np.ones(len(self.worlds), bool) if only is None else only) & self._active).tolist()
         out = np.zeros((len(cams), len(self.worlds), len(targets)), bool if threshold is not None else float)
         if not slots:
             return out
@@ -159,23 +211,24 @@ class _Shard:
                 self.groups[j].restore_state(sid)
                 self.groups[j].remove_state(sid)
 
-    def _visibility(self, camera: Camera, poses: np.ndarray, finite: np.ndarray, q: np.ndarray) -> np.ndarray:
-        """Visible fractions ``(K, len(q))`` of objects ``q`` in the worlds at ``poses (K, M, 7)``
-        (zero for exploded worlds). An object keeps the answer of its world's last ray tests when it
-        has not moved (bit for bit) and nothing that moved since came near its rays
-        (:func:`~physics.visibility.rays_clear_of`): most of a resting scene casts no ray."""
+    def _visibility(self, camera: Camera, poses: np.ndarray, finite: np.ndarray, q: np.ndarray,
+                    slots: list[int]) -> np.ndarray:
+        """Visible fractions ``(K, len(q))`` of objects ``q`` in the worlds of ``slots`` (K of them)
+        at ``poses (K, M, 7)`` (zero for exploded worlds). An object keeps the answer of its world's
+        last ray tests when it has not moved (bit for bit) and nothing that moved since came near its
+        rays (:func:`~physics.visibility.rays_clear_of`): most of a resting scene casts no ray."""
         key = camera_key(camera.spec)
         cache = self._vis_caches.pop(key, {})
         self._vis_caches[key] = cache  # the most recent last
         while len(self._vis_caches) > VISIBILITY_CACHED_CAMERAS:
             self._vis_caches.popitem(last=False)
-        K, n = len(self.worlds), len(q)
+        K, n = len(slots), len(q)
         vis = np.zeros((K, n))
         need = np.zeros((K, n), dtype=bool)
         now = poses[..., :3] + quat_rotate(poses[..., 3:], self.box_centres[None])  # (K, M, 3), at once
         for k in np.flatnonzero(finite).tolist():
             need[k] = True
-            cached = cache.get(k)
+            cached = cache.get(slots[k])
             if cached is None:
                 continue
             old, row, old_centres = cached
@@ -190,13 +243,13 @@ class _Shard:
             need[k] = ~keep
         todo = np.flatnonzero(need.any(axis=1)).tolist()
         if todo:
-            fresh = visible_fractions([self.worlds[k].world for k in todo], camera, q, self.points,
+            fresh = visible_fractions([self.worlds[slots[k]].world for k in todo], camera, q, self.points,
                                       poses[np.ix_(todo, q)], need[todo])
             vis[todo] = np.where(need[todo], fresh, vis[todo])
         for k in np.flatnonzero(finite).tolist():
             row = np.full(poses.shape[1], np.nan)
             row[q] = vis[k]
-            cache[k] = (poses[k].copy(), row, now[k])
+            cache[slots[k]] = (poses[k].copy(), row, now[k])
         return vis
 
     def bare_step(self, n_steps: int) -> None:
@@ -225,11 +278,11 @@ class _Shard:
             g.close()
 
 
-def _worker_main(conn, scene, settings, groups, buffer, n_particles):
+def _worker_main(conn, scene, settings, groups, buffer, n_particles, active=None):
     shard = None
     lo, hi = groups[0][0], groups[-1][1]
     try:
-        shard = _Shard(scene, settings, groups)
+        shard = _Shard(scene, settings, groups, active)
         shared = SharedBatch(buffer, n_particles, len(scene.objects))
         conn.send(("ok", (shard.initial_params(), shard.scene_boxes)))
         while True:
@@ -250,9 +303,10 @@ def _worker_main(conn, scene, settings, groups, buffer, n_particles):
                     getattr(shard, msg[0])()
                 conn.send(("ok", time.perf_counter() - t0))
                 continue
-            _, n_steps, d, lazy, moving, cameras = msg
+            _, n_steps, d, lazy, moving, cameras, used = msg
             try:
-                shared.write_outputs(lo, hi, shard.run(shared.inputs(lo, hi), n_steps, d, lazy, moving, cameras))
+                out = shard.run(shared.inputs(lo, hi), n_steps, d, lazy, moving, cameras, used)
+                shared.write_outputs(lo, hi, out, None if used is None else lo + np.flatnonzero(used))
                 conn.send(("ok", time.perf_counter() - t0))  # the reply carries the worker's time
             except Exception:  # report, keep serving
                 conn.send(("error", traceback.format_exc()))

@@ -87,11 +87,13 @@ class ParticleState:
         if own is None or not np.any(own):
             return out
         idx = np.flatnonzero(own)
+        n = min(len(ancestors), len(self.poses))  # rows beyond the old K keep the ancestor's values
         for name in ("poses", "velocities", "params", "supported", "on_top", "is_in"):
-            getattr(out, name)[:, idx] = getattr(self, name)[:, idx]
+            getattr(out, name)[:n, idx] = getattr(self, name)[:n, idx]
         M = self.poses.shape[1]
-        support = self.is_in[:, idx] | self.on_top[:, idx, :M]  # (K, n, M)
-        for k, j in zip(*np.nonzero(support.any(axis=-1))):
-            m, c = idx[j], int(np.argmax(support[k, j]))  # its first support, as an index
+        support = self.is_in[:n, idx] | self.on_top[:n, idx, :M]  # (n, len(idx), M)
+        k, j = np.nonzero(support.any(axis=-1))
+        if len(k):
+            m, c = idx[j], np.argmax(support[k, j], axis=-1)  # each one's first support, as an index
             out.poses[k, m] = carry_pose(self.poses[k, m], self.poses[k, c], out.poses[k, c])
         return out

@@ -29,27 +29,46 @@ SPACING = 200.0
 class WorldGroup:
     """``copies`` copies of ``scene`` in one DIRECT client: ``worlds[g]`` is copy ``g``.
 
-    Use as a context manager or call :meth:`close` (which disconnects the client)."""
+    ``capacity`` (default ``copies``): the most copies the group will hold; the grid of origins is
+    laid out for it, so that copies added later by :meth:`grow` take the places they would have had
+    if built at once. Use as a context manager or call :meth:`close` (which disconnects the client)."""
 
-    def __init__(self, scene: Scene, settings: PhysicsSettings | None = None, copies: int = 1):
+    def __init__(self, scene: Scene, settings: PhysicsSettings | None = None, copies: int = 1,
+                 capacity: int | None = None):
         if copies < 1:
             raise ValueError(f"a world group needs at least one copy, got {copies}")
+        capacity = copies if capacity is None else int(capacity)
+        if capacity < copies:
+            raise ValueError(f"a world group's capacity ({capacity}) must be >= its copies ({copies})")
+        self.scene, self.capacity = scene, capacity
         self.settings = settings or PhysicsSettings()
         self.client, floor_uid = connect(self.settings, scene.floor)
         # every island of contacts is solved alone (pybullet merges small ones by default): a copy's
         # solver then stops at its own residual, whatever its neighbours do (and steps ~10 % faster)
         pb.setPhysicsEngineParameter(minimumSolverIslandSize=1, physicsClientId=self.client)
         self.worlds: list[World] = []
+        self._floor_uid = floor_uid
+        self._shapes: dict[int, int] = {}  # the copies share their primitives' collision shapes
         try:
-            cols = math.ceil(math.sqrt(copies))
-            shapes: dict[int, int] = {}  # the copies share their primitives' collision shapes
-            for g in range(copies):
-                origin = (SPACING * (g % cols), SPACING * (g // cols), 0.0)
-                self.worlds.append(World(scene, self.settings, client=self.client, origin=origin,
-                                         floor_uid=floor_uid, shapes=shapes))
+            self.grow(copies)
         except BaseException:
             self.close()
             raise
+
+    def grow(self, copies: int) -> list[World]:
+        """Add copies until the group holds ``copies`` (at most its capacity); returns those added.
+        A copy added later is the copy that would have been built at once (same place, same
+        bodies, its objects parked until loaded)."""
+        if copies > self.capacity:
+            raise ValueError(f"a world group of capacity {self.capacity} cannot hold {copies} copies")
+        cols = math.ceil(math.sqrt(self.capacity))
+        added = []
+        for g in range(len(self.worlds), copies):
+            origin = (SPACING * (g % cols), SPACING * (g // cols), 0.0)
+            added.append(World(self.scene, self.settings, client=self.client, origin=origin,
+                               floor_uid=self._floor_uid, shapes=self._shapes))
+            self.worlds.append(added[-1])
+        return added
 
     @property
     def origins(self) -> np.ndarray:

@@ -496,3 +496,19 @@ def test_run_stream_memory_does_not_grow_over_an_endless_standard_input(tmp_path
     a, b = (marks[k].filter_traces(project) for k in (n0 + n, n0 + 2 * n))
     growth = sum(s.size_diff for s in b.compare_to(a, "filename"))
     assert growth < 4096, b.compare_to(a, "lineno")[:5]
+
+
+def test_run_with_an_adaptive_particle_count_reports_k_per_estimate(files, capsys):
+    tmp, scene, obs = files
+    out = tmp / "e.jsonl"
+    assert main(["run", "--scene", str(scene), "--observations", str(obs), "--out", str(out), "--workers", "0",
+                 "--particles", "auto", "--min-particles", "8", "--max-particles", "96"]) == 0
+    ks = [json.loads(x)["particles"] for x in out.read_text().splitlines()]
+    assert ks[0] == 64 and 8 in ks and max(ks) <= 96  # starts at 64; one box seen at rest needs the fewest
+    assert re.search(r"particles \(adaptive\): 8 to \d+", capsys.readouterr().out)
+    for bad in (["--particles", "many"], ["--particles", "0"]):
+        with pytest.raises(SystemExit):
+            main(["run", "--scene", str(scene), "--observations", str(obs)] + bad)
+    assert main(["run", "--scene", str(scene), "--observations", str(obs), "--particles", "32",
+                 "--max-particles", "64"]) == 2
+    assert "go with --particles auto" in capsys.readouterr().err

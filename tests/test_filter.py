@@ -1012,3 +1012,43 @@ def test_a_rolling_balls_friction_posterior_follows_its_motion_beyond_the_prior(
         assert mean > 1.6 * nominal
     else:
         assert mean < 0.9 * nominal
+
+
+# -- the adaptive particle count (AdaptiveConfig) ------------------------------------------------------
+from estimator.config import AdaptiveConfig  # noqa: E402
+
+
+def _adaptive(max_particles=512, workers=0):
+    return EstimatorConfig(particles=64, workers=workers, noise=NoiseConfig(),
+                           adaptive=AdaptiveConfig(enabled=True, max_particles=max_particles))
+
+
+def test_the_adaptive_count_falls_to_its_minimum_on_a_resting_scene_and_grows_when_a_ball_rolls_out_of_view():
+    boxes = [dict(BOX, id=f"b{i}", pose={"position": [0.2 * i - 0.2, 0.1, TABLE_TOP + 0.03]}) for i in range(3)]
+    frs = frames(times(1.5), lambda t: {f"b{i}": [0.2 * i - 0.2, 0.1, TABLE_TOP + 0.03] for i in range(3)})
+    with SceneEstimator(table_scene(*boxes), _adaptive(), np.random.default_rng(4)) as est:
+        ks = [b.n_particles for b in est.run(frs)]
+        assert ks[0] == 64 and all(k == 16 for k in ks[4:])  # within a few updates, and it stays there
+        assert est.pool.shard_sizes == [16]
+        line = est.last_belief.to_json()
+        assert line["particles"] == 16
+    scene, frs, _final, (t_last, _p), _truth = _flicked_ball()
+    with SceneEstimator(scene, _adaptive(), np.random.default_rng(4)) as est:
+        out = [(b.t, b.n_particles) for b in est.run(frs)]
+    at_rest = [k for t, k in out if 0.1 < t < 0.5]
+    gone = [k for t, k in out if t > t_last + 1.0]
+    assert at_rest and max(at_rest) == 16
+    # out of view, its rolling friction unknown within a factor of four: it could be anywhere along
+    # tens of centimetres, many 5 cm bins: the count grows far beyond where it started
+    assert min(gone) > 200 and max(gone) <= 512
+
+
+def test_the_adaptive_count_gives_the_same_output_whatever_the_number_of_workers():
+    scene, frs, *_ = _flicked_ball()
+    outs = []
+    for workers in (0, 1, 2):
+        with SceneEstimator(scene, _adaptive(160, workers), np.random.default_rng(9)) as est:
+            outs.append(([json.dumps(b.to_json()) for b in est.run(frs)], est.timeline.to_json()))
+    assert outs[0] == outs[1] == outs[2]
+    ks = {json.loads(line)["particles"] for line in outs[0][0]}
+    assert min(ks) == 16 and max(ks) == 160  # it shrank and grew in the run compared

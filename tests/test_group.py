@@ -69,3 +69,18 @@ def test_saved_state_covers_every_copy():
 def test_a_group_needs_a_copy():
     with pytest.raises(ValueError, match="at least one copy"):
         WorldGroup(SCENE, copies=0)
+
+
+def test_copies_added_later_take_the_places_they_would_have_had_built_at_once():
+    with WorldGroup(SCENE, copies=7) as whole, WorldGroup(SCENE, copies=2, capacity=7) as grown:
+        assert len(grown.worlds) == 2
+        added = grown.grow(5)
+        assert len(added) == 3 and len(grown.worlds) == 5 and grown.grow(5) == []
+        grown.grow(7)
+        assert np.array_equal(grown.origins, whole.origins)
+        for w in grown.worlds:
+            assert np.allclose(w.get_poses([1])[0, :3], [0, 0, TABLE_TOP + 0.3])
+        with pytest.raises(ValueError):
+            grown.grow(8)
+    with pytest.raises(ValueError):
+        WorldGroup(SCENE, copies=3, capacity=2)

@@ -111,7 +111,7 @@ def test_a_scenario_with_camera_hidden_objects_and_a_hand_gives_the_same_output_
 
 MEMORY_SCRIPT = """
 import os, sys, numpy as np, psutil
-from estimator.config import EstimatorConfig, NoiseConfig
+from estimator.config import AdaptiveConfig, EstimatorConfig, NoiseConfig
 from estimator.filter import SceneEstimator
 from estimator.observations import parse_frame
 from experiments.simulation.simulator import simulate
@@ -119,7 +119,11 @@ from experiments.simulation.simulator import simulate
 def main():
     res = simulate("cluttered_table", 0, duration=1.0)
     frames = [parse_frame(o, known_ids=res.scene.object_ids) for o in res.observations]
-    cfg = EstimatorConfig(particles=int(sys.argv[1]), workers=2, noise=NoiseConfig())
+    k = int(sys.argv[1])
+    cfg = EstimatorConfig(particles=k, workers=2, noise=NoiseConfig())
+    if len(sys.argv) > 2:  # the adaptive count held at k: every slot built and in use
+        cfg = EstimatorConfig(particles=k, workers=2, noise=NoiseConfig(),
+                              adaptive=AdaptiveConfig(enabled=True, min_particles=k, max_particles=k))
     peak = 0.0
     with SceneEstimator(res.scene, cfg, np.random.default_rng(0)) as est:
         procs = [psutil.Process()] + [psutil.Process(p) for p in est.pool.worker_pids()]
@@ -133,8 +137,8 @@ if __name__ == "__main__":
 """
 
 
-@pytest.mark.parametrize("k, bound_mb", [(64, 1024)])
-def test_peak_memory_of_all_processes_stays_under_the_bound(tmp_path, k, bound_mb):
+@pytest.mark.parametrize("k, bound_mb, adaptive", [(64, 1024, False), (1024, 2048, True)])
+def test_peak_memory_of_all_processes_stays_under_the_bound(tmp_path, k, bound_mb, adaptive):
     """The heaviest built-in scene (twelve objects, URDF meshes) with its camera: the estimator's
     process and its two workers together, in a fresh interpreter."""
     import subprocess
@@ -142,7 +146,8 @@ def test_peak_memory_of_all_processes_stays_under_the_bound(tmp_path, k, bound_m
 
     script = tmp_path / "memory.py"
     script.write_text(MEMORY_SCRIPT)
-    out = subprocess.run([sys.executable, str(script), str(k)], capture_output=True, text=True, timeout=300)
+    out = subprocess.run([sys.executable, str(script), str(k)] + (["auto"] if adaptive else []),
+                         capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr
     peak = float(out.stdout.strip().splitlines()[-1])
     assert 0 < peak < bound_mb
@@ -249,3 +254,43 @@ def test_a_shard_keeps_a_bounded_number_of_cameras_the_scenes_always_first_built
         assert shard.camera_for(specs[0]) is not first  # the oldest was dropped, and is built again
     finally:
         shard.close()
+
+
+def test_a_pool_with_room_for_more_spreads_any_k_over_its_clients_builds_as_needed_and_parks_what_it_drops():
+    from estimator.pool import interleaved_slots
+
+    assert interleaved_slots([(0, 3), (3, 6), (6, 8)]).tolist() == [0, 3, 6, 1, 4, 7, 2, 5]
+    m = 2
+    for workers in (0, 2):
+        with WorldPool(SCENE, 3, workers, worlds=4, max_particles=16) as pool:
+            assert pool.slot_of[:4].tolist() == [0, 4, 8, 12] and sorted(pool.slot_of) == list(range(16))
+            assert pool.shard_sizes == ([3] if workers == 0 else [2, 1])
+            outs = {}
+            for k in (3, 9, 2, 9):  # grow, shrink, grow back: the dropped slots load in full again
+                poses = np.zeros((k, m, 7))
+                poses[..., 6] = 1
+                poses[:, 1, 2] = TABLE_TOP + 0.05 + 0.01 * np.arange(k)
+                out = pool.run(batch(k, m, poses), 120, 0.045)
+                assert out.poses.shape == (k, m, 7) and out.finite.all()
+                # particle i fell from its own height onto the table, whatever slot it lives in
+                assert np.allclose(out.poses[:, 1, 2], TABLE_TOP + 0.05, atol=2e-3)
+                assert np.allclose(out.poses[:, 1, :2], 0.0, atol=1e-3)
+                outs.setdefault(k, []).append(out.poses)
+                if workers == 0 and k == 2:  # the seven dropped: parked
+                    shard = pool._local
+                    parked = [j for j in range(16) if shard.worlds[j] is not None and not shard._active[j]]
+                    assert len(parked) == 7 and all(shard.worlds[j].world.is_parked(1) for j in parked)
+            assert sum(pool.shard_sizes) == 9
+            if workers == 0:
+                shard = pool._local
+                built = [w is not None for w in shard.worlds]
+                # particles 0-8 in slots 0 4 8 12 1 5 9 13 2: copies up to each client's last used slot
+                assert [len(g.worlds) for g in shard.groups] == [3, 2, 2, 2] and sum(built) == 9
+            first = outs
+        if workers == 0:
+            local = first
+        else:
+            for k in local:  # the same particles in the same slots: bit for bit, whatever the workers
+                assert all(np.array_equal(a, b) for a, b in zip(local[k], first[k]))
+    with pytest.raises(ValueError):
+        WorldPool(SCENE, 8, 0, max_particles=4)

@@ -59,3 +59,21 @@ def test_keep_survivors_in_place_permutes_the_ancestors():
         assert np.all(out[survivors] == survivors)
     assert list(keep_survivors_in_place(np.array([0, 0, 2, 3, 3, 3]))) == [0, 0, 2, 3, 3, 3]
     assert list(keep_survivors_in_place(np.array([2, 2, 2, 2, 3]))) == [2, 2, 2, 3, 2]
+
+
+def test_resampling_to_another_count_keeps_the_weights_proportions_and_survivors_in_place():
+    rng = np.random.default_rng(8)
+    w = np.array([0.5, 0.3, 0.15, 0.05])
+    for n in (1, 3, 10, 40):
+        anc = systematic_resample(w, rng, n)
+        assert len(anc) == n and anc.min() >= 0 and anc.max() < 4
+        # systematic: each particle kept floor(n w) or ceil(n w) times
+        counts = np.bincount(anc, minlength=4)
+        assert np.all(counts >= np.floor(n * w)) and np.all(counts <= np.ceil(n * w))
+        out = keep_survivors_in_place(anc)
+        assert np.array_equal(np.bincount(out, minlength=4), counts)
+        kept = np.unique(anc[anc < n])
+        assert np.all(out[kept] == kept)
+    assert keep_survivors_in_place(np.array([5, 5, 1])).tolist() == [5, 1, 5]
+    with pytest.raises(ValueError):
+        systematic_resample(w, rng, 0)

@@ -55,3 +55,18 @@ def test_objects_nothing_weighed_keep_their_own_values_and_ride_their_support():
     for k in range(3):
         assert np.allclose(t.poses[k, 2], carry_pose(before[k, 2], before[k, 1], before[0, 1]))
     assert np.array_equal(s.take(anc).poses[:, 0], before[[0, 0, 0], 0])  # without own: the ancestors
+
+
+def test_take_to_more_or_fewer_particles_keeps_own_values_where_a_particle_was():
+    s = state(K=3, M=3)
+    s.poses[..., 3:] = [0.0, 0.0, 0.0, 1.0]
+    s.on_top[:] = False
+    s.is_in[:] = False
+    own = np.array([True, False, False])
+    more = s.take(np.array([1, 1, 2, 2, 0]), own)
+    assert len(more.log_weights) == 5 and more.poses.shape == (5, 3, 7)
+    assert np.array_equal(more.poses[:3, 0], s.poses[:, 0])  # rows that had a particle: its own
+    assert np.array_equal(more.poses[3:, 0], s.poses[[2, 0], 0])  # the new ones: the ancestor's
+    assert np.array_equal(more.poses[:, 1], s.poses[[1, 1, 2, 2, 0], 1])
+    fewer = s.take(np.array([2]), own)
+    assert fewer.poses.shape == (1, 3, 7) and np.array_equal(fewer.poses[0, 0], s.poses[0, 0])

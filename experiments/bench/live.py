@@ -95,7 +95,8 @@ def live_row(name: str, scene: Scene, frames: list[Frame], cfg: EstimatorConfig,
     lat = 1e3 * np.asarray(latencies)
     p95 = float(np.percentile(lat, 95))
     step_med = 1e3 * float(np.median(seconds))
-    return {"scenario": name, "particles": cfg.particles, "workers": cfg.workers, "frames": loop.frames,
+    shown = "auto" if cfg.adaptive.enabled else cfg.particles
+    return {"scenario": name, "particles": shown, "workers": cfg.workers, "frames": loop.frames,
             "steps": loop.steps, "merged": loop.merged, "stream_s": stream_s, "busy_s": loop.busy_seconds,
             "realtime_factor": stream_s / loop.busy_seconds if loop.busy_seconds > 0 else float("inf"),
             "update_ms_median": step_med, "update_ms_p95": 1e3 * float(np.percentile(seconds, 95)),

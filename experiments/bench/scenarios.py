@@ -68,7 +68,9 @@ def scenario_rows(names: list[str], configs: list[tuple[int, EstimatorConfig]],
             for k, cfg in configs:
                 print(f"bench: {name}, K={k}: {len(frames)} frames", file=sys.stderr, flush=True)
                 st = time_stream(scene, cfg, frames, np.random.default_rng(SEED), max_updates=max_updates)
-                yield {"scenario": name, "particles": k, "workers": cfg.workers,
+                shown = f"auto ({np.mean(st.particles):.0f}, max {max(st.particles)})" if k == "auto" and \
+                    st.particles else k
+                yield {"scenario": name, "particles": shown, "workers": cfg.workers,
                        "frames": len(st.frame_times), "stream_s": st.stream_s,
                        "processing_s": st.processing_s, "realtime_factor": st.stream_s / st.processing_s,
                        **timing_row(st)}

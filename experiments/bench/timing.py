@@ -51,6 +51,7 @@ class StreamTiming:
     frame_times: list[float] = dataclasses.field(default_factory=list)
     update_s: list[float] = dataclasses.field(default_factory=list)
     bare_s: list[float] = dataclasses.field(default_factory=list)
+    particles: list[int] = dataclasses.field(default_factory=list)  # K of each timed update
     steps: list[int] = dataclasses.field(default_factory=list)
     main_s: list[float] = dataclasses.field(default_factory=list)
     exchange_s: list[float] = dataclasses.field(default_factory=list)
@@ -77,7 +78,6 @@ def time_stream(scene: Scene, cfg: EstimatorConfig, frames: Iterable[Frame], rng
     with est:
         pool = est.pool
         pids = [os.getpid()] + pool.worker_pids()
-        sizes = pool.shard_sizes
         st.peak_memory_mb = _rss_mb(pids)
         t_tick, reasoning = None, 0
         for frame in frames:
@@ -94,6 +94,7 @@ def time_stream(scene: Scene, cfg: EstimatorConfig, frames: Iterable[Frame], rng
                 reasoning += 1
             if n_steps > 0:
                 run_s, worker_s = pool.last_run_seconds, list(pool.last_worker_seconds)
+                sizes = pool.shard_sizes  # the particles in use (they change with an adaptive count)
                 # right after the update, so that load on the machine affects both alike: the same
                 # worlds, the same number of steps, nothing else; then the worlds are put back
                 pool.save()
@@ -110,7 +111,8 @@ def time_stream(scene: Scene, cfg: EstimatorConfig, frames: Iterable[Frame], rng
                     st.exchange_s.append(run_s - max(worker_s))
                     st.shard_s.append(max(worker_s))
                     st.over_s.append(float(np.mean([(w - b) / n for w, b, n
-                                                    in zip(worker_s, bare_worker_s, sizes)])))
+                                                    in zip(worker_s, bare_worker_s, sizes) if n > 0])))
+                    st.particles.append(est.K)
             st.peak_memory_mb = max(st.peak_memory_mb, _rss_mb(pids))
             if max_updates is not None and len(st.update_s) >= max_updates:
                 break
@@ -129,12 +131,23 @@ def timing_row(st: StreamTiming) -> dict:
             "main_ms_median": 1e3 * float(np.median(st.main_s)),
             "exchange_ms_median": 1e3 * float(np.median(st.exchange_s)),
             "slowest_shard_ms_median": 1e3 * float(np.median(st.shard_s)),
-            "worker_overhead_us_per_particle": 1e6 * float(np.median(st.over_s))}
+            "worker_overhead_us_per_particle": 1e6 * float(np.median(st.over_s)),
+            **({"mean_particles": float(np.mean(st.particles)), "max_particles": int(np.max(st.particles))}
+               if st.particles else {})}
 
 
-def bench_config(k: int, workers: int, config: EstimatorConfig | None = None) -> EstimatorConfig:
-    """``config`` (default: the particle filter's defaults) with ``k`` particles and ``workers``."""
-    return dataclasses.replace(config or EstimatorConfig(noise=NoiseConfig()), particles=k, workers=workers)
+AUTO_START = 64
+"""Where ``--particles auto`` starts (the run command's default K)."""
+
+
+def bench_config(k: int | str, workers: int, config: EstimatorConfig | None = None) -> EstimatorConfig:
+    """``config`` (default: the particle filter's defaults) with ``k`` particles and ``workers``;
+    ``k = "auto"``: the adaptive count, from :data:`AUTO_START` (its bounds the configuration's)."""
+    cfg = config or EstimatorConfig(noise=NoiseConfig())
+    if k == "auto":
+        return dataclasses.replace(cfg, particles=AUTO_START, workers=workers,
+                                   adaptive=dataclasses.replace(cfg.adaptive, enabled=True))
+    return dataclasses.replace(cfg, particles=k, workers=workers)
 
 
 # (key, table heading, format) of the table's columns

@@ -25,6 +25,8 @@ from typing import Iterable
 
 from estimator.config import EstimatorConfig, config_from_dict, read_config_file
 
+from experiments.cli.common import particle_count
+
 from experiments.bench.synthetic import bench_one
 from experiments.bench.timing import (BREAKDOWN_COLUMNS, RESOURCE_COLUMNS, SYNTHETIC_COLUMNS, TIMING_COLUMNS,
                                       bench_config)
@@ -56,14 +58,16 @@ def particle_configs(args) -> list[tuple[int, EstimatorConfig]]:
     for k in args.particles:
         cfg = None
         if file_data is not None:
-            cfg = config_from_dict(file_data[0], path=args.config, lines=file_data[1], particles=k,
-                                   base="particles")
+            cfg = config_from_dict(file_data[0], path=args.config, lines=file_data[1],
+                                   particles=64 if k == "auto" else k, base="particles")
         out.append((k, bench_config(k, args.workers, cfg)))
     return out
 
 
 def add_bench_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--particles", type=int, nargs="+", default=[16, 64, 256])
+    p.add_argument("--particles", type=particle_count, nargs="+", default=[16, 64, 256],
+                   help="particle counts to time (default 16 64 256); auto: the adaptive count (KLD-sampling "
+                        "from 64, 16-1024; the table's K column then shows the mean K of the timed updates)")
     what = p.add_mutually_exclusive_group()
     what.add_argument("--objects", type=int, nargs="+", default=None,
                       help="synthetic scenes: resting boxes on a table (default 4 8 12)")

@@ -7,13 +7,27 @@ import dataclasses
 import os
 import sys
 
-from estimator.config import EstimatorConfig, ReasonerConfig, config_from_dict, default_config, read_config_file
+from estimator.config import (AdaptiveConfig, EstimatorConfig, ReasonerConfig, config_from_dict, default_config,
+                              read_config_file)
 
 
 DEFAULT_PARTICLES = 64
 """Particle worlds K of ``run``, ``config``, ``track --feedback`` and ``demo`` when neither the
 command line (``--particles``, ``--paper``) nor a configuration file says: every built-in scenario
 runs in real time at K = 64 on two cores (README, *Speed*)."""
+
+
+def particle_count(text: str) -> int | str:
+    """``--particles``: a positive integer, or ``auto`` (a count that follows the belief's spread)."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        k = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer or 'auto', got {text!r}") from None
+    if k < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer or 'auto', got {text!r}")
+    return k
 
 
 def _particles(args, file_data) -> int | None:
@@ -23,6 +37,8 @@ def _particles(args, file_data) -> int | None:
         if args.particles not in (None, 1) or args.noise:
             raise ValueError("--paper is one world without noise: drop --particles / --noise")
         return 1
+    if args.particles == "auto":
+        return DEFAULT_PARTICLES  # where the adaptive count starts
     if args.particles is not None:
         return args.particles
     if isinstance(file_data, dict) and ("particles" in file_data or file_data.get("base") == "paper"):
@@ -45,6 +61,15 @@ def build_config(args) -> EstimatorConfig:
                                base=base)
     else:
         cfg = default_config(_particles(args, None), base)
+    if getattr(args, "particles", None) == "auto" or getattr(args, "max_particles", None) is not None \
+            or getattr(args, "min_particles", None) is not None:
+        a = cfg.adaptive
+        lo = args.min_particles if getattr(args, "min_particles", None) is not None else a.min_particles
+        hi = args.max_particles if getattr(args, "max_particles", None) is not None else a.max_particles
+        if args.particles not in ("auto", None):
+            raise ValueError("--min-particles / --max-particles go with --particles auto")
+        cfg = dataclasses.replace(cfg, adaptive=dataclasses.replace(a, enabled=True, min_particles=lo,
+                                                                    max_particles=hi))
     given = {name: getattr(args, name) for name in ("horizon", "t_perceived", "d_sim_perc", "d_perc_prev")
              if getattr(args, name) is not None}
     if given:
@@ -64,9 +89,15 @@ def add_estimator_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", metavar="FILE",
                    help="estimator configuration file (YAML or JSON): the fields to change, e.g. "
                         "'noise: {position_std: 0.02}'; `scene-estimator config` prints them all")
-    p.add_argument("--particles", type=int, default=None,
+    p.add_argument("--particles", type=particle_count, default=None,
                    help=f"particle worlds K (default {DEFAULT_PARTICLES}, or the configuration file's; "
-                        "1: the paper's reasoner)")
+                        "1: the paper's reasoner; auto: a count that follows the belief's spread, "
+                        f"KLD-sampling, starting at {DEFAULT_PARTICLES})")
+    a = AdaptiveConfig()
+    p.add_argument("--max-particles", type=int, default=None,
+                   help=f"with --particles auto: the most particles (default {a.max_particles})")
+    p.add_argument("--min-particles", type=int, default=None,
+                   help=f"with --particles auto: the fewest particles (default {a.min_particles})")
     p.add_argument("--paper", action="store_true",
                    help="the paper's reasoner: one world, no noise (same as --particles 1)")
     p.add_argument("--workers", type=int, default=None,
@@ -87,6 +118,9 @@ def print_summary(summary: dict, stream=None) -> None:
     tl = summary["timeline"]
     print(f"{summary['frames']} frames read, {summary['skipped']} skipped, {summary['estimates']} "
           f"reasoning steps in {summary['seconds']:.2f} s", file=stream)
+    if summary.get("particles"):
+        k = summary["particles"]
+        print(f"particles (adaptive): {k['min']} to {k['max']}, {k['mean']:.0f} on average", file=stream)
     if summary.get("rejected"):
         print(f"{summary['rejected']} detection(s) outside the scene's workspace rejected as outliers", file=stream)
     if summary.get("reseeded") or summary.get("worker_restarts"):

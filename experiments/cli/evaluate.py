@@ -24,15 +24,17 @@ import sys
 import time
 
 from physics.errors import InputError
+from experiments.evaluation.methods import AUTO
 
 
 def _positive_int_list(text: str) -> tuple[int, ...]:
+    """Comma-separated integers >= 1; ``auto`` (the adaptive count) is :data:`AUTO` (0)."""
     try:
-        values = tuple(int(v) for v in text.split(",") if v.strip())
+        values = tuple(AUTO if v.strip().lower() == "auto" else int(v) for v in text.split(",") if v.strip())
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
-    if not values or any(v < 1 for v in values):
-        raise argparse.ArgumentTypeError(f"expected integers >= 1, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers (or auto), got {text!r}") from None
+    if not values or any(v < 1 and v != AUTO for v in values):
+        raise argparse.ArgumentTypeError(f"expected integers >= 1 (or auto), got {text!r}")
     return values
 
 
@@ -64,7 +66,7 @@ def add_evaluate_arguments(parser: argparse.ArgumentParser) -> None:
                              "particles-no-negative")
     parser.add_argument("--particles", type=_positive_int_list, default=(64,), metavar="K[,K...]",
                         help="particle worlds of the particle methods; several values for a scaling "
-                             "study (default 64)")
+                             "study; auto: the adaptive count, KLD-sampling from 64, 16-1024 (default 64)")
     parser.add_argument("--workers", type=int, default=None,
                         help="trials run in parallel (default: number of CPUs; 1: in this process)")
     parser.add_argument("--backend", choices=("local", "ray"), default="local",

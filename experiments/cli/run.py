@@ -216,6 +216,9 @@ def run_stream(scene_path: str, observations_path: str | None, config: Estimator
                "recoveries": est.recoveries, "rejected": est.rejected_detections,
                "reseeded": est.reseeded, "worker_restarts": est.pool.restarts,
                "late": getattr(reader, "late", 0), "output_closed": output_closed}
+    if est.config.adaptive.enabled and est.n_updates:
+        lo, hi, total = est.k_range
+        summary["particles"] = {"min": lo, "mean": total / est.n_updates, "max": hi}
     if loop is not None:
         summary["live"] = {"steps": loop.steps, "merged": loop.merged, "max_latency_s": loop.max_latency,
                            "latency_s_median": float(np.median(latencies)) if latencies else None}

@@ -111,18 +111,32 @@ def get_method(name: str) -> MethodSpec:
         raise ValueError(f"unknown method {name!r} (known: {', '.join(METHODS)})") from None
 
 
+AUTO = 0
+"""``particles`` of a sweep that asks for the adaptive particle count (``--particles auto``:
+:class:`~estimator.config.AdaptiveConfig`, starting at :data:`AUTO_START`)."""
+
+AUTO_START = 64
+"""The particle count an adaptive run starts with."""
+
+
 def effective_particles(name: str, particles: int) -> int:
-    """Number of worlds method ``name`` runs with when the sweep asks for ``particles``."""
+    """Number of worlds method ``name`` runs with when the sweep asks for ``particles`` (:data:`AUTO`
+    for the particle methods asked for the adaptive count)."""
     spec = get_method(name)
     if spec.config is None:
         return 0
     return int(particles) if spec.uses_particles else spec.config(1).particles
 
 
+def particles_label(particles: int) -> str:
+    """``"auto"`` for :data:`AUTO`, else the number."""
+    return "auto" if particles == AUTO else str(particles)
+
+
 def method_label(name: str, particles: int) -> str:
     """How reports and figures name method ``name`` run with ``particles`` worlds: ``"particles (K=64)"``
     for the methods whose K the sweep sets, the bare name for the others."""
-    return f"{name} (K={particles})" if get_method(name).uses_particles else name
+    return f"{name} (K={particles_label(particles)})" if get_method(name).uses_particles else name
 
 
 def method_config(name: str, particles: int, config: str | None = None) -> EstimatorConfig | None:
@@ -134,7 +148,10 @@ def method_config(name: str, particles: int, config: str | None = None) -> Estim
     spec = get_method(name)
     if spec.config is None:
         return None
-    cfg = spec.config(effective_particles(name, particles))
+    k = effective_particles(name, particles)
+    cfg = spec.config(AUTO_START if k == AUTO and spec.uses_particles else k)
+    if k == AUTO and spec.uses_particles:
+        cfg = dataclasses.replace(cfg, adaptive=dataclasses.replace(cfg.adaptive, enabled=True))
     if config is not None:
         cfg = config_from_dict(json.loads(config), start=cfg)
     return dataclasses.replace(cfg, workers=0)
@@ -184,6 +201,7 @@ class MethodRun:
     step_seconds: list[float] = field(default_factory=list)
     particles: int = 0
     gate_actions: dict[tuple[int, str], str] | None = None
+    mean_particles: float | None = None
 
 
 def step_from_belief(belief: Belief, object_ids, keep_particles: bool = False) -> StepEstimate:
@@ -303,6 +321,7 @@ def run_method(name: str, scene: Scene, frames: list[Frame], particles: int, rng
     cfg = method_config(name, particles, config)
     steps: list[StepEstimate] = []
     seconds: list[float] = []
+    counts: list[int] = []  # K of every update
     ids = scene.object_ids
     last: Belief | None = None
     mode = get_method(name).tracker
@@ -322,6 +341,7 @@ def run_method(name: str, scene: Scene, frames: list[Frame], particles: int, rng
             steps.append(to_step(out))
             if cfg is not None:
                 last = out
+                counts.append(out.n_particles or cfg.particles)
             if on_step is not None:
                 on_step(steps[-1], last)
         events = [] if cfg is None else model.timeline.to_json()["events"]
@@ -329,7 +349,8 @@ def run_method(name: str, scene: Scene, frames: list[Frame], particles: int, rng
         return MethodRun(steps, events, seconds, 0)
     if keep_particles and last is not None and steps:
         steps[-1] = step_from_belief(last, ids, keep_particles=True)
-    return MethodRun(steps, events, seconds, cfg.particles)
+    return MethodRun(steps, events, seconds, cfg.particles,
+                     mean_particles=float(np.mean(counts)) if counts else None)
 
 
 # --------------------------------------------------------------------------------------------------

@@ -11,8 +11,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable
 
+import numpy as np
 
-from experiments.evaluation.methods import METHODS, get_method, method_label
+from experiments.evaluation.methods import AUTO, METHODS, get_method, method_label
 from experiments.evaluation.metrics import ACTIONS, precision_recall_f1
 from experiments.evaluation.stats import bootstrap_ci, group_rng, paired_wilcoxon
 
@@ -69,7 +70,7 @@ EXTRA_COLUMNS: tuple[Column, ...] = (
     Column("invariant_violations", "particles inside static geometry (count)", 1.0, "{:.1f}"),
     Column("invariant_depth_max", "deepest inside static geometry (mm)", 1000.0, "{:.1f}"),
     Column("timing.update_ms_p95", "update p95 (ms)"), Column("timing.peak_rss_mb", "peak memory (MB)"),
-    Column("timing.trial_s", "trial (s)"),
+    Column("timing.trial_s", "trial (s)"), Column("mean_particles", "mean K", 1.0, "{:.0f}"),
 )
 
 TEST_METRICS: tuple[tuple[str, str, float], ...] = (
@@ -177,6 +178,58 @@ def paired_tests(rows: list[dict], baseline: str = "paper") -> list[dict]:
                 rec[fieldname + ".p"] = t.p_value
             out.append(rec)
     return out
+
+
+AUTO_TEST_METRICS = TEST_METRICS + (("cover90_hidden", "90% coverage hidden", 1.0),)
+"""Metrics of the paired tests of the adaptive particle count against each fixed K."""
+
+
+def adaptive_tests(rows: list[dict]) -> list[dict]:
+    """Wilcoxon signed-rank tests of each particle method run with the adaptive count (``particles``
+    :data:`~experiments.evaluation.methods.AUTO`) against the same method at each fixed K of the
+    rows, over all scenarios, paired by (scenario, seed), for each of :data:`AUTO_TEST_METRICS`
+    (the difference is auto - fixed)."""
+    out = []
+    for m, k in _method_order(rows):
+        if k != AUTO or not get_method(m).uses_particles:
+            continue
+        mine = {(r["scenario"], r["seed"]): r for r in rows if r["method"] == m and r["particles"] == AUTO}
+        for m2, k2 in _method_order(rows):
+            if m2 != m or k2 == AUTO:
+                continue
+            base = {(r["scenario"], r["seed"]): r for r in rows if r["method"] == m and r["particles"] == k2}
+            keys = sorted(x for x in mine if x in base)
+            if not keys:
+                continue
+            rec = {"scenario": ALL, "method": m, "particles": AUTO, "baseline": f"{m} K={k2}",
+                   "mean_particles": float(np.mean([mine[x].get("mean_particles", np.nan) for x in keys]))}
+            for fieldname, _h, _s in AUTO_TEST_METRICS:
+                t = paired_wilcoxon([_value(mine[x], fieldname) for x in keys],
+                                    [_value(base[x], fieldname) for x in keys])
+                rec[fieldname + ".n"], rec[fieldname + ".median_diff"], rec[fieldname + ".p"] = (
+                    t.n, t.median_diff, t.p_value)
+            out.append(rec)
+    return out
+
+
+def markdown_adaptive_section(rows: list[dict]) -> str:
+    """The adaptive count against each fixed K (:func:`adaptive_tests`), or nothing."""
+    tests = adaptive_tests(rows)
+    if not tests:
+        return ""
+    buf = io.StringIO()
+    buf.write("\n## The adaptive particle count against fixed K (Wilcoxon signed-rank, by seed)\n\n"
+              "Cells: median difference (auto - fixed K) and two-sided p-value; n = pairs.\n\n")
+    head = ["method", "against", "mean K (auto)"] + [h for _f, h, _s in AUTO_TEST_METRICS]
+    buf.write("| " + " | ".join(head) + " |\n|" + "|".join(["---"] * len(head)) + "|\n")
+    for t in tests:
+        cells = [method_label(t["method"], t["particles"]), t["baseline"], f"{t['mean_particles']:.0f}"]
+        for f, _h, s in AUTO_TEST_METRICS:
+            d, p, n = t[f + ".median_diff"], t[f + ".p"], t[f + ".n"]
+            cells.append("–" if not (n and math.isfinite(d)) else
+                         f"{d * s:+.2f} (p={p:.3g}, n={n})" if math.isfinite(p) else f"{d * s:+.2f} (n={n})")
+        buf.write("| " + " | ".join(cells) + " |\n")
+    return buf.getvalue()
 
 
 def _cell(rec: dict, c: Column) -> str:
@@ -316,7 +369,8 @@ def write_report(rows: list[dict], out_dir: str | os.PathLike, plots: bool = Tru
     if len(conds) == 1:
         summary = summarize(rows)
         tests = paired_tests(rows)
-        text = markdown_summary(summary, tests) + markdown_event_section(rows) + markdown_tracker_section(rows)
+        text = (markdown_summary(summary, tests) + markdown_adaptive_section(rows) + markdown_event_section(rows)
+                + markdown_tracker_section(rows))
     else:
         summaries, summary, tests = {}, [], []
         parts = []
@@ -328,7 +382,7 @@ def write_report(rows: list[dict], out_dir: str | os.PathLike, plots: bool = Tru
             summary += [{**tag, **rec} for rec in s_c]
             tests += [{**tag, **rec} for rec in t_c]
             parts.append(f"\n# {condition_label(cond)}\n\n" + markdown_summary(s_c, t_c, title=False)
-                         + markdown_event_section(sel) + markdown_tracker_section(sel))
+                         + markdown_adaptive_section(sel) + markdown_event_section(sel) + markdown_tracker_section(sel))
         n = len(rows)
         text = (f"# Evaluation summary\n\n{n} trials under {len(conds)} truth conditions (the engine that "
                 "simulated the ground truth, and a factor on its frictions and restitution against the "

@@ -71,8 +71,8 @@ class SweepConfig:
             raise ValueError(f"parameter scales must be > 0, got {self.param_scales}")
         for m in self.methods:
             get_method(m)
-        if any(k < 1 for k in self.particles):
-            raise ValueError(f"particle counts must be >= 1, got {self.particles}")
+        if any(k < 0 for k in self.particles):
+            raise ValueError(f"particle counts must be >= 1 (or 0: auto), got {self.particles}")
         if self.duration is not None and not self.duration > 0:
             raise ValueError(f"duration must be > 0, got {self.duration}")
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from experiments.evaluation.methods import MethodRun, run_method
+from experiments.evaluation.methods import MethodRun, particles_label, run_method
 
 from experiments.evaluation.scoring import dynamic_objects, score_run
 
@@ -57,7 +57,7 @@ class TrialSpec:
         parameter scale appear only when they are not the defaults (Bullet, 1), so that the keys of
         rows written before they existed stay what they were."""
         d = "full" if self.duration is None else f"{self.duration:g}s"
-        key = f"{self.scenario}__s{self.seed}__{self.method}__K{self.particles}__{d}"
+        key = f"{self.scenario}__s{self.seed}__{self.method}__K{particles_label(self.particles)}__{d}"
         if self.config is not None:
             key += f"__cfg{zlib.crc32(self.config.encode()):08x}"
         if self.engine != "bullet":
@@ -294,6 +294,8 @@ def run_trial(spec: TrialSpec) -> dict:
                      "update_ms_p95": float(np.percentile(ms, 95)) if ms.size else None,
                      "peak_rss_mb": _peak_rss_mb(), "rss_start_mb": rss_start, "peak_rss_per_trial": reset,
                      "trial_s": time.perf_counter() - t_start, "simulate_s": t_sim}
+    if run.mean_particles is not None:
+        row["mean_particles"] = run.mean_particles
     return {"row": _clean(row), "trace": _trace(spec, sim, run) if spec.trace else None}
 
 
