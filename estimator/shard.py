@@ -170,7 +170,8 @@ class _Shard:
         else:
             cams = [self.camera_for(c) for c in cameras]
         if cams and len(q):  # several cameras: an object is as visible as the best of them shows it
-            out.visible[:, q] = np.max([self._visibility(c, out.poses, out.finite, q, slots) for c in cams], axis=0)
+            out.visible[:, q] = np.max([self._visibility(c, out.poses, out.finite, q, slots, out.aabbs)
+                                        for c in cams], axis=0)
         return out
 
     def look(self, poses: np.ndarray, place: np.ndarray, targets: np.ndarray, cameras: tuple[CameraSpec, ...],
@@ -212,9 +213,12 @@ class _Shard:
                 self.groups[j].remove_state(sid)
 
     def _visibility(self, camera: Camera, poses: np.ndarray, finite: np.ndarray, q: np.ndarray,
-                    slots: list[int]) -> np.ndarray:
+                    slots: list[int], boxes: np.ndarray | None = None) -> np.ndarray:
         """Visible fractions ``(K, len(q))`` of objects ``q`` in the worlds of ``slots`` (K of them)
-        at ``poses (K, M, 7)`` (zero for exploded worlds). An object keeps the answer of its world's
+        at ``poses (K, M, 7)`` (zero for exploded worlds). With ``boxes (K, M, 2, 3)``, the objects'
+        world boxes (scene frame) as physics left them, the boxes and solids decide the sightlines
+        they can before any ray is cast (:func:`~physics.visibility.seen_points`: the same answer
+        as the rays, for fewer of them). An object keeps the answer of its world's
         last ray tests when it has not moved (bit for bit) and nothing that moved since came near its
         rays (:func:`~physics.visibility.rays_clear_of`): most of a resting scene casts no ray."""
         key = camera_key(camera.spec)
@@ -243,8 +247,12 @@ class _Shard:
             need[k] = ~keep
         todo = np.flatnonzero(need.any(axis=1)).tolist()
         if todo:
+            shortcuts = {}
+            if boxes is not None:
+                convex = np.array([self.scene.objects[int(i)].shape in CONVEX_SHAPES for i in q])
+                shortcuts = dict(boxes=boxes[todo], convex=convex, solids=Solids.posed(self.solids, poses[todo]))
             fresh = visible_fractions([self.worlds[slots[k]].world for k in todo], camera, q, self.points,
-                                      poses[np.ix_(todo, q)], need[todo])
+                                      poses[np.ix_(todo, q)], need[todo], **shortcuts)
             vis[todo] = np.where(need[todo], fresh, vis[todo])
         for k in np.flatnonzero(finite).tolist():
             row = np.full(poses.shape[1], np.nan)

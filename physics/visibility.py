@@ -138,7 +138,7 @@ def rays_clear_of(camera: Camera, centres: np.ndarray, radii: np.ndarray, others
 
 def visible_fractions(worlds: list[World], camera: Camera, indices, local_points: dict[int, np.ndarray],
                       poses: np.ndarray, need: np.ndarray | None = None, boxes: np.ndarray | None = None,
-                      convex: np.ndarray | None = None) -> np.ndarray:
+                      convex: np.ndarray | None = None, solids: Solids | None = None) -> np.ndarray:
     """Fraction ``(G, n)`` of each object's sample points that the camera sees, in each of the G
     worlds (copies of one scene, usually sharing a client: all their rays go to pybullet in one
     batched ray test).
@@ -158,8 +158,10 @@ def visible_fractions(worlds: list[World], camera: Camera, indices, local_points
             points lie inside a convex shape), a ray to a point of a convex object above the floor,
             from a camera above the floor, that misses every other box is seen without a ray test
             (exactly what the ray test would say: nothing else is on the segment).
+        solids: with ``boxes``, boxes inside objects (:func:`seen_points`): a sightline through
+            another object's solid before it reaches its own object's box is hidden, without a ray.
     """
-    seen, counts = seen_points(worlds, [camera], indices, local_points, poses, need, boxes, convex)
+    seen, counts = seen_points(worlds, [camera], indices, local_points, poses, need, boxes, convex, solids=solids)
     return seen[0] / np.maximum(counts, 1)
 
 
