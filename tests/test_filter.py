@@ -1020,7 +1020,7 @@ from estimator.config import AdaptiveConfig  # noqa: E402
 
 def _adaptive(max_particles=512, workers=0):
     return EstimatorConfig(particles=64, workers=workers, noise=NoiseConfig(),
-                           adaptive=AdaptiveConfig(enabled=True, max_particles=max_particles))
+                           adaptive=AdaptiveConfig(enabled=True, min_particles=16, max_particles=max_particles))
 
 
 def test_the_adaptive_count_falls_to_its_minimum_on_a_resting_scene_and_grows_when_a_ball_rolls_out_of_view():

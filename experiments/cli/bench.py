@@ -67,7 +67,7 @@ def particle_configs(args) -> list[tuple[int, EstimatorConfig]]:
 def add_bench_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--particles", type=particle_count, nargs="+", default=[16, 64, 256],
                    help="particle counts to time (default 16 64 256); auto: the adaptive count (KLD-sampling "
-                        "from 64, 16-1024; the table's K column then shows the mean K of the timed updates)")
+                        "from 64, 64-1024; the table's K column then shows the mean K of the timed updates)")
     what = p.add_mutually_exclusive_group()
     what.add_argument("--objects", type=int, nargs="+", default=None,
                       help="synthetic scenes: resting boxes on a table (default 4 8 12)")

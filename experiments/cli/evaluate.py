@@ -66,7 +66,7 @@ def add_evaluate_arguments(parser: argparse.ArgumentParser) -> None:
                              "particles-no-negative")
     parser.add_argument("--particles", type=_positive_int_list, default=(64,), metavar="K[,K...]",
                         help="particle worlds of the particle methods; several values for a scaling "
-                             "study; auto: the adaptive count, KLD-sampling from 64, 16-1024 (default 64)")
+                             "study; auto: the adaptive count, KLD-sampling, 64-1024 (default 64)")
     parser.add_argument("--workers", type=int, default=None,
                         help="trials run in parallel (default: number of CPUs; 1: in this process)")
     parser.add_argument("--backend", choices=("local", "ray"), default="local",
