@@ -129,7 +129,12 @@ class StaticGeometry:
         com[:, 3:] = quat_normalize(com[:, 3:])
         c, uid, statics = w.client, w.uids[m], self.static_uids
         reset, closest = pb.resetBasePositionAndOrientation, pb.getClosestPoints
+        done: dict[tuple, float] = {}  # equal poses (many particles share a detection) are asked once
         for r, row, which in zip(rows.tolist(), com.tolist(), cand[rows].tolist()):
+            key = tuple(row)
+            if key in done:
+                out[r] = done[key]
+                continue
             reset(uid, row[:3], row[3:], physicsClientId=c)
             worst = 0.0
             for s, hit in zip(statics, which):
@@ -137,7 +142,7 @@ class StaticGeometry:
                     for pt in closest(uid, s, 0.0, physicsClientId=c):
                         if pt[8] < worst:
                             worst = pt[8]
-            out[r] = -worst
+            out[r] = done[key] = -worst
         reset(uid, w.parked_pose[m, :3].tolist(), [0.0, 0.0, 0.0, 1.0], physicsClientId=c)
         return out
 
@@ -213,9 +218,13 @@ class StaticGeometry:
         hit = first >= 0
         last = np.cumsum(counts + 1) - 1  # each path's end sample
         starts_in = ~hit & bad[last]  # inside all along to its end: its end goes out along the normal
+        pushed: dict[bytes, np.ndarray] = {}  # equal ends (a detection every particle shares) once
         for j in np.flatnonzero(starts_in).tolist():
             r = rows[j]
-            end[r] = self._push_out(m, end[r])
+            key = end[r].tobytes()
+            if key not in pushed:
+                pushed[key] = self._push_out(m, end[r])
+            end[r] = pushed[key]
             frac[r] = np.nan
         walk = np.flatnonzero(hit)
         if len(walk):  # bisection between the last clear sample and the first bad one, all paths at once
