@@ -14,7 +14,7 @@ from physics.group import WorldGroup
 from physics.scene import CameraSpec, Scene
 from physics.transforms import quat_rotate
 from physics.sightlines import Solids
-from physics.visibility import (Camera, local_box, local_sample_points, rays_clear_of, seen_points,
+from physics.visibility import (Camera, local_box, local_sample_points, rays_clear_of_moved, seen_points,
                                 solid_box, visible_enough, visible_fractions)
 from physics.world import PhysicsSettings, World
 
@@ -230,21 +230,20 @@ class _Shard:
         vis = np.zeros((K, n))
         need = np.zeros((K, n), dtype=bool)
         now = poses[..., :3] + quat_rotate(poses[..., 3:], self.box_centres[None])  # (K, M, 3), at once
-        for k in np.flatnonzero(finite).tolist():
-            need[k] = True
-            cached = cache.get(slots[k])
-            if cached is None:
-                continue
-            old, row, old_centres = cached
-            moved = np.any(poses[k] != old, axis=-1)
-            keep = ~np.isnan(row[q]) & ~moved[q]
-            if keep.any() and moved.any():
-                m = np.flatnonzero(moved)
-                centres = now[k, q]
-                for c in (old_centres, now[k]):
-                    keep &= rays_clear_of(camera, centres, self.radii[q], c[m], self.radii[m])
-            vis[k, keep] = row[q][keep]
-            need[k] = ~keep
+        fin = np.flatnonzero(finite)
+        need[fin] = True
+        have = [k for k in fin.tolist() if slots[k] in cache]  # worlds with an answer kept
+        if have:
+            old = np.stack([cache[slots[k]][0] for k in have])  # (H, M, 7)
+            rows = np.stack([cache[slots[k]][1] for k in have])[:, q]  # (H, n)
+            old_centres = np.stack([cache[slots[k]][2] for k in have])  # (H, M, 3)
+            moved = np.any(poses[have] != old, axis=-1)  # (H, M)
+            keep = ~np.isnan(rows) & ~moved[:, q]
+            centres = now[have][:, q]
+            for c in (old_centres, now[have]):  # nothing that moved came near its rays, before or after
+                keep &= rays_clear_of_moved(camera, centres, self.radii[q], c, self.radii, moved)
+            vis[have] = np.where(keep, rows, 0.0)
+            need[have] = ~keep
         todo = np.flatnonzero(need.any(axis=1)).tolist()
         if todo:
             shortcuts = {}

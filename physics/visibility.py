@@ -136,6 +136,20 @@ def rays_clear_of(camera: Camera, centres: np.ndarray, radii: np.ndarray, others
     return np.all(d > radii[:, None] + other_radii[None, :], axis=1)
 
 
+def rays_clear_of_moved(camera: Camera, centres: np.ndarray, radii: np.ndarray, bodies: np.ndarray,
+                        body_radii: np.ndarray, moved: np.ndarray) -> np.ndarray:
+    """:func:`rays_clear_of` for G worlds at once: whether the rays from the camera to the objects
+    within ``radii (n,)`` of ``centres (G, n, 3)`` stay clear of the bodies ``moved (G, m)`` bool
+    among those within ``body_radii (m,)`` of ``bodies (G, m, 3)``: bool ``(G, n)`` (True where
+    nothing moved)."""
+    seg = centres - camera.position  # (G, n, 3)
+    rel = bodies - camera.position  # (G, m, 3)
+    u = np.clip(np.einsum("gmk,gnk->gnm", rel, seg) / np.maximum(np.einsum("gnk,gnk->gn", seg, seg), 1e-12)[..., None],
+                0.0, 1.0)  # (G, n, m): where along each segment each body is nearest
+    d = np.linalg.norm(rel[:, None, :, :] - u[..., None] * seg[:, :, None, :], axis=-1)  # (G, n, m)
+    return np.all((d > radii[None, :, None] + body_radii[None, None, :]) | ~moved[:, None, :], axis=-1)
+
+
 def visible_fractions(worlds: list[World], camera: Camera, indices, local_points: dict[int, np.ndarray],
                       poses: np.ndarray, need: np.ndarray | None = None, boxes: np.ndarray | None = None,
                       convex: np.ndarray | None = None, solids: Solids | None = None) -> np.ndarray:

@@ -136,3 +136,20 @@ def test_a_hand_sphere_hides_the_part_of_a_disk_it_covers_from_in_front():
     lens = (2 * math.pi / 3 - math.sqrt(3) / 2) / math.pi
     assert sphere_occlusion(eye, centre, np.array([2 * math.sin(a)]), hand, math.sin(a))[0] == pytest.approx(lens, rel=1e-3)
     assert sphere_occlusion(eye, centres, np.array([0.04, 0.02, 0.04]), np.zeros((0, 3)), 0.045).sum() == 0.0
+
+
+def test_the_batched_ray_clearance_equals_one_world_at_a_time():
+    from physics.scene import CameraSpec
+    from physics.visibility import rays_clear_of_moved
+
+    rng = np.random.default_rng(12)
+    cam = Camera(CameraSpec(position=(1.2, 0.0, 1.3), target=(0.0, 0.0, 0.6)))
+    G, n, m = 40, 3, 7
+    centres = rng.uniform(-0.4, 0.4, (G, n, 3)) + [0, 0, 0.7]
+    bodies = rng.uniform(-0.4, 0.6, (G, m, 3)) + [0, 0, 0.7]
+    radii, body_radii = rng.uniform(0.02, 0.08, n), rng.uniform(0.02, 0.1, m)
+    moved = rng.uniform(size=(G, m)) < 0.4
+    got = rays_clear_of_moved(cam, centres, radii, bodies, body_radii, moved)
+    want = np.array([rays_clear_of(cam, centres[g], radii, bodies[g][moved[g]], body_radii[moved[g]])
+                     for g in range(G)])
+    assert np.array_equal(got, want) and 0 < got.sum() < got.size
