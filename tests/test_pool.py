@@ -294,3 +294,28 @@ def test_a_pool_with_room_for_more_spreads_any_k_over_its_clients_builds_as_need
                 assert all(np.array_equal(a, b) for a, b in zip(local[k], first[k]))
     with pytest.raises(ValueError):
         WorldPool(SCENE, 8, 0, max_particles=4)
+
+
+def test_a_pool_with_room_for_more_looks_at_its_particles_in_their_own_slots():
+    """The same look through a pool of 16 slots running 8 particles (interleaved over its clients)
+    and through a fixed pool of 8: equal, for 0 and 2 workers."""
+    from physics.scene import CameraSpec
+
+    scene = table_scene(
+        {"id": "wall", "box": {"size": [0.05, 0.4, 0.3]}, "pose": {"position": [0.3, 0.0, TABLE_TOP + 0.15]}},
+        {"id": "ball", "sphere": {"radius": 0.03}, "pose": {"position": [0.0, 0.0, TABLE_TOP + 0.03]}},
+        camera={"position": [1.5, 0.0, 1.0], "target": [0.0, 0.0, 0.7]})
+    cams = (scene.camera, CameraSpec(position=(0.2, 1.2, 1.0), target=(0.0, 0.0, TABLE_TOP)))
+    k, ball = 8, 2
+    with WorldPool(scene, k, 0, worlds=2) as fixed:
+        poses = np.repeat(fixed._local.worlds[0].world.get_poses()[None], k, axis=0)
+        poses[:, ball, :2] = np.column_stack([np.zeros(k), np.linspace(-0.3, 0.3, k)])  # behind the wall, beside it
+        want = fixed.look(poses, np.arange(3), np.array([ball]), cams)
+        assert 0 < np.mean(want > 0) < 1
+    for workers in (0, 2):
+        with WorldPool(scene, 3, workers, worlds=4, max_particles=16) as pool:
+            pool.run(batch(k, 3, poses), 1, 0.045)  # K = 8 now, in slots 0 4 8 12 1 5 9 13
+            got = pool.look(poses, np.arange(3), np.array([ball]), cams)
+            assert np.array_equal(got, want)
+            with pytest.raises(ValueError):
+                pool.look(poses[:5], np.arange(3), np.array([ball]), cams)
