@@ -133,12 +133,6 @@ class SceneEstimator:
         self._cameras_since_tick: dict | None = None  # cameras of the frames since the last update
         self._scene_camera_since_tick = False  # a frame without cameras (the scene's) since then
         self.last_hands: dict = {}  # the tracked hands of the last frame that had any
-        # what each slot's world holds (None: not loaded yet), to load only what changed
-        self._world_poses: np.ndarray | None = None
-        self._world_vel: np.ndarray | None = None
-        # the particles as the worlds produced them (rows follow resampling), to load settled
-        # states asleep
-        self._produced: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def rejected_detections(self) -> int:
@@ -262,8 +256,7 @@ class SceneEstimator:
         perceived = self.memory.perceived(t)
         # move (model), propagate (pool), settle (model)
         move = model.move(self.state, frame, detected, perceived, dt, self.rng, cameras)
-        batch = model.batch(move, self.state, self._changed_slots(move.poses, move.velocities),
-                            self._settled_entries(move.poses, move.velocities, move.fused))
+        batch = model.batch(move, self.state, *self.pool.cache.loads(move.poses, move.velocities, move.fused))
         out = self.pool.run(batch, n_steps, cfg.reasoner.d_sim_perc, cfg.lazy_checks, cfg.moving_teleports,
                             cameras=cameras)  # None: the scene's camera
         bad = self._reset_exploded(out, move.poses, move.modes, t)
@@ -316,28 +309,6 @@ class SceneEstimator:
         return belief
 
     # -- pieces of the update -------------------------------------------------------------------------
-    def _changed_slots(self, poses: np.ndarray, vel: np.ndarray) -> np.ndarray:
-        """Entries ``(K, M)`` that differ from what the worlds last wrote and must be loaded back (a
-        slot's world always holds the state it produced, whatever the number of workers)."""
-        if self._world_poses is None:
-            return np.ones((self.K, self.M), dtype=bool)
-        return np.any(poses != self._world_poses, axis=-1) | np.any(vel != self._world_vel, axis=-1)
-
-    def _settled_entries(self, poses: np.ndarray, vel: np.ndarray, fused: np.ndarray | None = None
-                         ) -> np.ndarray | None:
-        """Entries ``(K, M)`` at rest (zero velocity: asleep) as a world produced them, which their
-        world may load asleep: a resampled particle's resting objects, and resting objects that only
-        took a horizontal Kalman step towards their detection (``fused (K, M)``, millimetres along
-        their support: waking them, and what they touch, would cost a settling of every such world
-        at every step of the fusion)."""
-        if self._produced is None:
-            return None
-        p, v = self._produced
-        same = np.all(poses == p, axis=-1) & np.all(vel == v, axis=-1)
-        if fused is not None:  # set at rest by the fusion (SceneModel.move), moved horizontally
-            same |= fused & np.all(poses[..., 2:] == p[..., 2:], axis=-1)
-        return np.all(vel == 0.0, axis=-1) & same
-
     @staticmethod
     def _reset_exploded(out: BatchOutput, poses: np.ndarray, modes: np.ndarray, t: float) -> np.ndarray:
         """Particles ``(K,)`` whose simulation exploded (or whose worker died) get back their state
@@ -385,10 +356,7 @@ class SceneEstimator:
         the worlds hold (entries the model changed since differ, and are loaded at the next update)."""
         s = self.state
         last_motion = np.linalg.norm(settled.poses[..., :3] - move.poses[..., :3], axis=-1)
-        self._world_poses, self._world_vel = produced
-        self._produced = (self._world_poses.copy(), self._world_vel)
-        if np.any(bad):  # exploded worlds must be reloaded from the arrays
-            self._world_poses[bad] = np.nan
+        self.pool.cache.hold(*produced, bad)  # exploded worlds must be reloaded from the arrays
         self.state = ParticleState(
             poses=settled.poses, velocities=settled.velocities, params=s.params, modes=settled.modes,
             log_weights=logw - np.max(logw[np.isfinite(logw)]), on_top=settled.on_top, is_in=settled.is_in,
@@ -403,7 +371,7 @@ class SceneEstimator:
     def _resample(self, weights: np.ndarray, hidden: np.ndarray, settled: Settled, n: int | None = None) -> None:
         """Systematic resampling to ``n`` particles (default K), then the model's regularisation of
         hidden objects ``hidden (M,)`` and of the physical parameters. The worlds keep what they hold
-        (``_world_poses``).
+        (the pool's :class:`~estimator.world_cache.WorldCache` follows the particles).
 
         Hidden objects that nothing weighed since the last resampling (never detected nor in view in
         any particle since, see :attr:`_weighed`), free and at rest in every particle, and supporting
@@ -415,8 +383,7 @@ class SceneEstimator:
         kernels = self.model.regularisation_kernels(self.state.poses, weights, hidden & ~own)
         self.state = self.state.take(anc, own)
         self._weighed = np.zeros(self.M, dtype=bool)
-        if self._produced is not None:
-            self._produced = (self._produced[0][anc], self._produced[1][anc])
+        self.pool.cache.follow(anc)
         if len(anc) != self.K:
             self._resize(len(anc))
         self.model.regularise(self.state, kernels, self.rng)
@@ -425,14 +392,8 @@ class SceneEstimator:
         """K becomes ``n`` (the state already has ``n`` rows): the slots beyond ``n`` will be parked
         by the pool (what their worlds held is forgotten: they load in full when K grows again)."""
         log.debug("particles: %d -> %d", self.K, n)
-        old = self.K
         self.K = self.model.K = n
-        if self._world_poses is not None:
-            keep = min(old, n)
-            poses = np.full((n, self.M, 7), np.nan)
-            vel = np.full((n, self.M, 6), np.nan)
-            poses[:keep], vel[:keep] = self._world_poses[:keep], self._world_vel[:keep]
-            self._world_poses, self._world_vel = poses, vel
+        self.pool.cache.resize(n)
 
     def _reseed(self, bad: np.ndarray, weights: np.ndarray) -> None:
         """Particles ``bad (K,)`` take the state (and weight) of survivors drawn by ``weights (K,)``
@@ -442,8 +403,7 @@ class SceneEstimator:
         logw = self.state.log_weights[anc]
         self.state = self.state.take(anc)
         self.state.log_weights = logw
-        if self._produced is not None:
-            self._produced = (self._produced[0][anc], self._produced[1][anc])
+        self.pool.cache.follow(anc)
 
     def _update_timeline(self, t: float, belief: Belief) -> None:
         facts = {}

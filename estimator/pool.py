@@ -27,6 +27,7 @@ from physics.world import PhysicsSettings
 from .propagate import PER_PARTICLE, BatchInput, BatchOutput
 from .shard import _Shard, _worker_main
 from .shared_batch import SharedBatch
+from .world_cache import WorldCache
 
 __all__ = ["BatchInput", "BatchOutput", "WorldPool", "shard_bounds"]
 
@@ -87,6 +88,7 @@ class WorldPool:
         settings = settings or PhysicsSettings()
         self.groups = shard_bounds(n_slots, min(n_slots, worlds or DEFAULT_WORLDS))
         self.slot_of = np.arange(n_slots) if max_particles is None else interleaved_slots(self.groups)
+        self.cache = WorldCache()  # what each slot's world holds (the filter keeps it told)
         self._fixed = max_particles is None
         self._used = self._slots_used(n_particles)
         self._local: _Shard | None = None
