@@ -323,3 +323,26 @@ def compute_belief(t: float, object_ids, known: np.ndarray, perceived: np.ndarra
     relations = relation_list(None, None, object_ids, p_on, p_in, threshold=min_p)
     return Belief(t, objects, relations, events, ess, object_ids,
                   poses.copy() if keep_particles else None, weights.copy() if keep_particles else None)
+
+
+class SpeedVariance:
+    """Adds ``(time * speed)**2`` to the position variance of every dynamic object not detected in an
+    update, ``speed`` (m/s) being how far its headline position moved since the previous update
+    (:attr:`~estimator.config.NoiseConfig.covariance_speed_time` is ``time``, s; 0 is off). It
+    remembers the headline positions from one update to the next."""
+
+    def __init__(self, time: float, dynamic: np.ndarray):
+        self.time, self.dynamic = float(time), np.asarray(dynamic, bool)
+        self._headline: np.ndarray | None = None  # (M, 3) the last update's headline positions
+
+    def __call__(self, belief: "Belief", detected: np.ndarray, dt: float) -> "Belief":
+        """``belief`` of an update ``dt`` (s) after the previous one, ``detected (M,)`` in it."""
+        if self.time <= 0:  # off (the fitted default): nothing to remember either
+            return belief
+        now = headline_positions(belief)
+        prev, self._headline = self._headline, now
+        if prev is None or dt <= 0:
+            return belief
+        moved = np.linalg.norm(now - prev, axis=1)
+        ok = np.isfinite(moved) & self.dynamic & ~np.asarray(detected, bool)
+        return with_added_variance(belief, (self.time * np.where(ok, moved, 0.0) / dt) ** 2)

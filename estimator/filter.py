@@ -35,19 +35,19 @@ import math
 import numpy as np
 
 from actions.events import recent_events, record_event_times
-from actions.modes import FREE, HELD
+from actions.modes import FREE
 from physics.scene import Scene
 
 from .adaptive import particles_needed
-from .belief import Belief, compute_belief, headline_positions, with_added_variance
+from .belief import Belief, SpeedVariance, compute_belief
 from .config import EstimatorConfig, reasoning_due
-from .holding import hidden_places, lowest_hidden_place, resting_place
+from .holding import places_after_update
 from .likelihood import held_unseen_in_view
 from .model import SceneModel, initial_poses
 from .step import Move, Settled
 from .observations import Frame
 from .perception_memory import PerceptionMemory
-from .person import person_probabilities
+from .person import with_person
 from .pool import BatchOutput, WorldPool
 from .resampling import effective_sample_size, keep_survivors_in_place, normalise_log_weights, systematic_resample
 from .shard import camera_key
@@ -116,6 +116,7 @@ class SceneEstimator:
                 self.model.close()
             raise
         self.static, self.dynamic, self.hollow = self.model.static, self.model.dynamic, self.model.hollow
+        self._speed_variance = SpeedVariance(cfg.noise.covariance_speed_time, self.dynamic)
         self.timeline = Timeline(cfg.event_threshold)
         self.recoveries = 0
         self._weighed = np.zeros(self.M, dtype=bool)  # objects some evidence weighed since the last resampling
@@ -128,7 +129,6 @@ class SceneEstimator:
         self.t_frame: float | None = None
         self.t_tick: float | None = None
         self._last_frame: Frame | None = None  # the last observed frame (outliers dropped)
-        self._headline: np.ndarray | None = None  # (M, 3) the last update's headline positions
         self._detected_since_tick = np.zeros(M, dtype=bool)
         self._cameras_since_tick: dict | None = None  # cameras of the frames since the last update
         self._scene_camera_since_tick = False  # a frame without cameras (the scene's) since then
@@ -199,38 +199,6 @@ class SceneEstimator:
         self.last_belief = belief
         return belief
 
-    def _with_speed_variance(self, belief: Belief, detected: np.ndarray, dt: float) -> Belief:
-        """The belief with ``(covariance_speed_time * speed)**2`` added to the position variance of
-        every dynamic object not detected in this update, ``speed`` (m/s) being how far its headline
-        position moved since the last update over ``dt`` (s) (NoiseConfig); remembers the headline
-        positions for the next update."""
-        c = self.config.noise.covariance_speed_time
-        if c <= 0:  # off (the fitted default): nothing to remember either
-            return belief
-        now = headline_positions(belief)
-        prev, self._headline = self._headline, now
-        if prev is None or dt <= 0:
-            return belief
-        moved = np.linalg.norm(now - prev, axis=1)
-        ok = np.isfinite(moved) & self.dynamic & ~np.asarray(detected, bool)
-        return with_added_variance(belief, (c * np.where(ok, moved, 0.0) / dt) ** 2)
-
-    def _with_person(self, belief: Belief, poses: np.ndarray, weights: np.ndarray) -> Belief:
-        """The belief with P(visible to) and P(reachable by) the scene's person for every known
-        dynamic object (:mod:`estimator.person`; ray tests in the particle worlds)."""
-        person = self.scene.person
-        idx = np.flatnonzero(self.known & self.dynamic)
-        p_vis, p_reach = person_probabilities(self.pool, person, poses, weights, idx, self.known, self.last_hands,
-                                              self.config.visibility_threshold)
-        objects = dict(belief.objects)
-        for j, m in enumerate(idx):
-            oid = self.object_ids[m]
-            if oid in objects:
-                objects[oid] = dataclasses.replace(objects[oid], person={
-                    "id": person.id, "p_visible": None if np.isnan(p_vis[j]) else round(float(p_vis[j]), 4),
-                    "p_reachable": None if np.isnan(p_reach[j]) else round(float(p_reach[j]), 4)})
-        return dataclasses.replace(belief, objects=objects)
-
     def _tick_cameras(self) -> tuple | None:
         """The cameras that took the frames since the last update, and forget them: None when every
         frame was the scene camera's (old streams: the pool asks the scene camera, as always), else
@@ -271,7 +239,7 @@ class SceneEstimator:
             logw, weights = self._recover(t, settled, detected)
         ess = effective_sample_size(weights)
         # commit
-        hidden = self._hidden_places(evidence, settled, t)
+        hidden = places_after_update(self.state, evidence, settled, t, self.rng, cfg.visibility_threshold)
         self._commit(move, settled, logw, bad, held_unseen_in_view(evidence, cfg.visibility_threshold), hidden,
                      produced)
         self.memory.end_tick(perceived, detected, settled.tick_vel)
@@ -285,14 +253,16 @@ class SceneEstimator:
                                 settled.on_top, settled.is_in, step_events, ess, self.static, cfg.hypothesis_min_p,
                                 cov_floor=cfg.noise.covariance_floor_std ** 2,
                                 dof=cfg.noise.position_dof or math.inf, params=self.state.params)
-        belief = self._with_speed_variance(belief, detected, dt)
+        belief = self._speed_variance(belief, detected, dt)
         if cfg.adaptive.enabled:  # the count this belief needs, and the K that made it
             self.needed, self.bins = particles_needed(settled.poses, settled.modes, weights,
                                                       self.known & self.dynamic, cfg.adaptive)
             belief = dataclasses.replace(belief, n_particles=K)
         self.k_range = [min(self.k_range[0], K), max(self.k_range[1], K), self.k_range[2] + K]
-        if self.scene.person is not None:
-            belief = self._with_person(belief, settled.poses, weights)
+        if self.scene.person is not None:  # P(visible to) and P(reachable by) the person
+            belief = with_person(belief, self.pool, self.scene.person, settled.poses, weights,
+                                 np.flatnonzero(self.known & self.dynamic), self.known, self.object_ids,
+                                 self.last_hands, cfg.visibility_threshold)
         self._update_timeline(t, belief)
         # resample; particles whose simulation exploded or whose worker died take a survivor's state
         self._weighed |= detected | np.any(evidence.visible >= cfg.visibility_threshold, axis=0)
@@ -331,42 +301,15 @@ class SceneEstimator:
         self.model.reseed(settled.poses, settled.velocities, detected, self.rng)
         return np.zeros(self.K), np.full(self.K, 1.0 / self.K)
 
-    def _hidden_places(self, ev, settled: Settled, t: float) -> tuple[np.ndarray, ...]:
-        """The particles' samples of where their held objects were out of view
-        (:func:`~estimator.holding.hidden_places`), and where they were lowest then
-        (:func:`~estimator.holding.lowest_hidden_place`), after this update:
-        ``(hidden_at, hidden_t, hidden_n, down_at, down_t)``; and where they last rested on a support
-        out of view, undetected (:func:`~estimator.holding.resting_place`): ``(rest_at, rest_t)``."""
-        s, thr = self.state, self.config.visibility_threshold
-        in_hand = (settled.modes == HELD) & np.asarray(ev.in_tracked_hand, bool)[None, :]
-        in_view = (ev.visible >= thr) & np.asarray(ev.queried, bool)[None, :]
-        reset = (settled.modes != HELD) | ev.detected[None, :]
-        hidden = in_hand & ~ev.perceived[None, :] & ~in_view
-        # an object that still counts as perceived (t_perceived) follows its hand too: set down then
-        unseen = in_hand & ~ev.detected[None, :] & ~in_view
-        return (hidden_places(s.hidden_at, s.hidden_t, s.hidden_n, settled.poses, hidden, reset, t, self.rng)
-                + lowest_hidden_place(s.down_at, s.down_t, s.hidden_n, settled.poses, hidden, t)
-                + resting_place(s.rest_at, s.rest_t, settled.poses, unseen, settled.supported, reset, t))
-
     def _commit(self, move: Move, settled: Settled, logw: np.ndarray, bad: np.ndarray,
                 unseen_in_view: np.ndarray, hidden: tuple[np.ndarray, ...],
                 produced: tuple[np.ndarray, np.ndarray]) -> None:
         """The particles after this update (the largest finite log-weight made 0); ``hidden``: see
-        :meth:`_hidden_places`; ``produced``: the poses and velocities ``(K, M, 7)``, ``(K, M, 6)``
-        the worlds hold (entries the model changed since differ, and are loaded at the next update)."""
-        s = self.state
-        last_motion = np.linalg.norm(settled.poses[..., :3] - move.poses[..., :3], axis=-1)
+        :func:`~estimator.holding.places_after_update`; ``produced``: the poses and velocities
+        ``(K, M, 7)``, ``(K, M, 6)`` the worlds hold (entries the model changed since differ, and are
+        loaded at the next update)."""
         self.pool.cache.hold(*produced, bad)  # exploded worlds must be reloaded from the arrays
-        self.state = ParticleState(
-            poses=settled.poses, velocities=settled.velocities, params=s.params, modes=settled.modes,
-            log_weights=logw - np.max(logw[np.isfinite(logw)]), on_top=settled.on_top, is_in=settled.is_in,
-            event_t=s.event_t, supported=settled.supported, last_motion=last_motion,
-            jolted=np.zeros((self.K, self.M), dtype=bool), unseen_in_view=unseen_in_view,
-            hold_error=move.hold_error, let_go_unseen=move.let_go_unseen, hidden_at=hidden[0],
-            hidden_t=hidden[1], hidden_n=hidden[2], down_at=hidden[3], down_t=hidden[4],
-            rest_at=hidden[5], rest_t=hidden[6],
-            push_decided=s.push_decided, holds=settled.holds,
-            jitter=move.jitter * (settled.modes == FREE)[..., None])  # held: at the target, no noise
+        self.state = self.state.after_update(move, settled, logw, unseen_in_view, hidden, settled.modes == FREE)
 
     def _resample(self, weights: np.ndarray, hidden: np.ndarray, settled: Settled, n: int | None = None) -> None:
         """Systematic resampling to ``n`` particles (default K), then the model's regularisation of

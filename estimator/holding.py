@@ -371,3 +371,24 @@ def dropped_behind_cover(codes: np.ndarray, cover: np.ndarray | None, before: np
     codes = codes.copy()
     codes[kk, mm] = np.where(fall > COVER_DROP, RELEASE, PLACE)
     return codes
+
+
+def places_after_update(state, ev, settled, t: float, rng: np.random.Generator,
+                        threshold: float) -> tuple[np.ndarray, ...]:
+    """The particles' samples of where their held objects were out of view (:func:`hidden_places`),
+    and where they were lowest then (:func:`lowest_hidden_place`), after an update:
+    ``(hidden_at, hidden_t, hidden_n, down_at, down_t)``; and where they last rested on a support out
+    of view, undetected (:func:`resting_place`): ``(rest_at, rest_t)``. ``state``: the
+    :class:`~estimator.state.ParticleState` before the update; ``ev``: its
+    :class:`~estimator.likelihood.Evidence`; ``settled``: its :class:`~estimator.step.Settled`;
+    ``threshold``: the visible fraction that counts as in view."""
+    s = state
+    in_hand = (settled.modes == HELD) & np.asarray(ev.in_tracked_hand, bool)[None, :]
+    in_view = (ev.visible >= threshold) & np.asarray(ev.queried, bool)[None, :]
+    reset = (settled.modes != HELD) | ev.detected[None, :]
+    hidden = in_hand & ~ev.perceived[None, :] & ~in_view
+    # an object that still counts as perceived (t_perceived) follows its hand too: set down then
+    unseen = in_hand & ~ev.detected[None, :] & ~in_view
+    return (hidden_places(s.hidden_at, s.hidden_t, s.hidden_n, settled.poses, hidden, reset, t, rng)
+            + lowest_hidden_place(s.down_at, s.down_t, s.hidden_n, settled.poses, hidden, t)
+            + resting_place(s.rest_at, s.rest_t, settled.poses, unseen, settled.supported, reset, t))

@@ -11,6 +11,8 @@ tracked hands when none is), or of the head when no hand is tracked.
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from physics.scene import PersonSpec
@@ -38,3 +40,20 @@ def person_probabilities(pool, person: PersonSpec, poses: np.ndarray, weights: n
         d = np.linalg.norm(poses[:, objects, None, :3] - pts[None, None], axis=-1).min(axis=-1)  # (K, n)
         p_reach = weights @ (d <= person.reach)
     return p_vis, p_reach
+
+
+def with_person(belief, pool, person: PersonSpec, poses: np.ndarray, weights: np.ndarray, objects: np.ndarray,
+                known: np.ndarray, object_ids, hands: dict, threshold: float):
+    """``belief`` (:class:`~estimator.belief.Belief`) with P(visible to) and P(reachable by)
+    ``person`` for the objects ``objects (n,)`` (indices: the known dynamic ones), from the particles
+    ``poses (K, M, 7)`` and ``weights (K,)`` (:func:`person_probabilities`: ray tests in ``pool``'s
+    worlds; ``hands``: the tracked hands)."""
+    p_vis, p_reach = person_probabilities(pool, person, poses, weights, objects, known, hands, threshold)
+    out = dict(belief.objects)
+    for j, m in enumerate(objects):
+        oid = object_ids[m]
+        if oid in out:
+            out[oid] = replace(out[oid], person={
+                "id": person.id, "p_visible": None if np.isnan(p_vis[j]) else round(float(p_vis[j]), 4),
+                "p_reachable": None if np.isnan(p_reach[j]) else round(float(p_reach[j]), 4)})
+    return replace(belief, objects=out)
