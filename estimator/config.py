@@ -366,7 +366,7 @@ class AdaptiveConfig:
     def __post_init__(self):
         if not isinstance(self.enabled, bool):
             raise ValueError(f"AdaptiveConfig.enabled must be true or false, got {self.enabled!r}")
-        for n in ("min_particles", "max_particles"):
+        for n in ("max_particles", "min_particles"):
             v = getattr(self, n)
             if not isinstance(v, int) or isinstance(v, bool) or v < 2:
                 raise ValueError(f"AdaptiveConfig.{n} must be an integer >= 2, got {v!r}")

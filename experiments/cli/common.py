@@ -64,8 +64,9 @@ def build_config(args) -> EstimatorConfig:
     if getattr(args, "particles", None) == "auto" or getattr(args, "max_particles", None) is not None \
             or getattr(args, "min_particles", None) is not None:
         a = cfg.adaptive
-        lo = args.min_particles if getattr(args, "min_particles", None) is not None else a.min_particles
         hi = args.max_particles if getattr(args, "max_particles", None) is not None else a.max_particles
+        # a maximum under the default minimum lowers the minimum with it
+        lo = args.min_particles if getattr(args, "min_particles", None) is not None else min(a.min_particles, hi)
         if args.particles not in ("auto", None):
             raise ValueError("--min-particles / --max-particles go with --particles auto")
         cfg = dataclasses.replace(cfg, adaptive=dataclasses.replace(a, enabled=True, min_particles=lo,

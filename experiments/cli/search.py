@@ -82,10 +82,11 @@ def run_search(args: argparse.Namespace) -> int:
         except ValueError as exc:
             raise InputError(str(exc), field="--object") from None
         planning_ms = 1e3 * (time.perf_counter() - t0)
+        particles = est.K  # (with an adaptive count, the K of the last update)
     if args.json:
         print(json.dumps({**plan.to_json(), "planning_ms": round(planning_ms, 1)}))
         return 0
-    print_plan(plan, cfg.particles)
+    print_plan(plan, particles)
     print(f"\nPlanned in {planning_ms:.0f} ms ({plan.candidates} candidate viewpoints).")
     return 0
 
