@@ -153,6 +153,26 @@ def summarize(rows: list[dict], columns: Iterable[Column] = SUMMARY_COLUMNS + EX
     return out
 
 
+def _paired(rec: dict, mine: dict, base: dict, keys: list, metrics) -> dict:
+    """``rec`` with, for each ``(field, heading, scale)`` of ``metrics``, the Wilcoxon signed-rank
+    test of the rows ``mine`` against ``base`` (both by (scenario, seed)) over ``keys``:
+    ``<field>.n``, ``<field>.median_diff`` (mine - base) and ``<field>.p``."""
+    for fieldname, _h, _s in metrics:
+        t = paired_wilcoxon([_value(mine[x], fieldname) for x in keys], [_value(base[x], fieldname) for x in keys])
+        rec[fieldname + ".n"], rec[fieldname + ".median_diff"], rec[fieldname + ".p"] = t.n, t.median_diff, t.p_value
+    return rec
+
+
+def _test_cells(t: dict, metrics) -> list[str]:
+    """The cells of one test record (:func:`_paired`): median difference, p-value and pairs."""
+    cells = []
+    for f, _h, s in metrics:
+        d, p, n = t[f + ".median_diff"], t[f + ".p"], t[f + ".n"]
+        cells.append("–" if not (n and math.isfinite(d)) else
+                     f"{d * s:+.2f} (p={p:.3g}, n={n})" if math.isfinite(p) else f"{d * s:+.2f} (n={n})")
+    return cells
+
+
 def paired_tests(rows: list[dict], baseline: str = "paper") -> list[dict]:
     """Wilcoxon signed-rank tests of every particle method against ``baseline``, per scenario and
     over all scenarios, paired by (scenario, seed), for each of :data:`TEST_METRICS`."""
@@ -169,14 +189,8 @@ def paired_tests(rows: list[dict], baseline: str = "paper") -> list[dict]:
             keys = sorted(x for x in mine if x in base and (sc == ALL or x[0] == sc))
             if not keys:
                 continue
-            rec = {"scenario": sc, "method": m, "particles": k, "baseline": baseline}
-            for fieldname, _h, _s in TEST_METRICS:
-                t = paired_wilcoxon([_value(mine[x], fieldname) for x in keys],
-                                    [_value(base[x], fieldname) for x in keys])
-                rec[fieldname + ".n"] = t.n
-                rec[fieldname + ".median_diff"] = t.median_diff
-                rec[fieldname + ".p"] = t.p_value
-            out.append(rec)
+            out.append(_paired({"scenario": sc, "method": m, "particles": k, "baseline": baseline},
+                               mine, base, keys, TEST_METRICS))
     return out
 
 
@@ -203,12 +217,7 @@ def adaptive_tests(rows: list[dict]) -> list[dict]:
                 continue
             rec = {"scenario": ALL, "method": m, "particles": AUTO, "baseline": f"{m} K={k2}",
                    "mean_particles": float(np.mean([mine[x].get("mean_particles", np.nan) for x in keys]))}
-            for fieldname, _h, _s in AUTO_TEST_METRICS:
-                t = paired_wilcoxon([_value(mine[x], fieldname) for x in keys],
-                                    [_value(base[x], fieldname) for x in keys])
-                rec[fieldname + ".n"], rec[fieldname + ".median_diff"], rec[fieldname + ".p"] = (
-                    t.n, t.median_diff, t.p_value)
-            out.append(rec)
+            out.append(_paired(rec, mine, base, keys, AUTO_TEST_METRICS))
     return out
 
 
@@ -224,10 +233,7 @@ def markdown_adaptive_section(rows: list[dict]) -> str:
     buf.write("| " + " | ".join(head) + " |\n|" + "|".join(["---"] * len(head)) + "|\n")
     for t in tests:
         cells = [method_label(t["method"], t["particles"]), t["baseline"], f"{t['mean_particles']:.0f}"]
-        for f, _h, s in AUTO_TEST_METRICS:
-            d, p, n = t[f + ".median_diff"], t[f + ".p"], t[f + ".n"]
-            cells.append("–" if not (n and math.isfinite(d)) else
-                         f"{d * s:+.2f} (p={p:.3g}, n={n})" if math.isfinite(p) else f"{d * s:+.2f} (n={n})")
+        cells += _test_cells(t, AUTO_TEST_METRICS)
         buf.write("| " + " | ".join(cells) + " |\n")
     return buf.getvalue()
 
@@ -266,11 +272,7 @@ def markdown_summary(summary: list[dict], tests: list[dict], columns=SUMMARY_COL
         head = ["scenario", "method"] + [h for _f, h, _s in TEST_METRICS]
         buf.write("| " + " | ".join(head) + " |\n|" + "|".join(["---"] * len(head)) + "|\n")
         for t in tests:
-            cells = [t["scenario"], method_label(t["method"], t["particles"])]
-            for f, _h, s in TEST_METRICS:
-                d, p, n = t[f + ".median_diff"], t[f + ".p"], t[f + ".n"]
-                cells.append("–" if not (n and math.isfinite(d)) else
-                             f"{d * s:+.2f} (p={p:.3g}, n={n})" if math.isfinite(p) else f"{d * s:+.2f} (n={n})")
+            cells = [t["scenario"], method_label(t["method"], t["particles"])] + _test_cells(t, TEST_METRICS)
             buf.write("| " + " | ".join(cells) + " |\n")
     calib = [Column("brier_plausible", "Brier P(plausible)"), Column("ece_plausible", "ECE P(plausible)"),
              Column("brier_isin", "Brier P(isIn)", 1.0, "{:.3f}"), Column("ece_isin", "ECE P(isIn)", 1.0, "{:.3f}"),
