@@ -19,7 +19,7 @@ import pybullet as pb
 
 from .scene import Scene
 from .settings import PhysicsSettings
-from .transforms import quat_normalize, quat_rotate
+from .transforms import quat_normalize
 from .world import PARK_DEPTH, World
 
 INVARIANT_DEPTH = 0.01
@@ -31,10 +31,12 @@ CLIP_DEPTH = 0.004
 geometry (a held box resting on the table, its detection a few millimetres low, is not moved), and
 stops it where it is at most this deep."""
 
+DEPTH_CACHE = 100_000
+"""Penetration depths :class:`StaticGeometry` keeps, by object and exact pose (a few megabytes): the
+resting particles of a scene ask the same poses at every update."""
+
 BISECTIONS = 8
 """Halvings of a path in :meth:`StaticGeometry.clip`: the stop is found to within 1/256 of the path."""
-
-_CORNERS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
 
 
 class StaticGeometry:
@@ -69,6 +71,7 @@ class StaticGeometry:
                 lo, hi = w.aabbs([int(m)])[0]
                 self._local[int(m)] = (0.5 * (lo + hi), 0.5 * (hi - lo))
             w.set_poses(w.parked_pose[w.dynamic_indices], w.dynamic_indices)
+            self._depths: dict[tuple, float] = {}  # (object, pose, candidates) -> depth, oldest first
         except BaseException:
             w.close()
             raise
@@ -91,11 +94,11 @@ class StaticGeometry:
         if self._round[m]:
             lo = poses[:, :3] + centre - half
             hi = poses[:, :3] + centre + half
-        else:
-            corners = centre + _CORNERS * half  # (8, 3) in the link frame
-            q = np.repeat(poses[:, None, 3:], 8, axis=1)
-            world = poses[:, None, :3] + quat_rotate(q, np.broadcast_to(corners, q.shape[:2] + (3,)))
-            lo, hi = world.min(axis=1), world.max(axis=1)
+        else:  # the box turned: centre R c, half extents |R| h (the box of its eight corners)
+            R = _rotation_matrices(poses[:, 3:])  # (N, 3, 3)
+            mid = poses[:, :3] + R @ centre
+            ext = np.abs(R) @ half
+            lo, hi = mid - ext, mid + ext
         return np.all((lo[:, None, :] <= self._static_hi[None] - margin)
                       & (hi[:, None, :] >= self._static_lo[None] + margin), axis=2)
 
@@ -129,9 +132,11 @@ class StaticGeometry:
         com[:, 3:] = quat_normalize(com[:, 3:])
         c, uid, statics = w.client, w.uids[m], self.static_uids
         reset, closest = pb.resetBasePositionAndOrientation, pb.getClosestPoints
-        done: dict[tuple, float] = {}  # equal poses (many particles share a detection) are asked once
+        # equal poses are asked once: many particles share a detection, and a particle at rest asleep
+        # holds the same pose, bit for bit, from one update to the next (DEPTH_CACHE answers kept)
+        done = self._depths
         for r, row, which in zip(rows.tolist(), com.tolist(), cand[rows].tolist()):
-            key = tuple(row)
+            key = (m, *row, *which)
             if key in done:
                 out[r] = done[key]
                 continue
@@ -143,6 +148,8 @@ class StaticGeometry:
                         if pt[8] < worst:
                             worst = pt[8]
             out[r] = done[key] = -worst
+        while len(done) > DEPTH_CACHE:
+            del done[next(iter(done))]  # the oldest first
         reset(uid, w.parked_pose[m, :3].tolist(), [0.0, 0.0, 0.0, 1.0], physicsClientId=c)
         return out
 
@@ -276,6 +283,15 @@ class StaticGeometry:
         pb.resetBasePositionAndOrientation(uid, w.parked_pose[m, :3].tolist(), [0.0, 0.0, 0.0, 1.0],
                                            physicsClientId=c)
         return pose
+
+
+def _rotation_matrices(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices ``(N, 3, 3)`` of quaternions ``q (N, 4)`` (x, y, z, w; normalised here)."""
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    x, y, z, w = q.T
+    return np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
+                     2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
+                     2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], axis=1).reshape(-1, 3, 3)
 
 
 def _along(start: np.ndarray, end: np.ndarray, f: np.ndarray) -> np.ndarray:
