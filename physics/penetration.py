@@ -31,10 +31,6 @@ CLIP_DEPTH = 0.004
 geometry (a held box resting on the table, its detection a few millimetres low, is not moved), and
 stops it where it is at most this deep."""
 
-DEPTH_CACHE = 100_000
-"""Penetration depths :class:`StaticGeometry` keeps, by object and exact pose (a few megabytes): the
-resting particles of a scene ask the same poses at every update."""
-
 BISECTIONS = 8
 """Halvings of a path in :meth:`StaticGeometry.clip`: the stop is found to within 1/256 of the path."""
 
@@ -71,7 +67,6 @@ class StaticGeometry:
                 lo, hi = w.aabbs([int(m)])[0]
                 self._local[int(m)] = (0.5 * (lo + hi), 0.5 * (hi - lo))
             w.set_poses(w.parked_pose[w.dynamic_indices], w.dynamic_indices)
-            self._depths: dict[tuple, float] = {}  # (object, pose, candidates) -> depth, oldest first
         except BaseException:
             w.close()
             raise
@@ -132,11 +127,9 @@ class StaticGeometry:
         com[:, 3:] = quat_normalize(com[:, 3:])
         c, uid, statics = w.client, w.uids[m], self.static_uids
         reset, closest = pb.resetBasePositionAndOrientation, pb.getClosestPoints
-        # equal poses are asked once: many particles share a detection, and a particle at rest asleep
-        # holds the same pose, bit for bit, from one update to the next (DEPTH_CACHE answers kept)
-        done = self._depths
+        done: dict[tuple, float] = {}  # equal poses (many particles share a detection) are asked once
         for r, row, which in zip(rows.tolist(), com.tolist(), cand[rows].tolist()):
-            key = (m, *row, *which)
+            key = tuple(row)
             if key in done:
                 out[r] = done[key]
                 continue
@@ -148,8 +141,6 @@ class StaticGeometry:
                         if pt[8] < worst:
                             worst = pt[8]
             out[r] = done[key] = -worst
-        while len(done) > DEPTH_CACHE:
-            del done[next(iter(done))]  # the oldest first
         reset(uid, w.parked_pose[m, :3].tolist(), [0.0, 0.0, 0.0, 1.0], physicsClientId=c)
         return out
 

@@ -110,16 +110,3 @@ def test_the_box_prefilter_keeps_every_object_that_is_deep_inside(geometry):
         assert kept.sum() < n  # and it does leave some out
     assert geometry.may_be_inside(np.zeros((2, 3, 2, 3)) + [[0, 0, 5.0], [0.1, 0.1, 5.1]]).shape == (2, 3)
 
-
-def test_depths_asked_again_come_from_a_bounded_memory_and_equal_fresh_queries(geometry, monkeypatch):
-    import physics.penetration as pen
-
-    rng = np.random.default_rng(3)
-    p = poses(*([0.1 * i, 0.0, TABLE_TOP + z] for i, z in enumerate(rng.uniform(-0.04, 0.04, 20))))
-    first = geometry.depth_of(1, p)
-    again = geometry.depth_of(1, p)
-    assert np.array_equal(first, again) and np.any(first > 0.01)
-    monkeypatch.setattr(pen, "DEPTH_CACHE", 5)
-    geometry._depths.clear()
-    fresh = geometry.depth_of(1, p)
-    assert len(geometry._depths) <= 5 and np.array_equal(fresh, first)
