@@ -500,6 +500,18 @@ class EstimatorConfig:
                    moving_teleports=False, still_unacted=False, static_clip=False)
 
 
+def with_adaptive_count(config: EstimatorConfig, min_particles: int | None = None,
+                        max_particles: int | None = None) -> EstimatorConfig:
+    """``config`` with the adaptive particle count on (:class:`AdaptiveConfig`), between
+    ``min_particles`` and ``max_particles`` (default: the configuration's bounds; a maximum under
+    the configuration's minimum lowers the minimum with it). The filter starts from
+    ``config.particles`` clipped to those bounds (:attr:`EstimatorConfig.initial_particles`)."""
+    a = config.adaptive
+    hi = a.max_particles if max_particles is None else max_particles
+    lo = min(a.min_particles, hi) if min_particles is None else min_particles
+    return replace(config, adaptive=replace(a, enabled=True, min_particles=lo, max_particles=hi))
+
+
 SECTIONS: dict[str, type] = {"reasoner": ReasonerConfig, "noise": NoiseConfig, "priors": ModePriors,
                              "hands": HandConfig, "relations": RelationConfig, "physics": PhysicsSettings,
                              "adaptive": AdaptiveConfig}

@@ -121,8 +121,6 @@ class SceneEstimator:
         self.recoveries = 0
         self._weighed = np.zeros(self.M, dtype=bool)  # objects some evidence weighed since the last resampling
         self.reseeded = 0  # particles re-seeded from survivors (exploded simulations, dead workers)
-        self.needed = K  # with adaptive K: the count the belief needed at the last update
-        self.bins = np.zeros(M, dtype=int)  # with adaptive K: each object's bins counted then
         self.k_range = [K, K, 0]  # the fewest and the most particles over the updates, and their sum
         self.n_updates = 0
         self.last_belief: Belief | None = None
@@ -254,9 +252,10 @@ class SceneEstimator:
                                 cov_floor=cfg.noise.covariance_floor_std ** 2,
                                 dof=cfg.noise.position_dof or math.inf, params=self.state.params)
         belief = self._speed_variance(belief, detected, dt)
-        if cfg.adaptive.enabled:  # the count this belief needs, and the K that made it
-            self.needed, self.bins = particles_needed(settled.poses, settled.modes, weights,
-                                                      self.known & self.dynamic, cfg.adaptive)
+        n, resize = K, False
+        if cfg.adaptive.enabled:  # the count this belief needs (resampled to below), and the K that made it
+            n = particles_needed(settled.poses, settled.modes, weights, self.known & self.dynamic, cfg.adaptive)[0]
+            resize = n > K or n < cfg.adaptive.shrink_below * K
             belief = dataclasses.replace(belief, n_particles=K)
         self.k_range = [min(self.k_range[0], K), max(self.k_range[1], K), self.k_range[2] + K]
         if self.scene.person is not None:  # P(visible to) and P(reachable by) the person
@@ -266,10 +265,6 @@ class SceneEstimator:
         self._update_timeline(t, belief)
         # resample; particles whose simulation exploded or whose worker died take a survivor's state
         self._weighed |= detected | np.any(evidence.visible >= cfg.visibility_threshold, axis=0)
-        n, resize = K, False
-        if cfg.adaptive.enabled:
-            n = self.needed
-            resize = n > K or n < cfg.adaptive.shrink_below * K
         if K > 1 and (ess < cfg.resample_threshold * K or resize):
             self._resample(weights, self.known & self.dynamic & ~perceived, settled, n)
         elif K > 1 and np.any(bad) and np.any(weights > 0):
@@ -311,8 +306,8 @@ class SceneEstimator:
         self.pool.cache.hold(*produced, bad)  # exploded worlds must be reloaded from the arrays
         self.state = self.state.after_update(move, settled, logw, unseen_in_view, hidden, settled.modes == FREE)
 
-    def _resample(self, weights: np.ndarray, hidden: np.ndarray, settled: Settled, n: int | None = None) -> None:
-        """Systematic resampling to ``n`` particles (default K), then the model's regularisation of
+    def _resample(self, weights: np.ndarray, hidden: np.ndarray, settled: Settled, n: int) -> None:
+        """Systematic resampling to ``n`` particles (K changes with it), then the model's regularisation of
         hidden objects ``hidden (M,)`` and of the physical parameters. The worlds keep what they hold
         (the pool's :class:`~estimator.world_cache.WorldCache` follows the particles).
 
@@ -326,17 +321,9 @@ class SceneEstimator:
         kernels = self.model.regularisation_kernels(self.state.poses, weights, hidden & ~own)
         self.state = self.state.take(anc, own)
         self._weighed = np.zeros(self.M, dtype=bool)
-        self.pool.cache.follow(anc)
-        if len(anc) != self.K:
-            self._resize(len(anc))
-        self.model.regularise(self.state, kernels, self.rng)
-
-    def _resize(self, n: int) -> None:
-        """K becomes ``n`` (the state already has ``n`` rows): the slots beyond ``n`` will be parked
-        by the pool (what their worlds held is forgotten: they load in full when K grows again)."""
-        log.debug("particles: %d -> %d", self.K, n)
+        self.pool.cache.follow(anc)  # (slots beyond n: the pool parks their worlds at its next run)
         self.K = self.model.K = n
-        self.pool.cache.resize(n)
+        self.model.regularise(self.state, kernels, self.rng)
 
     def _reseed(self, bad: np.ndarray, weights: np.ndarray) -> None:
         """Particles ``bad (K,)`` take the state (and weight) of survivors drawn by ``weights (K,)``

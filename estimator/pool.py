@@ -89,7 +89,6 @@ class WorldPool:
         self.groups = shard_bounds(n_slots, min(n_slots, worlds or DEFAULT_WORLDS))
         self.slot_of = np.arange(n_slots) if max_particles is None else interleaved_slots(self.groups)
         self.cache = WorldCache()  # what each slot's world holds (the filter keeps it told)
-        self._fixed = max_particles is None
         self._used = self._slots_used(n_particles)
         self._local: _Shard | None = None
         self.last_run_seconds = 0.0
@@ -156,23 +155,18 @@ class WorldPool:
         K = len(batch.poses)
         if K > self.n_slots:
             raise ValueError(f"the pool holds {self.n_slots} particles, a run asked for {K}")
-        fixed = self._fixed and K == self.n_slots  # every slot, in order: no mapping
         self.n_particles, self._used = K, self._slots_used(K)
-        slots = None if fixed else self.slot_of[:K]
+        slots = self.slot_of[:K]
         if self._local is not None:
-            if fixed:
-                out = self._local.run(batch, n_steps, d_sim_perc, lazy, moving, cameras)
-            else:
-                out = self._in_particle_order(self._local.run(self._by_slot(batch), n_steps, d_sim_perc, lazy,
-                                                              moving, cameras, self._used), slots)
+            out = self._in_particle_order(self._local.run(self._by_slot(batch), self._used, n_steps, d_sim_perc,
+                                                          lazy, moving, cameras), slots)
             self.last_run_seconds = time.perf_counter() - t0
             self.last_worker_seconds = [self.last_run_seconds]
             return out
         self._shared.write_inputs(batch, slots)
         for conn, (lo, hi) in zip(self._conns, self._bounds):
             try:
-                conn.send(("run", n_steps, d_sim_perc, lazy, moving, cameras,
-                           None if fixed else self._used[lo:hi]))
+                conn.send(("run", self._used[lo:hi], n_steps, d_sim_perc, lazy, moving, cameras))
             except OSError:
                 pass  # a dead worker: its reply says so
         replies = [self._recv(conn) for conn in self._conns]  # all of them: no reply is left unread
@@ -234,14 +228,13 @@ class WorldPool:
             raise ValueError(f"look: {K} particles' poses for a pool running {self.n_particles}")
         first = first_copies(poses)
         only = first == np.arange(K)
-        rows = self.slot_of[:K]
-        if not (self._fixed and K == self.n_slots):  # to one row per slot
-            full = np.zeros((self.n_slots,) + poses.shape[1:])
-            full[:, :, 6] = 1.0
-            full[rows] = poses
-            mask = np.zeros(self.n_slots, bool)
-            mask[rows] = only
-            poses, only = full, mask
+        rows = self.slot_of[:K]  # to one row per slot
+        full = np.zeros((self.n_slots,) + poses.shape[1:])
+        full[:, :, 6] = 1.0
+        full[rows] = poses
+        mask = np.zeros(self.n_slots, bool)
+        mask[rows] = only
+        poses, only = full, mask
         if self._local is not None:
             return self._local.look(poses, place, targets, tuple(cameras), threshold, only)[:, rows][:, first]
         for conn, (lo, hi) in zip(self._conns, self._bounds):

@@ -14,7 +14,7 @@ from physics.group import WorldGroup
 from physics.scene import CameraSpec, Scene
 from physics.transforms import quat_rotate
 from physics.sightlines import Solids
-from physics.visibility import (Camera, local_box, local_sample_points, rays_clear_of_moved, seen_points,
+from physics.visibility import (Camera, local_box, local_sample_points, rays_clear_of, seen_points,
                                 solid_box, visible_enough, visible_fractions)
 from physics.world import PhysicsSettings, World
 
@@ -52,10 +52,10 @@ class _Shard:
     """The particle slots of consecutive groups ``[(lo, hi), ...]`` (one client each); runs in a
     worker process or in the caller's.
 
-    ``active`` ``(n,)`` bool over the shard's ``n`` slots (default all): the slots in use. A group
-    builds its copies up to its last slot in use (at least one), and more as later runs use more
-    (:meth:`WorldGroup.grow`); a slot that falls out of use has its objects parked (asleep, no
-    collisions: stepping its client costs next to nothing for it)."""
+    ``active`` ``(n,)`` bool over the shard's ``n`` slots (default all): the slots in use. A client
+    holds its copies up to its last slot in use (at least one), and builds more as later runs use
+    more (:meth:`use`, :meth:`WorldGroup.grow`); a slot that falls out of use has its objects parked
+    (asleep, no collisions: stepping its client costs next to nothing for it)."""
 
     def __init__(self, scene: Scene, settings: PhysicsSettings, groups: list[tuple[int, int]],
                  active: np.ndarray | None = None):
@@ -65,14 +65,10 @@ class _Shard:
         self._first = [lo - groups[0][0] for lo, _ in groups]  # each group's first slot, shard-local
         self._group_of = [j for j, (lo, hi) in enumerate(groups) for _ in range(lo, hi)]  # slot -> its client
         self.worlds: list[ParticleWorld | None] = [None] * n
-        self._active = np.zeros(n, bool)
-        try:
+        try:  # one copy in each client now; the others as the slots come into use (self.use)
             for j, (lo, hi) in enumerate(groups):
-                used = np.flatnonzero(active[self._first[j]:self._first[j] + hi - lo])
-                g = WorldGroup(scene, settings, 1 + (int(used[-1]) if len(used) else 0), capacity=hi - lo)
-                self.groups.append(g)
-                for c, w in enumerate(g.worlds):
-                    self.worlds[self._first[j] + c] = ParticleWorld(w)
+                self.groups.append(WorldGroup(scene, settings, 1, capacity=hi - lo))
+                self.worlds[self._first[j]] = ParticleWorld(self.groups[j].worlds[0])
         except BaseException:
             self.close()
             raise
@@ -87,7 +83,11 @@ class _Shard:
         if self.camera is not None:
             self._sample_points(self.worlds[0].world)
         self._active = np.array([w is not None for w in self.worlds])
-        self.use(active)  # a copy built for its group but not in use is parked
+        try:
+            self.use(active)  # the copies in use built; one built for its client but not in use, parked
+        except BaseException:
+            self.close()
+            raise
 
     def _sample_points(self, w: World) -> None:
         """Sample points, box centres and radii of every object, read from world ``w``."""
@@ -136,29 +136,23 @@ class _Shard:
             for cache in self._vis_caches.values():
                 cache.pop(k, None)
         for k in np.flatnonzero(active).tolist():
-            if self.worlds[k] is None:
+            if self.worlds[k] is None:  # its client's copies up to it
                 j = self._group_of[k]
-                g = self.groups[j]
-                g.grow(k - self._first[j] + 1)
-                for c, w in enumerate(g.worlds):
-                    if self.worlds[self._first[j] + c] is None:
-                        self.worlds[self._first[j] + c] = ParticleWorld(w)
+                built = len(self.groups[j].worlds)
+                for c, w in enumerate(self.groups[j].grow(k - self._first[j] + 1)):
+                    self.worlds[self._first[j] + built + c] = ParticleWorld(w)
         self._active = active.copy()
         return np.flatnonzero(active).tolist()
 
-    def run(self, batch: BatchInput, n_steps: int, d_sim_perc: float, lazy: bool = False,
-            moving: bool = False, cameras: tuple[CameraSpec, ...] | None = None,
-            active: np.ndarray | None = None) -> BatchOutput:
-        """Propagate the worlds of the slots ``active (n,)`` bool (None: all of them) from their rows
-        of ``batch`` (one row per slot of the shard); the output has one row per slot in use, in
-        increasing order of slot."""
-        if active is None:
-            slots = list(range(len(self.worlds)))
-        else:
-            slots = self.use(active)
-            if len(slots) < len(self.worlds):
-                batch = BatchInput(*(getattr(batch, f)[slots] if getattr(batch, f) is not None else None
-                                     for f in PER_PARTICLE), batch.vis_query)
+    def run(self, batch: BatchInput, active: np.ndarray, n_steps: int, d_sim_perc: float, lazy: bool = False,
+            moving: bool = False, cameras: tuple[CameraSpec, ...] | None = None) -> BatchOutput:
+        """Propagate the worlds of the slots ``active (n,)`` bool from their rows of ``batch`` (one
+        row per slot of the shard); the output has one row per slot in use, in increasing order of
+        slot."""
+        slots = self.use(active)
+        if len(slots) < len(self.worlds):
+            batch = BatchInput(*(getattr(batch, f)[slots] if getattr(batch, f) is not None else None
+                                 for f in PER_PARTICLE), batch.vis_query)
         if not slots:  # none of this shard's slots in use (few particles)
             M = batch.poses.shape[1]
             return BatchOutput(np.zeros((0, M, 7)), np.zeros((0, M, 6)), np.zeros((0, M), np.int8), np.zeros((0, M)),
@@ -241,7 +235,7 @@ class _Shard:
             keep = ~np.isnan(rows) & ~moved[:, q]
             centres = now[have][:, q]
             for c in (old_centres, now[have]):  # nothing that moved came near its rays, before or after
-                keep &= rays_clear_of_moved(camera, centres, self.radii[q], c, self.radii, moved)
+                keep &= rays_clear_of(camera, centres, self.radii[q], c, self.radii, moved)
             vis[have] = np.where(keep, rows, 0.0)
             need[have] = ~keep
         todo = np.flatnonzero(need.any(axis=1)).tolist()
@@ -285,7 +279,7 @@ class _Shard:
             g.close()
 
 
-def _worker_main(conn, scene, settings, groups, buffer, n_particles, active=None):
+def _worker_main(conn, scene, settings, groups, buffer, n_particles, active):
     shard = None
     lo, hi = groups[0][0], groups[-1][1]
     try:
@@ -310,10 +304,10 @@ def _worker_main(conn, scene, settings, groups, buffer, n_particles, active=None
                     getattr(shard, msg[0])()
                 conn.send(("ok", time.perf_counter() - t0))
                 continue
-            _, n_steps, d, lazy, moving, cameras, used = msg
+            _, used, n_steps, d, lazy, moving, cameras = msg
             try:
-                out = shard.run(shared.inputs(lo, hi), n_steps, d, lazy, moving, cameras, used)
-                shared.write_outputs(lo, hi, out, None if used is None else lo + np.flatnonzero(used))
+                out = shard.run(shared.inputs(lo, hi), used, n_steps, d, lazy, moving, cameras)
+                shared.write_outputs(lo + np.flatnonzero(used), out)
                 conn.send(("ok", time.perf_counter() - t0))  # the reply carries the worker's time
             except Exception:  # report, keep serving
                 conn.send(("error", traceback.format_exc()))

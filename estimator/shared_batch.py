@@ -42,30 +42,24 @@ class SharedBatch:
     def nbytes(cls, n_particles: int, n_objects: int) -> int:
         return cls._layout(n_particles, n_objects)[1]
 
-    def write_inputs(self, batch: BatchInput, rows: np.ndarray | None = None) -> None:
-        """The inputs of every slot, or of the slots ``rows`` (one per row of ``batch``)."""
-        for name in PER_PARTICLE + ("vis_query",):
+    def write_inputs(self, batch: BatchInput, rows: np.ndarray) -> None:
+        """The inputs of the slots ``rows`` (one per row of ``batch``)."""
+        for name in PER_PARTICLE:
             value = getattr(batch, name)
-            value = (name == "reset") if value is None else value  # None: all / none
-            if rows is None or name == "vis_query":
-                self.arrays[name][...] = value
-            else:
-                self.arrays[name][rows] = value
+            self.arrays[name][rows] = (name == "reset") if value is None else value  # None: all / none
+        self.arrays["vis_query"][...] = batch.vis_query if batch.vis_query is not None else False
 
     def inputs(self, lo: int, hi: int) -> BatchInput:
         a = self.arrays
         return BatchInput(*(a[name][lo:hi] for name in PER_PARTICLE), a["vis_query"])
 
-    def write_outputs(self, lo: int, hi: int, out: BatchOutput, rows: np.ndarray | None = None) -> None:
-        """The outputs of slots ``lo:hi``, or of the slots ``rows`` (one per row of ``out``)."""
-        where = slice(lo, hi) if rows is None else rows
+    def write_outputs(self, rows: np.ndarray, out: BatchOutput) -> None:
+        """The outputs of the slots ``rows`` (one per row of ``out``)."""
         for name in _OUTPUTS:
-            self.arrays["out." + name][where] = getattr(out, name)
+            self.arrays["out." + name][rows] = getattr(out, name)
 
-    def outputs(self, rows: np.ndarray | None = None) -> BatchOutput:
-        """A copy of the outputs of all slots, or of the slots ``rows`` in that order."""
-        if rows is None:
-            return BatchOutput(*(self.arrays["out." + name].copy() for name in _OUTPUTS))
+    def outputs(self, rows: np.ndarray) -> BatchOutput:
+        """A copy of the outputs of the slots ``rows``, in that order."""
         return BatchOutput(*(self.arrays["out." + name][rows] for name in _OUTPUTS))
 
 

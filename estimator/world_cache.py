@@ -1,9 +1,9 @@
 """What each particle's world holds, so that an update loads only what changed.
 
 A :class:`~estimator.pool.WorldPool` owns one :class:`WorldCache` (``pool.cache``). The filter tells
-it what the worlds produced (:meth:`WorldCache.hold`), how resampling moved the particles between
-slots (:meth:`WorldCache.follow`) and when their number changed (:meth:`WorldCache.resize`); before
-each run it asks which entries to load (:meth:`WorldCache.loads`).
+it what the worlds produced (:meth:`WorldCache.hold`) and how resampling moved the particles between
+slots, and changed their number (:meth:`WorldCache.follow`); before each run it asks which entries to
+load (:meth:`WorldCache.loads`).
 """
 from __future__ import annotations
 
@@ -60,14 +60,13 @@ class WorldCache:
 
     def follow(self, ancestors: np.ndarray) -> None:
         """Particle ``i`` is now a copy of particle ``ancestors[i]`` (``(n,)``, resampling); the
-        worlds keep what they hold."""
+        worlds keep what they hold. When ``n`` differs from the particles before, the slots beyond
+        the old count hold nothing known (they load in full) and those beyond ``n`` are forgotten
+        (the pool parks their worlds)."""
         if self._produced is not None:
             self._produced = (self._produced[0][ancestors], self._produced[1][ancestors])
-
-    def resize(self, n: int) -> None:
-        """The particles are now ``n``: slots beyond the old count hold nothing known (they load in
-        full); those beyond ``n`` are forgotten (the pool parks their worlds)."""
-        if self.poses is None:
+        n = len(ancestors)
+        if self.poses is None or n == len(self.poses):
             return
         keep = min(len(self.poses), n)
         poses = np.full((n,) + self.poses.shape[1:], np.nan)

@@ -19,7 +19,7 @@ import pybullet as pb
 
 from .scene import Scene
 from .settings import PhysicsSettings
-from .transforms import quat_normalize
+from .transforms import quat_normalize, quat_to_matrix
 from .world import PARK_DEPTH, World
 
 INVARIANT_DEPTH = 0.01
@@ -90,7 +90,7 @@ class StaticGeometry:
             lo = poses[:, :3] + centre - half
             hi = poses[:, :3] + centre + half
         else:  # the box turned: centre R c, half extents |R| h (the box of its eight corners)
-            R = _rotation_matrices(poses[:, 3:])  # (N, 3, 3)
+            R = quat_to_matrix(poses[:, 3:])  # (N, 3, 3)
             mid = poses[:, :3] + R @ centre
             ext = np.abs(R) @ half
             lo, hi = mid - ext, mid + ext
@@ -274,15 +274,6 @@ class StaticGeometry:
         pb.resetBasePositionAndOrientation(uid, w.parked_pose[m, :3].tolist(), [0.0, 0.0, 0.0, 1.0],
                                            physicsClientId=c)
         return pose
-
-
-def _rotation_matrices(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices ``(N, 3, 3)`` of quaternions ``q (N, 4)`` (x, y, z, w; normalised here)."""
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    x, y, z, w = q.T
-    return np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
-                     2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
-                     2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], axis=1).reshape(-1, 3, 3)
 
 
 def _along(start: np.ndarray, end: np.ndarray, f: np.ndarray) -> np.ndarray:

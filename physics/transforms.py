@@ -51,6 +51,18 @@ def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     return v + w * t + cross(u, t)
 
 
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices ``(..., 3, 3)`` of quaternions ``q (..., 4)`` (x, y, z, w; normalised here):
+    ``quat_to_matrix(q) @ v`` is ``quat_rotate(q, v)``."""
+    q = np.asarray(q, dtype=float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    x, y, z, w = np.moveaxis(q, -1, 0)
+    return np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
+                     2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
+                     2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+                    axis=-1).reshape(q.shape[:-1] + (3, 3))
+
+
 def quat_normalize(q: np.ndarray, eps: float = 1e-12) -> np.ndarray:
     """Unit quaternions with a non-negative w. Raises ``ValueError`` on a zero-length quaternion."""
     q = np.asarray(q, dtype=float)

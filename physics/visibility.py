@@ -121,33 +121,24 @@ def visible_fraction(world: World, camera: Camera, indices, local_points: dict[i
 
 
 def rays_clear_of(camera: Camera, centres: np.ndarray, radii: np.ndarray, others: np.ndarray,
-                  other_radii: np.ndarray) -> np.ndarray:
-    """Whether the rays from the camera to objects within ``radii (n,)`` of ``centres (n, 3)`` stay
-    clear of every body within ``other_radii (m,)`` of ``others (m, 3)``: bool ``(n,)``. Such a body
-    cannot occlude the object (conservative: the rays lie within the object's radius of the segment
-    from the camera to its centre)."""
-    if len(others) == 0:
-        return np.ones(len(centres), dtype=bool)
-    seg = centres - camera.position  # (n, 3)
-    rel = others[None, :, :] - camera.position  # (1, m, 3)
-    u = np.clip(np.einsum("nmk,nk->nm", rel, seg) / np.maximum(np.einsum("nk,nk->n", seg, seg), 1e-12)[:, None],
-                0.0, 1.0)
-    d = np.linalg.norm(rel - u[..., None] * seg[:, None, :], axis=-1)  # (n, m) distance to the segment
-    return np.all(d > radii[:, None] + other_radii[None, :], axis=1)
-
-
-def rays_clear_of_moved(camera: Camera, centres: np.ndarray, radii: np.ndarray, bodies: np.ndarray,
-                        body_radii: np.ndarray, moved: np.ndarray) -> np.ndarray:
-    """:func:`rays_clear_of` for G worlds at once: whether the rays from the camera to the objects
-    within ``radii (n,)`` of ``centres (G, n, 3)`` stay clear of the bodies ``moved (G, m)`` bool
-    among those within ``body_radii (m,)`` of ``bodies (G, m, 3)``: bool ``(G, n)`` (True where
-    nothing moved)."""
-    seg = centres - camera.position  # (G, n, 3)
-    rel = bodies - camera.position  # (G, m, 3)
-    u = np.clip(np.einsum("gmk,gnk->gnm", rel, seg) / np.maximum(np.einsum("gnk,gnk->gn", seg, seg), 1e-12)[..., None],
-                0.0, 1.0)  # (G, n, m): where along each segment each body is nearest
-    d = np.linalg.norm(rel[:, None, :, :] - u[..., None] * seg[:, :, None, :], axis=-1)  # (G, n, m)
-    return np.all((d > radii[None, :, None] + body_radii[None, None, :]) | ~moved[:, None, :], axis=-1)
+                  other_radii: np.ndarray, moved: np.ndarray | None = None) -> np.ndarray:
+    """Whether the rays from the camera to objects within ``radii (n,)`` of ``centres (..., n, 3)``
+    stay clear of every body within ``other_radii (m,)`` of ``others (..., m, 3)``: bool ``(..., n)``
+    (leading axes: several worlds at once). With ``moved (..., m)`` bool, only those bodies count.
+    Such a body cannot occlude the object (conservative: the rays lie within the object's radius of
+    the segment from the camera to its centre)."""
+    centres, others = np.asarray(centres, dtype=float), np.asarray(others, dtype=float)
+    if others.shape[-2] == 0:
+        return np.ones(centres.shape[:-1], dtype=bool)
+    seg = centres - camera.position  # (..., n, 3)
+    rel = others - camera.position  # (..., m, 3)
+    u = np.clip(np.einsum("...mk,...nk->...nm", rel, seg)
+                / np.maximum(np.einsum("...nk,...nk->...n", seg, seg), 1e-12)[..., None], 0.0, 1.0)
+    d = np.linalg.norm(rel[..., None, :, :] - u[..., None] * seg[..., :, None, :], axis=-1)  # (..., n, m)
+    clear = d > radii[:, None] + other_radii[None, :]
+    if moved is not None:
+        clear |= ~np.asarray(moved, bool)[..., None, :]
+    return np.all(clear, axis=-1)
 
 
 def visible_fractions(worlds: list[World], camera: Camera, indices, local_points: dict[int, np.ndarray],

@@ -101,11 +101,12 @@ def test_run_method_is_reproducible_with_the_same_generator():
 
 
 def test_the_adaptive_count_is_a_particle_count_of_its_own():
-    from experiments.evaluation.methods import AUTO, AUTO_START, method_config, method_label
+    from estimator.config import AdaptiveConfig
+    from experiments.evaluation.methods import AUTO, method_config, method_label
     from experiments.evaluation.trials import TrialSpec
 
     cfg = method_config("particles", AUTO)
-    assert cfg.adaptive.enabled and cfg.particles == AUTO_START and cfg.workers == 0
+    assert cfg.adaptive.enabled and cfg.particles == AdaptiveConfig().min_particles == 64 and cfg.workers == 0
     assert not method_config("particles", 64).adaptive.enabled
     assert not method_config("paper", AUTO).adaptive.enabled  # the paper's reasoner stays one world
     assert method_label("particles", AUTO) == "particles (K=auto)"

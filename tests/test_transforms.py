@@ -35,3 +35,14 @@ def test_normalize_rejects_zero_and_rotvec_roundtrip():
     r = np.array([[0.1, -0.2, 0.3], [0, 0, 0]])
     assert np.allclose(tf.quat_to_rotvec(tf.quat_from_rotvec(r)), r, atol=1e-12)
     assert np.isclose(tf.quat_angle([0, 0, 0, 1], tf.quat_from_rotvec([0, 0, 0.5])), 0.5)
+
+
+def test_rotation_matrices_turn_vectors_as_the_quaternions_do():
+    rng = np.random.default_rng(5)
+    q = rng.normal(size=(50, 4)) * 3.0  # not normalised: the function normalises
+    v = rng.normal(size=(50, 3))
+    R = tf.quat_to_matrix(q)
+    assert R.shape == (50, 3, 3)
+    assert np.allclose(np.einsum("nij,nj->ni", R, v), tf.quat_rotate(tf.quat_normalize(q), v), atol=1e-12)
+    assert np.allclose(R, Rotation.from_quat(q).as_matrix(), atol=1e-12)
+    assert tf.quat_to_matrix(q.reshape(5, 10, 4)).shape == (5, 10, 3, 3)

@@ -140,8 +140,6 @@ def test_a_hand_sphere_hides_the_part_of_a_disk_it_covers_from_in_front():
 
 def test_the_batched_ray_clearance_equals_one_world_at_a_time():
     from physics.scene import CameraSpec
-    from physics.visibility import rays_clear_of_moved
-
     rng = np.random.default_rng(12)
     cam = Camera(CameraSpec(position=(1.2, 0.0, 1.3), target=(0.0, 0.0, 0.6)))
     G, n, m = 40, 3, 7
@@ -149,7 +147,7 @@ def test_the_batched_ray_clearance_equals_one_world_at_a_time():
     bodies = rng.uniform(-0.4, 0.6, (G, m, 3)) + [0, 0, 0.7]
     radii, body_radii = rng.uniform(0.02, 0.08, n), rng.uniform(0.02, 0.1, m)
     moved = rng.uniform(size=(G, m)) < 0.4
-    got = rays_clear_of_moved(cam, centres, radii, bodies, body_radii, moved)
+    got = rays_clear_of(cam, centres, radii, bodies, body_radii, moved)
     want = np.array([rays_clear_of(cam, centres[g], radii, bodies[g][moved[g]], body_radii[moved[g]])
                      for g in range(G)])
     assert np.array_equal(got, want) and 0 < got.sum() < got.size

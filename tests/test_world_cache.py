@@ -48,13 +48,11 @@ def test_lost_worlds_load_in_full_and_resampling_moves_what_was_produced_not_wha
 
 def test_a_new_particle_count_keeps_the_slots_it_had_and_loads_the_new_ones_in_full():
     cache = WorldCache()
-    cache.resize(5)  # nothing held yet: nothing to keep
+    cache.follow(np.arange(5))  # nothing held yet: nothing to keep
     poses, vel = _state(K=3)
     cache.hold(poses.copy(), vel.copy())
-    cache.follow(np.array([0, 1, 2, 0, 1]))  # resampling to five particles, then the new count
-    cache.resize(5)
+    cache.follow(np.array([0, 1, 2, 0, 1]))  # resampling to five particles
     more, more_vel = np.concatenate([poses, poses[:2]]), np.zeros((5, 2, 6))
     assert cache.loads(more, more_vel)[0].tolist() == [[False, False]] * 3 + [[True, True]] * 2
     cache.follow(np.array([0, 1]))
-    cache.resize(2)
     assert not cache.loads(poses[:2], vel[:2])[0].any()

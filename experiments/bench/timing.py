@@ -19,7 +19,7 @@ from typing import Iterable
 
 import numpy as np
 
-from estimator.config import EstimatorConfig, NoiseConfig
+from estimator.config import EstimatorConfig, NoiseConfig, with_adaptive_count
 from estimator.filter import SceneEstimator
 from estimator.observations import Frame
 from physics.scene import Scene
@@ -136,18 +136,13 @@ def timing_row(st: StreamTiming) -> dict:
                if st.particles else {})}
 
 
-AUTO_START = 64
-"""Where ``--particles auto`` starts (the run command's default K)."""
-
-
 def bench_config(k: int | str, workers: int, config: EstimatorConfig | None = None) -> EstimatorConfig:
     """``config`` (default: the particle filter's defaults) with ``k`` particles and ``workers``;
-    ``k = "auto"``: the adaptive count, from :data:`AUTO_START` (its bounds the configuration's)."""
-    cfg = config or EstimatorConfig(noise=NoiseConfig())
+    ``k = "auto"``: the adaptive count within the configuration's bounds, from its minimum."""
+    cfg = dataclasses.replace(config or EstimatorConfig(noise=NoiseConfig()), workers=workers)
     if k == "auto":
-        return dataclasses.replace(cfg, particles=AUTO_START, workers=workers,
-                                   adaptive=dataclasses.replace(cfg.adaptive, enabled=True))
-    return dataclasses.replace(cfg, particles=k, workers=workers)
+        return with_adaptive_count(dataclasses.replace(cfg, particles=cfg.adaptive.min_particles))
+    return dataclasses.replace(cfg, particles=k)
 
 
 # (key, table heading, format) of the table's columns

@@ -59,7 +59,7 @@ def particle_configs(args) -> list[tuple[int, EstimatorConfig]]:
         cfg = None
         if file_data is not None:
             cfg = config_from_dict(file_data[0], path=args.config, lines=file_data[1],
-                                   particles=64 if k == "auto" else k, base="particles")
+                                   particles=None if k == "auto" else k, base="particles")
         out.append((k, bench_config(k, args.workers, cfg)))
     return out
 

@@ -8,7 +8,7 @@ import os
 import sys
 
 from estimator.config import (AdaptiveConfig, EstimatorConfig, ReasonerConfig, config_from_dict, default_config,
-                              read_config_file)
+                              read_config_file, with_adaptive_count)
 
 
 DEFAULT_PARTICLES = 64
@@ -61,16 +61,11 @@ def build_config(args) -> EstimatorConfig:
                                base=base)
     else:
         cfg = default_config(_particles(args, None), base)
-    if getattr(args, "particles", None) == "auto" or getattr(args, "max_particles", None) is not None \
-            or getattr(args, "min_particles", None) is not None:
-        a = cfg.adaptive
-        hi = args.max_particles if getattr(args, "max_particles", None) is not None else a.max_particles
-        # a maximum under the default minimum lowers the minimum with it
-        lo = args.min_particles if getattr(args, "min_particles", None) is not None else min(a.min_particles, hi)
+    lo, hi = getattr(args, "min_particles", None), getattr(args, "max_particles", None)
+    if getattr(args, "particles", None) == "auto" or lo is not None or hi is not None:
         if args.particles not in ("auto", None):
             raise ValueError("--min-particles / --max-particles go with --particles auto")
-        cfg = dataclasses.replace(cfg, adaptive=dataclasses.replace(a, enabled=True, min_particles=lo,
-                                                                    max_particles=hi))
+        cfg = with_adaptive_count(cfg, lo, hi)
     given = {name: getattr(args, name) for name in ("horizon", "t_perceived", "d_sim_perc", "d_perc_prev")
              if getattr(args, name) is not None}
     if given:

@@ -38,7 +38,8 @@ import numpy as np
 
 from actions.modes import ModePriors
 from estimator.belief import Belief
-from estimator.config import EstimatorConfig, NoiseConfig, ReasonerConfig, config_from_dict, reasoning_due
+from estimator.config import (AdaptiveConfig, EstimatorConfig, NoiseConfig, ReasonerConfig, config_from_dict, reasoning_due,
+                              with_adaptive_count)
 from estimator.filter import SceneEstimator
 from estimator.observations import Frame
 from estimator.relations import relation_list, relation_masks
@@ -113,10 +114,7 @@ def get_method(name: str) -> MethodSpec:
 
 AUTO = 0
 """``particles`` of a sweep that asks for the adaptive particle count (``--particles auto``:
-:class:`~estimator.config.AdaptiveConfig`, starting at :data:`AUTO_START`)."""
-
-AUTO_START = 64
-"""The particle count an adaptive run starts with."""
+:class:`~estimator.config.AdaptiveConfig`, starting from its minimum)."""
 
 
 def effective_particles(name: str, particles: int) -> int:
@@ -149,9 +147,10 @@ def method_config(name: str, particles: int, config: str | None = None) -> Estim
     if spec.config is None:
         return None
     k = effective_particles(name, particles)
-    cfg = spec.config(AUTO_START if k == AUTO and spec.uses_particles else k)
     if k == AUTO and spec.uses_particles:
-        cfg = dataclasses.replace(cfg, adaptive=dataclasses.replace(cfg.adaptive, enabled=True))
+        cfg = with_adaptive_count(spec.config(AdaptiveConfig().min_particles))
+    else:
+        cfg = spec.config(k)
     if config is not None:
         cfg = config_from_dict(json.loads(config), start=cfg)
     return dataclasses.replace(cfg, workers=0)
