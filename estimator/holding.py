@@ -75,7 +75,8 @@ def held_targets(frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: n
                  noise: NoiseConfig, moving_teleports: bool,
                  teleported: np.ndarray | None = None,
                  falling: Fall | None = None, detections: np.ndarray | None = None,
-                 stale: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 stale: np.ndarray | None = None, grip: np.ndarray | None = None,
+                 hand_std: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Targets ``(K, M, 7)``, target velocities ``(K, M, 6)`` and offset errors ``(K, M, 3)``.
 
     Perceived objects at their perception (no noise: it would shake what a held object carries), with
@@ -94,7 +95,10 @@ def held_targets(frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: n
     ``held_drift_std`` (m per sqrt(s)) when not perceived. Others: their pose in ``poses (K, M, 7)``.
     Objects perceived ``falling`` off an edge (:class:`~estimator.step.Fall`) are where their free
     fall has them at ``frame.t`` (horizontally on their line), moving at its mean vertical velocity
-    over the update: the Release rule lets them go there, not where they were last seen."""
+    over the update: the Release rule lets them go there, not where they were last seen. Those
+    pushed out of view (a finite ``grip (K, M)``, :func:`push_grips`) slide around their hand
+    (:func:`slide_around_hand`; travel within the noise of two tracked hand positions, ``hand_std``
+    m each, is no direction)."""
     K, M = modes.shape
     new_error = np.zeros_like(hold_error)
     target = poses.copy()
@@ -131,6 +135,13 @@ def held_targets(frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: n
             new_error[rows, m] = hand_offset_walk(hold_error[rows, m], dt, noise.held_offset_std,
                                                   noise.held_offset_time, rng)
             target[rows, m, :3] = hand + new_error[rows, m]
+            slid = rows & np.isfinite(grip[:, m]) if grip is not None and not stale[m] else None
+            if slid is not None and np.any(slid):
+                at = memory.hand_position(memory.hold_hand[m])
+                offset, _, _ = slide_around_hand(memory.hold_offset[m] + new_error[slid, m],
+                                                 at - memory.hold_hand_position[m], grip[slid, m],
+                                                 PUSH_END_SIGMAS * math.sqrt(2.0) * hand_std)
+                target[slid, m, :3] = at + offset
         elif not perceived[m] and noise.held_drift_std > 0:
             target[rows, m, :3] += rng.normal(0.0, noise.held_drift_std * math.sqrt(dt), (int(rows.sum()), 3))
     return target, target_vel, new_error
@@ -148,6 +159,75 @@ def push_cannot_lift(target: np.ndarray, target_vel: np.ndarray, poses: np.ndarr
     if np.any(rows):
         target[..., 2] = np.where(rows, np.minimum(target[..., 2], poses[..., 2]), target[..., 2])
         target_vel[..., 2] = np.where(rows, np.minimum(target_vel[..., 2], 0.0), target_vel[..., 2])
+
+
+def slide_around_hand(offset: np.ndarray, travel: np.ndarray, grip: np.ndarray,
+                      min_travel: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where a pushed object is relative to the hand that pushes it, out of view: quasi-static
+    pushing of a round contact, horizontally.
+
+    ``offset (n, 3)`` m: the object's centre minus the hand's when it was last detected (per
+    particle); ``travel (3,)`` m: the hand's displacement since, taken as straight; ``grip (n,)`` in
+    [0, 1]. A hand pushing an object touches it on the line of their centres, at angle ``theta`` to
+    the direction it moves. Frictionless, the object can only move along that line, by what the hand
+    advances along it: the offset turns away from the direction of travel,
+    ``d theta / ds = sin(theta) / R`` (``R`` the offset's horizontal length), so
+    ``tan(theta / 2)`` grows as ``exp(s / R)``: pushing a round object with a round hand is unstable,
+    and it slides off the hand's side when ``theta`` reaches 90 degrees, where the hand no longer
+    pushes it. Friction at the contact and a grasp slow that down, down to none (the object dragged
+    along at its offset): ``grip`` scales the rate (1 frictionless, 0 gripped), since what the contact
+    does is not seen. A hand that moves away from the object (``|theta0|`` at least 90 degrees) does
+    not push it.
+
+    Returns the offsets now ``(n, 3)`` (vertical part kept; those lost at 90 degrees), ``lost (n,)``
+    bool (contact lost: the object stays where it slid off) and where each that slid off stays
+    ``(n, 3)``, relative to the hand's position at the last detection (NaN for the others, and for
+    those the hand moves away from: they stay where they are, a hand that pushed and drew back
+    included). Below ``min_travel`` (m) of travel the direction is the hand's noise: offsets
+    unchanged, nothing lost."""
+    offset = np.asarray(offset, dtype=float)
+    n = len(offset)
+    at_loss = np.full((n, 3), np.nan)
+    d = np.asarray(travel, dtype=float)[:2]
+    s = float(np.hypot(d[0], d[1]))
+    if n == 0 or not s > min_travel:
+        return offset.copy(), np.zeros(n, dtype=bool), at_loss
+    u = d / s
+    v = np.array([-u[1], u[0]])
+    a, b = offset[:, :2] @ u, offset[:, :2] @ v
+    radius = np.hypot(a, b)
+    theta0 = np.arctan2(b, a)
+    sign = np.where(theta0 < 0, -1.0, 1.0)
+    away = np.abs(theta0) >= 0.5 * math.pi
+    half0 = np.tan(0.5 * np.minimum(np.abs(theta0), 0.5 * math.pi))
+    rate = np.clip(np.asarray(grip, dtype=float), 0.0, 1.0) / np.maximum(radius, 1e-6)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        half = half0 * np.exp(rate * s)
+        s_loss = np.where(rate > 0, np.log(1.0 / np.maximum(half0, 1e-12)) / rate, np.inf)
+    lost = away | (half >= 1.0)
+    theta = sign * 2.0 * np.arctan(np.minimum(half, 1.0))
+    out = offset.copy()
+    out[:, :2] = radius[:, None] * (np.cos(theta)[:, None] * u + np.sin(theta)[:, None] * v)
+    slid = lost & ~away
+    at_loss[slid, :2] = s_loss[slid, None] * u + (sign[slid] * radius[slid])[:, None] * v
+    at_loss[slid, 2] = offset[slid, 2]
+    return out, lost, at_loss
+
+
+def push_grips(grip: np.ndarray, pushed: np.ndarray, detected: np.ndarray,
+               rng: np.random.Generator) -> np.ndarray:
+    """The grip (:func:`slide_around_hand`) of each particle's pushing contact ``(K, M)``: kept while
+    the object is out of view, forgotten (NaN) when it is detected, drawn uniform on [0, 1)
+    (stratified over the particles, :func:`stratified_uniforms`) for the ``pushed (K, M)`` entries
+    that have none: nothing seen says how the contact slides, and the particles that keep the
+    object where later evidence finds it are those that drew the right grip. Draws only when some
+    entry needs one. A new array."""
+    grip = np.array(grip, dtype=float)
+    grip[:, np.asarray(detected, dtype=bool)] = np.nan
+    need = np.asarray(pushed, dtype=bool) & np.isnan(grip)
+    if np.any(need):
+        grip[need] = stratified_uniforms(*grip.shape, rng)[need]
+    return grip
 
 
 def hidden_places(hidden_at: np.ndarray, hidden_t: np.ndarray, hidden_n: np.ndarray, poses: np.ndarray,
@@ -322,23 +402,28 @@ def let_go_behind_cover(cover: np.ndarray, state, poses: np.ndarray, vel: np.nda
 def let_go_out_of_view(state, poses: np.ndarray, vel: np.ndarray, modes: np.ndarray, codes: np.ndarray,
                        frame: Frame, memory: PerceptionMemory, following: np.ndarray, perceived: np.ndarray,
                        detected: np.ndarray, priors: ModePriors, noise: NoiseConfig,
-                       rng: np.random.Generator, lift: float = 0.02,
-                       hand_std: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+                       rng: np.random.Generator, lift: float = 0.02, hand_std: float = 0.0,
+                       round_objects: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Held objects in a tracked hand (``following (M,)``) let go out of view, in place on ``poses
     (K, M, 7)``, ``vel (K, M, 6)``, ``modes`` and ``codes (K, M)``: those the hand shows in view
     without (:func:`release_behind_cover`, :func:`let_go_behind_cover`), and those set down where they
     rested, the hand lifting away (:func:`set_down_behind_cover`, :func:`let_go_where_rested`), and
     those pushed along their support whose hand has risen off them (:func:`pushes_ended`, ``lift``
-    m beyond the noise of a tracked hand's height, ``hand_std`` m; none of these in the paper's
-    mode, ``hand_occlusion`` 1). Returns when each entry was let go ``(K, M)`` (s; NaN
-    for the others: the entries let go are the finite ones) and the proposal's log-weight factors
-    ``(K,)``."""
+    m beyond the noise of a tracked hand's height, ``hand_std`` m), and those of ``round_objects
+    (M,)`` (spheres and cylinders, whose contact with a hand is round; None: none) the hand pushing
+    them has slid past (:func:`slide_around_hand`, with each particle's grip, :func:`push_grips`; a
+    box pushed on a face is dragged along); none of these in the paper's mode, ``hand_occlusion`` 1. Returns when each entry was let go ``(K, M)``
+    (s; NaN for the others: the entries let go are the finite ones), the proposal's log-weight
+    factors ``(K,)`` and the grips ``(K, M)`` after the update (``state.push_grip`` with those
+    detected forgotten and those of pushes now out of view drawn)."""
     cover, proposal = release_behind_cover(modes, state.unseen_in_view, state.hidden_n, following & ~perceived,
                                            priors, noise, rng)
     when = let_go_behind_cover(cover, state, poses, vel, modes, codes, priors.put_down_hidden, rng)
     unseen = following & ~detected
+    grip = state.push_grip.copy()
+    grip[:, np.asarray(detected, dtype=bool)] = np.nan
     if noise.hand_occlusion >= 1.0 or not np.any(unseen):
-        return when, proposal
+        return when, proposal, grip
     hand_z = memory.hand_heights(frame, unseen)
     set_down = set_down_behind_cover(modes, state.rest_at, state.rest_t, state.poses[..., 2], hand_z, unseen,
                                      priors, rng)
@@ -354,7 +439,24 @@ def let_go_out_of_view(state, poses: np.ndarray, vel: np.ndarray, modes: np.ndar
         codes[ended] = PLACE
         vel[ended] = 0.0
         when = np.where(ended, frame.t, when)
-    return when, proposal
+    slides = unseen & (np.zeros_like(unseen) if round_objects is None else np.asarray(round_objects, dtype=bool))
+    pushed = (modes == HELD) & _pushed(state.holds, lift) & slides[None, :]
+    grip = push_grips(grip, pushed, detected, rng)
+    noise_travel = PUSH_END_SIGMAS * math.sqrt(2.0) * hand_std
+    for m in np.flatnonzero(pushed.any(axis=0)):
+        rows = np.flatnonzero(pushed[:, m])
+        travel = memory.hand_position(memory.hold_hand[m]) - memory.hold_hand_position[m]
+        _, lost, at_loss = slide_around_hand(memory.hold_offset[m] + state.hold_error[rows, m], travel,
+                                             grip[rows, m], noise_travel)
+        if np.any(lost):  # the hand went past it (or away): it stays where it slid off, at rest, a Push
+            k = rows[lost]
+            slid = np.isfinite(at_loss[lost, 0])
+            poses[k[slid], m, :2] = memory.hold_hand_position[m, :2] + at_loss[lost][slid, :2]
+            modes[k, m] = FREE
+            codes[k, m] = PLACE
+            vel[k, m] = 0.0
+            when[k, m] = frame.t
+    return when, proposal, grip
 
 
 def dropped_behind_cover(codes: np.ndarray, cover: np.ndarray | None, before: np.ndarray, after: np.ndarray,

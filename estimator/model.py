@@ -188,7 +188,7 @@ class SceneModel:
                              down_at=np.zeros((K, M, 3)), down_t=np.full((K, M), -np.inf),
                              rest_at=np.zeros((K, M, 3)), rest_t=np.full((K, M), -np.inf),
                              push_decided=np.full((K, M), -np.inf), holds=empty_holds((K, M)),
-                             jitter=np.zeros((K, M, 3)))
+                             jitter=np.zeros((K, M, 3)), push_grip=np.full((K, M), np.nan))
 
     # -- the move -------------------------------------------------------------------------------------
     def move(self, state: ParticleState, frame: Frame, detected: np.ndarray, perceived: np.ndarray,
@@ -274,9 +274,10 @@ class SceneModel:
                                                                    & rolled_along(mem.perc_vel[:, :3]))
             left_view = perceived & ~detected & along & ~following
         modes, release_codes = self.release(prev_modes, perceived, state.supported, rng, following, left_view)
-        cover_t, proposal = let_go_out_of_view(state, poses, vel, modes, release_codes, frame, mem, following,
-                                               perceived, detected, cfg.priors, cfg.noise, rng,
-                                               cfg.reasoner.push_lift, cfg.hands.measurement_std)
+        cover_t, proposal, grip = let_go_out_of_view(state, poses, vel, modes, release_codes, frame, mem,
+                                                     following, perceived, detected, cfg.priors, cfg.noise,
+                                                     rng, cfg.reasoner.push_lift, cfg.hands.measurement_std,
+                                                     self.round)
         cover = np.isfinite(cover_t)
         flicked, flick_weight = self.let_go_moving(modes, state.supported, detected & perceived, tick_vel, far, rng)
         if np.any(flicked):  # let go in motion: physics takes it on at its velocity
@@ -306,7 +307,8 @@ class SceneModel:
         stale = mem.stale_in_hand(frame) & detected
         detections = mem.detections_now(stale, frame.t, detected if cfg.moving_teleports else None)
         target, target_vel, hold_error = self.held_targets(frame, poses, modes, detected, perceived, dt, rng,
-                                                           state.hold_error, tele, fall_now, detections, stale)
+                                                           state.hold_error, tele, fall_now, detections, stale,
+                                                           grip)
         if cfg.noise.hand_occlusion < 1.0:  # as let_go_out_of_view: not in the paper's mode
             push_cannot_lift(target, target_vel, poses, modes, state.holds, detected, cfg.reasoner.push_lift)
         jolted = self.process_noise(poses, modes, perceived, state.supported, resting, state.last_motion, dt, rng)
@@ -326,7 +328,7 @@ class SceneModel:
         return Move(poses, vel, predicted, prev_modes, modes, release_codes, tele, target, target_vel, check,
                     depen, vis_query, hold_error, let_go, cameras, cover_t, proposal, nudged, jitter, far,
                     fall_now, detections, set_moving if set_moving is not None and set_moving.any() else None,
-                    speed_check)
+                    speed_check, grip)
 
     def moving_beyond_noise(self) -> np.ndarray:
         """``(M,)`` bool: objects whose perceived horizontal speed exceeds :data:`SET_MOVING_SIGMAS`
@@ -439,11 +441,12 @@ class SceneModel:
                      perceived: np.ndarray, dt: float, rng: np.random.Generator,
                      hold_error: np.ndarray, teleported: np.ndarray | None = None,
                      falling: Fall | None = None, detections: np.ndarray | None = None,
-                     stale: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     stale: np.ndarray | None = None,
+                     grip: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Targets, target velocities and hand-offset errors (:func:`~estimator.holding.held_targets`)."""
         return held_targets(frame, poses, modes, detected, perceived, dt, rng, hold_error, self.memory,
                             self.config.noise, self.config.moving_teleports, teleported, falling, detections,
-                            stale)
+                            stale, grip, self.config.hands.measurement_std)
 
     def process_noise(self, poses: np.ndarray, modes: np.ndarray, perceived: np.ndarray, supported: np.ndarray,
                       resting: np.ndarray, last_motion: np.ndarray, dt: float,

@@ -46,6 +46,9 @@ class ParticleState:
       each free object's position (zero for objects it did not teleport, held ones, and vertically:
       a support undoes it): what the particle's next prediction of a detection leaves out, so that it
       is scored on its physics, not on that draw.
+    * ``push_grip (K, M)``: in [0, 1], how the contact of the hand that pushes an object out of view
+      slides (1 frictionless, 0 gripped; :func:`estimator.holding.slide_around_hand`); NaN when no
+      such push is out of view.
     """
 
     poses: np.ndarray
@@ -72,6 +75,7 @@ class ParticleState:
     push_decided: np.ndarray
     holds: np.ndarray
     jitter: np.ndarray
+    push_grip: np.ndarray
 
     def after_update(self, move, settled, log_weights: np.ndarray, unseen_in_view: np.ndarray,
                      hidden: tuple[np.ndarray, ...], free: np.ndarray) -> "ParticleState":
@@ -90,7 +94,8 @@ class ParticleState:
             hold_error=move.hold_error, let_go_unseen=move.let_go_unseen, hidden_at=hidden[0],
             hidden_t=hidden[1], hidden_n=hidden[2], down_at=hidden[3], down_t=hidden[4],
             rest_at=hidden[5], rest_t=hidden[6], push_decided=self.push_decided, holds=settled.holds,
-            jitter=move.jitter * free[..., None])
+            jitter=move.jitter * free[..., None], push_grip=(move.push_grip if move.push_grip is not None
+                                                         else np.full((K, M), np.nan)))
 
     def take(self, ancestors: np.ndarray, own: np.ndarray | None = None) -> "ParticleState":
         """The particles ``ancestors (K,)`` (indices, repeats allowed), copied, equally weighted.

@@ -53,7 +53,8 @@ class Move:
     (a Push by an agent nobody tracks, not a Pick; None: none); ``speed_check``: ``(mask (K, M),
     velocities (K, M, 2), seen (M, 2), std (M,))`` for :class:`~estimator.likelihood.VelocityTerm`:
     objects seen moving along their support, free in the particle before the update, with their
-    velocity in it then and the perceived velocity (None: none).
+    velocity in it then and the perceived velocity (None: none); ``push_grip (K, M)``: see
+    :class:`~estimator.state.ParticleState` (None: all NaN).
     """
 
     poses: np.ndarray
@@ -80,6 +81,7 @@ class Move:
     detections: np.ndarray | None = None
     set_moving: np.ndarray | None = None
     speed_check: tuple | None = None
+    push_grip: np.ndarray | None = None
 
     @property
     def behind_cover(self) -> np.ndarray | None:

@@ -18,7 +18,8 @@ def state(K=3, M=2):
                          hidden_n=rng.integers(0, 5, (K, M)).astype(np.int32),
                          down_at=rng.normal(size=(K, M, 3)), down_t=rng.normal(size=(K, M)),
                          rest_at=rng.normal(size=(K, M, 3)), rest_t=rng.normal(size=(K, M)),
-                         push_decided=rng.normal(size=(K, M)), holds=rng.normal(size=(K, M, 5)), jitter=rng.normal(size=(K, M, 3)))
+                         push_decided=rng.normal(size=(K, M)), holds=rng.normal(size=(K, M, 5)), jitter=rng.normal(size=(K, M, 3)),
+                         push_grip=rng.random((K, M)))
 
 
 def test_take_follows_the_ancestors_and_equalises_the_weights():
