@@ -10,8 +10,8 @@ import pytest
 from physics.errors import InputError
 from experiments.cli import main
 from experiments.simulation.files import read_jsonl, write_outputs
-from experiments.simulation.mujoco_truth import (MAX_RESTITUTION, obj_parts, restitution_damping,
-                                                 urdf_geoms)
+from experiments.simulation.mujoco_truth import (MAX_RESTITUTION, MujocoGroundTruth, obj_parts,
+                                                 restitution_damping, urdf_centre_of_mass, urdf_geoms)
 from experiments.simulation.simulator import ENGINES, scale_parameters, simulate
 from experiments.simulation.variants import sample_variant
 from experiments.scenarios import load_scenario
@@ -155,3 +155,22 @@ def test_bad_engine_or_scale_is_a_clear_error(tmp_path, capsys):
                  "--out", str(tmp_path / "run"), "--quiet"]) == 0
     meta = json.loads((tmp_path / "run" / "meta.json").read_text())
     assert meta["engine"] == "mujoco" and len(read_jsonl(tmp_path / "run" / "truth.jsonl")) == 15
+
+
+def test_a_urdf_objects_centre_of_mass_is_where_its_urdf_states_it(tmp_path):
+    """pybullet_data's duck states its centre of mass 2 cm off the link origin (y): the MuJoCo body
+    has it there, scaled with the object, as pybullet does; a URDF without <inertial> states none."""
+    duck = os.path.join(DATA, "duck_vhacd.urdf")
+    assert np.allclose(urdf_centre_of_mass(duck), [0.0, 0.02, 0.0])
+    assert np.allclose(urdf_centre_of_mass(duck, 2.0), [0.0, 0.04, 0.0])
+    bare = tmp_path / "bare.urdf"
+    bare.write_text('<robot name="b"><link name="l"><collision><geometry><box size="0.1 0.1 0.1"/>'
+                    '</geometry></collision></link></robot>')
+    assert urdf_centre_of_mass(str(bare)) is None
+    variant = sample_variant(load_scenario("cluttered_table"), 0)
+    truth = MujocoGroundTruth(variant)
+    try:
+        i = variant.scene.object_ids.index("duck")
+        assert np.allclose(truth.model.body_ipos[truth._bodies[i]], [0.0, 0.02, 0.0])
+    finally:
+        truth.close()

@@ -18,7 +18,9 @@ The MuJoCo world (:func:`mjcf`):
   (:func:`obj_parts`: pybullet_data's mug and duck are several convex parts; the tray is boxes), so
   that what is hollow stays hollow. ``globalScaling`` (the scene's ``scale``) scales every element;
 * masses are the scene's (or the URDF's); inertia follows from the geometry at uniform density
-  (MuJoCo's own computation), the centre of mass at the geometry's centroid;
+  (MuJoCo's own computation); the centre of mass is where a URDF states it (as in pybullet: it is
+  part of the object's description, pybullet_data's duck has it 2 cm off its centroid), else at
+  the geometry's centroid;
 * the hand is a dynamic sphere (gravity compensated) welded to a mocap body that follows the script;
   a grasp switches on a weld between the hand and the object at their relative pose of the moment, a
   release switches it off. The hand collides with objects only while the script says it pushes
@@ -203,6 +205,22 @@ def _urdf_geoms_cached(path: str, scale: float):
     return urdf_geoms(path, scale)
 
 
+def urdf_centre_of_mass(path: str, scale: float = 1.0) -> np.ndarray | None:
+    """The centre of mass ``(3,)`` (m, scaled, in the link frame) that a one-link URDF's
+    ``<inertial><origin xyz>`` states (the link's origin when the origin is omitted); None without
+    an ``<inertial>``. Part of the object's description, as its mass is: pybullet puts the centre of
+    mass there (and computes the inertia from the collision shapes); so does the MuJoCo truth."""
+    try:
+        root = ET.parse(path).getroot()
+    except (OSError, ET.ParseError) as exc:
+        raise SceneError(f"cannot read URDF {path}: {exc}", path=path) from None
+    links = [link for link in root.iter("link") if link.find("collision") is not None]
+    inertial = links[0].find("inertial") if links else None
+    if inertial is None:
+        return None
+    return _origin(inertial.find("origin"), scale)[0]
+
+
 # --------------------------------------------------------------------------------------------------
 # the MJCF document
 
@@ -340,7 +358,9 @@ class MujocoGroundTruth(GroundTruth):
         super().__init__(variant, settings)
 
     def _set_masses(self, scene: Scene) -> None:
-        """Each dynamic body's mass to the scene's, its inertia scaled with it (uniform density)."""
+        """Each dynamic body's mass to the scene's, its inertia scaled with it (uniform density); a
+        URDF object's centre of mass where its URDF states it (:func:`urdf_centre_of_mass`; the
+        inertia stays the geometry's, as pybullet does)."""
         for i, spec in enumerate(scene.objects):
             if spec.static:
                 continue
@@ -349,6 +369,9 @@ class MujocoGroundTruth(GroundTruth):
             ratio = mass / max(float(self.model.body_mass[b]), 1e-12)
             self.model.body_mass[b] *= ratio
             self.model.body_inertia[b] *= ratio
+            com = urdf_centre_of_mass(spec.urdf, float(spec.scale)) if spec.shape == "urdf" else None
+            if com is not None:
+                self.model.body_ipos[b] = com
         self._mj.mj_setConst(self.model, self.data)
 
     # -- the engine ---------------------------------------------------------------------------------
