@@ -174,3 +174,22 @@ def test_a_urdf_objects_centre_of_mass_is_where_its_urdf_states_it(tmp_path):
         assert np.allclose(truth.model.body_ipos[truth._bodies[i]], [0.0, 0.02, 0.0])
     finally:
         truth.close()
+
+
+def test_a_twins_new_mass_mid_run_leaves_every_body_where_it_is():
+    """A twin takes new parameters at an object's last sighting (predictability): changing a mass
+    mid-run recomputes MuJoCo's constants (mj_setConst, which puts qpos at the model's qpos0); every
+    body stays where the run had it, and the new mass is the body's."""
+    variant = sample_variant(load_scenario("cluttered_table"), 0)
+    truth = MujocoGroundTruth(variant)
+    try:
+        for _ in range(200):
+            truth._step()
+        i = variant.scene.object_ids.index("cube")
+        before = truth.data.qpos.copy()
+        assert not np.allclose(before, truth.model.qpos0)  # the run has moved away from qpos0
+        truth.perturb(i, np.zeros(3), {"mass": 0.3})
+        assert np.array_equal(truth.data.qpos, before)
+        assert truth.model.body_mass[truth._bodies[i]] == pytest.approx(0.3)
+    finally:
+        truth.close()

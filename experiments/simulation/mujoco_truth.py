@@ -453,7 +453,10 @@ class MujocoGroundTruth(GroundTruth):
                 ratio = float(params["mass"]) / float(self.model.body_mass[b])
                 self.model.body_mass[b] *= ratio
                 self.model.body_inertia[b] *= ratio
+                qpos = self.data.qpos.copy()  # mj_setConst puts qpos at the model's qpos0: keep the run's
                 self._mj.mj_setConst(self.model, self.data)
+                self.data.qpos[:] = qpos
+                self._mj.mj_forward(self.model, self.data)
         offset = np.asarray(offset, dtype=float)
         if index in self.held:
             self.hand_shift = self.hand_shift + offset
