@@ -114,8 +114,15 @@ class World:
             static.append(spec.static)
             # sleeping only where the settings allow it (a reset does not wake a body), and no air
             # drag (Bullet's default linear damping of 0.04 would slow free falls by about 1 % per
-            # second)
+            # second). Bullet's default angular damping brakes a rolling ball like a drag in
+            # proportion to its speed (0.35 m/s^2 at 1 m/s for a 3 cm ball): where the scene states
+            # a rolling friction that is what resists rolling, and the damping is taken off so that
+            # it is not counted twice (and the friction can be learnt from a seen roll,
+            # :class:`~estimator.likelihood.VelocityTerm`); elsewhere it stays, the only rolling
+            # resistance of an object whose scene is silent about it
             pb.changeDynamics(uid, -1, activationState=self._activation, linearDamping=0.0, physicsClientId=c)
+            if spec.rolling_friction is not None:
+                pb.changeDynamics(uid, -1, angularDamping=0.0, physicsClientId=c)
         self.uids: tuple[int, ...] = tuple(uids)
         self._uid_to_index = {u: i for i, u in enumerate(uids)}
         self.static = np.array(static, dtype=bool)
