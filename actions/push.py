@@ -140,3 +140,42 @@ def withdraw_picks(pick_t: np.ndarray, push_t: np.ndarray) -> np.ndarray:
     -inf where ``push_t (..., M)`` (NaN: no Push) equals the Pick time. A new array."""
     with np.errstate(invalid="ignore"):
         return np.where(pick_t == push_t, -np.inf, pick_t)
+
+
+def late_picks(codes: np.ndarray, times: np.ndarray, holds: np.ndarray, held: np.ndarray, onset: np.ndarray,
+               quiet: np.ndarray, since: float, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Picks of episodes that began without one because their object was still seen at rest, dated
+    when it was then seen to start moving.
+
+    A particle can take an object in hand an update or two before the object's detections leave
+    where it rested by more than the tracker's noise (the particle weighs every detection; the
+    perception memory calls the object moved only beyond the noise,
+    :meth:`~estimator.perception_memory.PerceptionMemory.onset`); that switch is silent (a still
+    object was moved by no one). Once the object is seen to have started moving, the episode's Pick
+    is that start.
+
+    Args:
+        codes: ``(..., M)`` int8 event codes of the update.
+        times: ``(..., M)`` s, when each event happened (NaN: at ``t``).
+        holds: ``(..., M, 6)`` the hold record after the update.
+        held: ``(..., M)`` bool, objects held after the update.
+        onset: ``(M,)`` s, when each object was seen to start moving (NaN: still).
+        quiet: ``(..., M)`` bool, episodes silent for another reason (an object carried in or on a
+            held one, out of reach of every tracked hand, or that had an event before: its silent
+            episode may be an object let go and never at rest since).
+        since: s, the earliest start that still dates a Pick (the event window); ``t``: now (s).
+
+    Only episodes without a Pick (``pick_t`` NaN or -inf) of objects that rested before (``ref_z``
+    known) get one; new arrays are returned (the same ones when none does).
+    """
+    pick_t = holds[..., PICK_T]
+    start = np.broadcast_to(np.asarray(onset, dtype=float), pick_t.shape)
+    with np.errstate(invalid="ignore"):
+        late = (np.asarray(held, dtype=bool) & ~np.isfinite(pick_t) & np.isfinite(holds[..., SMOOTH_Z])
+                & np.isfinite(holds[..., REF_Z]) & (start >= since) & (start <= t)
+                & ~np.asarray(quiet, dtype=bool) & (np.asarray(codes) == NO_EVENT))
+    if not np.any(late):
+        return codes, times, holds
+    holds = np.array(holds, dtype=float, copy=True)
+    holds[..., PICK_T] = np.where(late, start, pick_t)
+    return (np.where(late, PICK, codes).astype(np.asarray(codes).dtype), np.where(late, start, times), holds)

@@ -23,7 +23,7 @@ import numpy as np
 from actions.episodes import EpisodeRule, carried, update_events
 from actions.events import N_ACTIONS
 from actions.modes import FREE, HELD, PLACE, PUSH
-from actions.push import REF_Z, empty_holds
+from actions.push import REF_Z, empty_holds, late_picks
 from physics.penetration import StaticGeometry
 from physics.scene import Scene
 from physics.visibility import sphere_occlusion
@@ -509,6 +509,7 @@ class SceneModel:
         silent = carried(state.is_in, state.on_top, carrier)
         if move.out_of_reach is not None:  # hands are tracked, none within reach of it: an action needs
             silent = silent | move.out_of_reach[None, :]  # an agent; its particle's physics moved it
+        quiet = silent | np.isfinite(state.event_t).any(axis=-1)
         if cfg.still_unacted:  # seen still, and at rest in its particle before or on a support where
             # it is seen: no one moved it, its particle's physics did (no events); one held still in
             # the air is held
@@ -524,7 +525,9 @@ class SceneModel:
             out.poses[..., 2], self._seen_z(t, detected),
             np.where((onset >= t - cfg.event_window) & (onset <= t), onset, t), t, rule, let_go_t=t - hr.place_dwell,
             release_t=move.cover_t, rolled_off=None if move.fall is None else move.fall.mask[None, :])
-        codes, times = ev.codes, ev.times
+        # taken in hand while still seen at rest, then seen to start moving: the Pick is that start
+        codes, times, holds = late_picks(ev.codes, ev.times, ev.holds, ev.modes == HELD, onset, quiet,
+                                         t - cfg.event_window, t)
         set_moving = move.set_moving
         if unheld is not None:  # those at rest in their particle before: set moving by an agent nobody tracks
             at_rest = np.linalg.norm(state.velocities[..., :3], axis=-1) < rule.rest_speed
@@ -556,7 +559,7 @@ class SceneModel:
                 vz_now = mem.free_fall((t,), cfg.physics.gravity, cfg.noise.position_std)[1][0]
                 fell &= np.isfinite(vz_now)[None, :]
                 velocities[..., 2] = np.where(fell, vz_now[None, :], velocities[..., 2])
-        return Settled(out.poses, velocities, ev.modes, on_top, is_in, supported, codes, vel, ev.holds, times)
+        return Settled(out.poses, velocities, ev.modes, on_top, is_in, supported, codes, vel, holds, times)
 
     def out_of_static(self, poses: np.ndarray, aabbs: np.ndarray) -> np.ndarray:
         """``poses (K, M, 7)`` after physics with the known dynamic objects more than

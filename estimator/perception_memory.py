@@ -18,6 +18,7 @@ import numpy as np
 from physics.scene import Scene
 
 from .config import RELEASE_DOWN_SPEED, HandConfig, ReasonerConfig
+from .detection_noise import DetectionNoise, onset_distance
 from .hands import HandFilter, average_offset
 from .observations import Frame
 
@@ -25,7 +26,8 @@ HAND_RADIUS = 0.3
 """A tracked hand within this distance (m) of a detected object is taken to be the one holding it."""
 MOTION_ONSET = 0.015
 """m: an object still until now starts moving when a detection lies this far from where it was still
-(the average of its still detections); it started at its last detection closer than that."""
+(the average of its still detections), or farther where the tracker's noise asks for it
+(:meth:`PerceptionMemory.onset`); it started at its last detection closer than that."""
 VELOCITY_WINDOW = 0.2
 """s: an object's perceived velocity is the least-squares slope of its detections over this long (since
 its last gap longer than ``t_perceived``): a difference of two frames 1/30 s apart turns a few
@@ -58,7 +60,7 @@ class PerceptionMemory:
     ``hold_offset (M, 3)`` (object minus raw hand position, m, averaged over the frames that showed
     both, :func:`~estimator.hands.average_offset`), ``still_position (M, 3)`` (m, average
     detection while the object is still; NaN: not seen still) and ``moving_since (M,)`` (s, the time
-    a still object started moving, :data:`MOTION_ONSET`, until it is at rest again; NaN: still).
+    a still object started moving, :meth:`onset`, until it is at rest again; NaN: still).
     """
 
     def __init__(self, scene: Scene, poses: np.ndarray, reasoner: ReasonerConfig, follow_hands: bool,
@@ -78,6 +80,7 @@ class PerceptionMemory:
         self._sxx = np.zeros(M)
         self._line_xy = np.zeros((M, 2))  # the fitted line's horizontal position at the last detection
         self._scatter = np.full(M, np.nan)
+        self.noise = DetectionNoise()  # the tracker's position noise, from the scatters about the lines
         self._fit_due = np.zeros(M, dtype=bool)  # detected since their line was last fitted
         self._segment_start = np.full(M, -np.inf)
         self.pose_at_tick = poses.copy()
@@ -157,8 +160,9 @@ class PerceptionMemory:
     # -- the fitted lines (fitted when read, once per object detected since: not at every frame) -------
     def _fit_pending(self) -> None:
         for m in np.flatnonzero(self._fit_due):
-            self._perc_vel[m, :3], self._sxx[m], self._line_xy[m], self._scatter[m] = \
+            self._perc_vel[m, :3], self._sxx[m], self._line_xy[m], self._scatter[m], dof = \
                 self._fit_velocity(m, self.last_seen[m])
+            self.noise.add(self._scatter[m], dof)
         self._fit_due[:] = False
 
     @property
@@ -198,8 +202,8 @@ class PerceptionMemory:
         the slope ``(3,)`` (m/s), the spread of the detection times ``sxx`` (s^2), the line's
         horizontal position at ``t`` ``(2,)`` (m) and
         the detections' horizontal scatter about it (m, RMS per axis over ``n - 2`` degrees of
-        freedom; NaN under three detections); for fewer than two detections
-        ``(0, 0, the latest detection, NaN)``."""
+        freedom; NaN under three detections) and those degrees of freedom; for fewer than two
+        detections ``(0, 0, the latest detection, NaN, 0)``."""
         since = max(t - VELOCITY_WINDOW, self._segment_start[m])
         if self.from_onset and np.isfinite(self.moving_since[m]):
             since = max(since, self.moving_since[m])
@@ -207,34 +211,35 @@ class PerceptionMemory:
         pts = [(h[0], h[1]) for h in self._history[m] if h[0] >= since]
         latest = np.asarray(self._history[m][-1][1][:2], dtype=float)
         if len(pts) < 2:
-            return np.zeros(3), 0.0, latest, math.nan
+            return np.zeros(3), 0.0, latest, math.nan, 0
         ts = np.array([p[0] for p in pts])
         xs = np.array([p[1] for p in pts])
         dt = ts - ts.mean()
         sxx = float(dt @ dt)
         if sxx <= 1e-12:
-            return np.zeros(3), 0.0, latest, math.nan
+            return np.zeros(3), 0.0, latest, math.nan, 0
         slope = dt @ (xs - xs.mean(axis=0)) / sxx
         resid = xs[:, :2] - xs.mean(axis=0)[:2] - dt[:, None] * slope[None, :2]
-        scatter = math.sqrt(float(np.sum(resid ** 2)) / (2 * (len(pts) - 2))) if len(pts) > 2 else math.nan
-        return slope, sxx, xs.mean(axis=0)[:2] + slope[:2] * (t - ts.mean()), scatter
+        dof = 2 * (len(pts) - 2)
+        scatter = math.sqrt(float(np.sum(resid ** 2)) / dof) if dof > 0 else math.nan
+        return slope, sxx, xs.mean(axis=0)[:2] + slope[:2] * (t - ts.mean()), scatter, max(dof, 0)
 
     def _track_motion(self, m: int, t: float, position: np.ndarray, gap: float) -> None:
         """Motion onset of object m from its detection at ``position`` (m) at ``t`` (s), ``gap`` (s)
         after the previous one (before it is stored): a still object (its average still position
-        known) moves when the detection is :data:`MOTION_ONSET` away (``moving_since`` = the previous
+        known) moves when the detection is :meth:`onset` away (``moving_since`` = the previous
         detection's time); a moving one is still again once its detections over a ``place_dwell``
-        since it started moving stayed within :data:`MOTION_ONSET` (checked on the history before
+        since it started moving stayed within :meth:`onset` (checked on the history before
         this detection, and this detection against the one a ``place_dwell`` before it: a box a hand
         starts moving slowly after a pause is not still; still again, it restarts the average here). After a loss (``gap`` over
         ``t_perceived``) nothing is known: the object starts still where seen."""
         still, since, last = self.still_position[m], self.moving_since[m], self.last_seen[m]
         if not gap <= self.reasoner.t_perceived or np.isnan(still[0]) or (
-                last - since >= self.reasoner.place_dwell and self._rested(m, last, MOTION_ONSET)
+                last - since >= self.reasoner.place_dwell and self._rested(m, last, self.onset(m))
                 and self._stayed(m, last, position)):
             self.still_position[m], self.moving_since[m], self._still_n[m] = position, np.nan, 1
         elif np.isnan(self.moving_since[m]):
-            if math.dist(still, position) > MOTION_ONSET:
+            if math.dist(still, position) > self.onset(m):
                 self.moving_since[m] = self.last_seen[m]
             else:
                 self._still_n[m] += 1
@@ -431,12 +436,20 @@ class PerceptionMemory:
                 out[m] = np.mean(recent, axis=0)
         return out
 
+    def onset(self, m: int) -> float:
+        """Distance (m) a detection of still object m must stray from its resting position to say it
+        moved: :func:`~estimator.detection_noise.onset_distance` of the noise of its latest detection
+        (the detector's ``position_std`` where it gave one, else the tracker's noise measured so far,
+        :attr:`noise`), never under :data:`MOTION_ONSET`."""
+        std = self.last_std[m] if math.isfinite(self.last_std[m]) else self.noise.std
+        return onset_distance(std, MOTION_ONSET)
+
     def _stayed(self, m: int, t: float, position: np.ndarray) -> bool:
-        """Whether object m's new detection at ``position`` (m) is within :data:`MOTION_ONSET` of its
+        """Whether object m's new detection at ``position`` (m) is within :meth:`onset` of its
         stored detection ``place_dwell`` before ``t`` (s, its latest one; True when there is none): a
         box that a hand starts moving slowly looks still over the detections before, and is not."""
         old = self._dwell_back(m, t)
-        return old is None or math.dist(old[1], position) <= MOTION_ONSET
+        return old is None or math.dist(old[1], position) <= self.onset(m)
 
     def _dwell_back(self, m: int, t: float) -> tuple | None:
         """Object m's latest stored detection ``(t, position, orientation)`` at least ``place_dwell``

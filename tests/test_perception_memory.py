@@ -7,7 +7,8 @@ import pytest
 from estimator.config import HandConfig, ReasonerConfig
 from estimator.model import initial_poses
 from estimator.observations import Detection, Frame
-from estimator.perception_memory import VELOCITY_WINDOW, PerceptionMemory
+from estimator.detection_noise import ONSET_FALSE_ALARM, ONSET_SIGMAS
+from estimator.perception_memory import MOTION_ONSET, VELOCITY_WINDOW, PerceptionMemory
 from physics.scene import scene_from_dict
 
 TABLE, CUP, BALL = range(3)
@@ -369,3 +370,47 @@ def test_free_fall_through_the_last_two_detections_is_exact_on_a_parabola():
     z, v, _ = mem.free_fall(0.05, -g, 0.01)
     assert z[0, BALL] == pytest.approx(z0, abs=1e-9) and v[0, BALL] == 0.0
     assert np.isnan(z[0, CUP])  # never detected
+
+
+def _still_then_lifted(sigma, rng, still_frames=90, lift_frames=15):
+    """A memory fed a cup at rest for ``still_frames`` at 30 Hz, then lifted at 0.5 m/s, through a
+    tracker with Gaussian noise ``sigma`` (m per axis); its velocities read every third frame, as the
+    filter reads them once per update. Returns the memory and the time the lift began."""
+    mem = memory()
+    rest = np.array([0.3, 0.3, 0.14])
+    t = 0.0
+    for i in range(still_frames + lift_frames):
+        t = i / 30.0
+        lift = max(0, i - still_frames) / 30.0 * 0.5
+        mem.record(Frame(t, {"cup": det(rest + [0, 0, lift] + rng.normal(0.0, sigma, 3))}))
+        if i % 3 == 2:
+            mem.perc_vel  # the update reads the fitted lines
+        if i == still_frames - 1:
+            still_onsets = np.isfinite(mem.moving_since[CUP])
+    return mem, still_frames / 30.0, still_onsets
+
+
+def test_the_onset_follows_the_trackers_noise():
+    rng = np.random.default_rng(21)
+    # a 1 cm tracker: 1.5 cm is 1.5 standard deviations; the onset moves out to about 4 of them
+    mem, lift_t, _ = _still_then_lifted(0.01, rng)
+    assert mem.noise.std == pytest.approx(0.01, rel=0.2)
+    assert mem.onset(CUP) == pytest.approx(ONSET_SIGMAS * mem.noise.std)
+    assert lift_t - 0.1 <= mem.moving_since[CUP] <= lift_t + 0.3  # the lift is seen, late by noise
+    # a 3 mm tracker keeps the 1.5 cm floor
+    mem3, _, _ = _still_then_lifted(0.003, rng)
+    assert mem3.onset(CUP) == MOTION_ONSET
+    # a detector that states its noise is taken at its word
+    mem3.record(Frame(10.0, {"cup": det([0.3, 0.3, 0.14], std=0.02)}))
+    assert mem3.onset(CUP) == pytest.approx(ONSET_SIGMAS * 0.02)
+
+
+def test_a_still_object_under_a_noisy_tracker_is_rarely_set_moving():
+    # with the onset at the 1e-3 quantile, 90 noisy frames of a cup at rest set it moving in about
+    # 1 - (1 - 1e-3)^90 = 9 % of runs once the noise is measured (the first 0.3 s use the 1.5 cm
+    # floor); with the fixed 1.5 cm it happened in almost every run
+    rng = np.random.default_rng(3)
+    runs = 60
+    moved = sum(bool(_still_then_lifted(0.01, rng, still_frames=90, lift_frames=0)[2]) for _ in range(runs))
+    p = 1 - (1 - ONSET_FALSE_ALARM) ** 90
+    assert moved <= runs * p + 3 * math.sqrt(runs * p * (1 - p)) + 1

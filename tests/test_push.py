@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from actions.modes import NO_EVENT, PICK, PLACE, PUSH, RELEASE
-from actions.push import (AIRBORNE, HOLD_FIELDS, PICK_T, REF_Z, SMOOTH_Z, TOP_Z, empty_holds, end_codes,
+from actions.push import (AIRBORNE, HOLD_FIELDS, PICK_T, REF_Z, SMOOTH_Z, TOP_Z, empty_holds, end_codes, late_picks,
                           end_holds, lifted, track_holds, unrested_picks, withdraw_picks)
 
 
@@ -87,3 +87,28 @@ def test_withdraw_picks_only_the_pushed_ones():
     pick = np.array([1.0, 1.0, -np.inf, 2.0])
     out = withdraw_picks(pick, np.array([1.0, np.nan, np.nan, 1.0]))
     assert out.tolist() == [-np.inf, 1.0, -np.inf, 2.0]
+
+
+def test_late_picks_date_a_silent_episode_when_its_object_is_seen_to_start_moving():
+    # three particles hold the object in a silent episode (pick_t NaN or -inf) begun from rest
+    holds = empty_holds((4, 1))
+    holds[:, 0, REF_Z] = 0.62
+    holds[:, 0, SMOOTH_Z] = 0.63
+    holds[:3, 0, PICK_T] = [np.nan, -np.inf, np.nan]
+    holds[3, 0, PICK_T] = 1.2  # an episode with its Pick already
+    held = np.array([[True], [True], [True], [True]])
+    codes = np.zeros((4, 1), dtype=np.int8)
+    times = np.full((4, 1), np.nan)
+    quiet = np.array([[False], [False], [True], [False]])  # the third: carried on a held tray
+    c, tm, h = late_picks(codes, times, holds, held, np.array([1.37]), quiet, since=0.5, t=1.5)
+    assert c[:, 0].tolist() == [PICK, PICK, NO_EVENT, NO_EVENT]
+    assert tm[:2, 0].tolist() == [1.37, 1.37] and np.isnan(tm[2:, 0]).all()
+    assert h[:2, 0, PICK_T].tolist() == [1.37, 1.37] and h[3, 0, PICK_T] == 1.2 and np.isnan(h[2, 0, PICK_T])
+    assert np.isnan(holds[0, 0, PICK_T])  # inputs untouched
+    # still (no onset), an onset out of the window, an object that never rested, not held: none
+    for onset, since, ref, hld in ((np.nan, 0.5, 0.62, True), (0.3, 0.5, 0.62, True),
+                                   (1.37, 0.5, np.nan, True), (1.37, 0.5, 0.62, False)):
+        hh = holds.copy()
+        hh[:, 0, REF_Z] = ref
+        c, _, _ = late_picks(codes, times, hh, np.full((4, 1), hld), np.array([onset]), quiet, since=since, t=1.5)
+        assert (c == NO_EVENT).all()
