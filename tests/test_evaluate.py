@@ -152,14 +152,18 @@ def test_sweep_writes_rows_summary_and_figures(reference):
     assert all(t["err_end_mean.n"] == len(SEEDS) for t in tests if t["scenario"] != "all scenarios")
 
 
-def test_a_rerun_with_everything_done_runs_nothing(reference, tmp_path):
+def test_a_rerun_with_everything_done_runs_nothing(reference, tmp_path, capsys):
     rows, out = reference
     shutil.copy(out / "trials.jsonl", tmp_path / "trials.jsonl")
+    # as if another version of the code had written them: the user is told they are kept
+    (tmp_path / "runs.jsonl").write_text(json.dumps({"commit": "0" * 40, "dirty": False}) + "\n")
     before = (tmp_path / "trials.jsonl").read_bytes()
     again = run_sweep(SMALL, tmp_path, workers=1, progress=False, report=False,
                       on_row=lambda r: pytest.fail("a finished trial ran again"))
     assert (tmp_path / "trials.jsonl").read_bytes() == before
     assert _rows_without_timing(again) == _rows_without_timing(rows)
+    err = capsys.readouterr().err
+    assert f"{len(rows)} of {len(rows)} trials are kept" in err and "0000000000" in err
 
 
 # -- interruption --------------------------------------------------------------------------------------
