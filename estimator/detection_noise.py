@@ -17,6 +17,7 @@ Pure numpy and scipy; nothing here knows the scene.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import deque
 
@@ -76,12 +77,7 @@ class DetectionNoise:
         return len(self._samples)
 
 
-_MEDIAN_RATIO: dict[int, float] = {}
-
-
+@functools.lru_cache(maxsize=None)
 def _median_ratio(k: int) -> float:
     """Median of a chi-square variable with ``k`` degrees of freedom, over ``k``."""
-    r = _MEDIAN_RATIO.get(k)
-    if r is None:
-        r = _MEDIAN_RATIO[k] = float(chi2.ppf(0.5, k)) / k
-    return r
+    return float(chi2.ppf(0.5, k)) / k

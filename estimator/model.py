@@ -509,7 +509,8 @@ class SceneModel:
         silent = carried(state.is_in, state.on_top, carrier)
         if move.out_of_reach is not None:  # hands are tracked, none within reach of it: an action needs
             silent = silent | move.out_of_reach[None, :]  # an agent; its particle's physics moved it
-        quiet = silent | np.isfinite(state.event_t).any(axis=-1)
+        acted = np.isfinite(state.event_t).any(axis=-1)  # an event before this update
+        quiet = silent | acted
         if cfg.still_unacted:  # seen still, and at rest in its particle before or on a support where
             # it is seen: no one moved it, its particle's physics did (no events); one held still in
             # the air is held
@@ -519,7 +520,7 @@ class SceneModel:
         release_codes = dropped_behind_cover(move.release_codes, move.behind_cover, move.poses, out.poses, out.aabbs,
                                              self.scene.floor)
         ev = update_events(
-            state.holds, np.isfinite(state.event_t).any(axis=-1), silent,
+            state.holds, acted, silent,
             move.modes, after_physics, new_modes, release_codes, supported,
             supported & (np.linalg.norm(out.velocities[..., :3], axis=-1) < rule.rest_speed), move.poses[..., 2],
             out.poses[..., 2], self._seen_z(t, detected),

@@ -234,12 +234,13 @@ class PerceptionMemory:
         starts moving slowly after a pause is not still; still again, it restarts the average here). After a loss (``gap`` over
         ``t_perceived``) nothing is known: the object starts still where seen."""
         still, since, last = self.still_position[m], self.moving_since[m], self.last_seen[m]
+        onset = self.onset(m)
         if not gap <= self.reasoner.t_perceived or np.isnan(still[0]) or (
-                last - since >= self.reasoner.place_dwell and self._rested(m, last, self.onset(m))
-                and self._stayed(m, last, position)):
+                last - since >= self.reasoner.place_dwell and self._rested(m, last, onset)
+                and self._stayed(m, last, position, onset)):
             self.still_position[m], self.moving_since[m], self._still_n[m] = position, np.nan, 1
         elif np.isnan(self.moving_since[m]):
-            if math.dist(still, position) > self.onset(m):
+            if math.dist(still, position) > onset:
                 self.moving_since[m] = self.last_seen[m]
             else:
                 self._still_n[m] += 1
@@ -444,12 +445,13 @@ class PerceptionMemory:
         std = self.last_std[m] if math.isfinite(self.last_std[m]) else self.noise.std
         return onset_distance(std, MOTION_ONSET)
 
-    def _stayed(self, m: int, t: float, position: np.ndarray) -> bool:
-        """Whether object m's new detection at ``position`` (m) is within :meth:`onset` of its
-        stored detection ``place_dwell`` before ``t`` (s, its latest one; True when there is none): a
-        box that a hand starts moving slowly looks still over the detections before, and is not."""
+    def _stayed(self, m: int, t: float, position: np.ndarray, distance: float) -> bool:
+        """Whether object m's new detection at ``position`` (m) is within ``distance`` (m, its
+        :meth:`onset`) of its stored detection ``place_dwell`` before ``t`` (s, its latest one; True
+        when there is none): a box that a hand starts moving slowly looks still over the detections
+        before, and is not."""
         old = self._dwell_back(m, t)
-        return old is None or math.dist(old[1], position) <= self.onset(m)
+        return old is None or math.dist(old[1], position) <= distance
 
     def _dwell_back(self, m: int, t: float) -> tuple | None:
         """Object m's latest stored detection ``(t, position, orientation)`` at least ``place_dwell``

@@ -375,10 +375,11 @@ def test_free_fall_through_the_last_two_detections_is_exact_on_a_parabola():
 def _still_then_lifted(sigma, rng, still_frames=90, lift_frames=15):
     """A memory fed a cup at rest for ``still_frames`` at 30 Hz, then lifted at 0.5 m/s, through a
     tracker with Gaussian noise ``sigma`` (m per axis); its velocities read every third frame, as the
-    filter reads them once per update. Returns the memory and the time the lift began."""
+    filter reads them once per update. Returns the memory, the time the lift began and whether the
+    cup counted as moving at the last still frame."""
     mem = memory()
     rest = np.array([0.3, 0.3, 0.14])
-    t = 0.0
+    still_onsets = False
     for i in range(still_frames + lift_frames):
         t = i / 30.0
         lift = max(0, i - still_frames) / 30.0 * 0.5

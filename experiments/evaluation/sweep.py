@@ -229,26 +229,24 @@ def code_version() -> dict:
     return {"commit": commit or None, "dirty": bool(dirty) if commit else None}
 
 
-def earlier_code(path: Path) -> set[str]:
-    """The commits (``"unknown"`` where none was recorded, ``"<commit>+changes"`` for a working tree
-    that differed from it) of the runs logged in ``runs.jsonl`` at ``path``; empty when there is none."""
+def logged_runs(path: Path) -> list[dict]:
+    """The runs logged in ``runs.jsonl`` at ``path`` (see :func:`_log_run`), oldest first; a line
+    that is not JSON (cut short by an interruption) is skipped; none when there is no file."""
     if not path.exists():
-        return set()
-    out = set()
+        return []
+    out = []
     for line in path.read_text(encoding="utf-8").splitlines():
         try:
-            rec = json.loads(line)
+            out.append(json.loads(line))
         except ValueError:
             continue
-        commit = rec.get("commit") or "unknown"
-        out.add(commit + ("+changes" if rec.get("dirty") else ""))
     return out
 
 
-def _log_run(path: Path, config: SweepConfig, backend: str, workers: int | None) -> None:
-    """Append when, with which code and how a sweep was (re)started to ``runs.jsonl``: rows of a
-    resumed sweep may come from several runs."""
-    rec = {"started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), **code_version(), "backend": backend,
+def _log_run(path: Path, config: SweepConfig, backend: str, workers: int | None, code: dict) -> None:
+    """Append when, with which ``code`` (:func:`code_version`) and how a sweep was (re)started to
+    ``runs.jsonl``: rows of a resumed sweep may come from several runs."""
+    rec = {"started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), **code, "backend": backend,
            "workers": workers, "config": {k: (list(v) if isinstance(v, tuple) else v)
                                           for k, v in config.__dict__.items()}}
     with open(path, "a", encoding="utf-8") as fh:
@@ -280,18 +278,19 @@ def run_sweep(config: SweepConfig, out_dir: str | os.PathLike, *, backend: str =
     out.mkdir(parents=True, exist_ok=True)
     path = out / TRIALS_FILE
     specs = config.trials(rerun_dir)
-    earlier = earlier_code(out / "runs.jsonl")
-    _log_run(out / "runs.jsonl", config, backend, workers)
+    now = code_version()
+    earlier = logged_runs(out / "runs.jsonl")
+    _log_run(out / "runs.jsonl", config, backend, workers, now)
     done = {r["key"]: r for r in read_rows(path, repair=True)}
     todo = [s for s in specs if s.key not in done]
     kept = len(specs) - len(todo)
-    if kept:
-        now = code_version()
-        if not earlier or earlier - {now["commit"]} or now["dirty"]:
-            print(f"note: {kept} of {len(specs)} trials are kept from {TRIALS_FILE} as earlier runs wrote them "
-                  f"(code {', '.join(sorted(c[:10] for c in earlier)) or 'unknown'}; now {(now['commit'] or 'unknown')[:10]}"
-                  f"{', with changes' if now['dirty'] else ''}): delete {path} to measure the code as it is",
-                  file=sys.stderr)
+    if kept and (now["dirty"] or not earlier
+                 or any(r.get("commit") != now["commit"] or r.get("dirty") for r in earlier)):
+        def name(code: dict) -> str:
+            return (code.get("commit") or "unknown")[:10] + (" with changes" if code.get("dirty") else "")
+        print(f"note: {kept} of {len(specs)} trials are kept from {TRIALS_FILE} as earlier runs wrote them "
+              f"(code {', '.join(sorted({name(r) for r in earlier})) or 'unknown'}; now {name(now)}): "
+              f"delete {path} to measure the code as it is", file=sys.stderr)
     # longest first (particle trials), for a shorter tail
     todo.sort(key=lambda s: (-s.particles, s.scenario, s.seed, s.method))
     workers = workers if workers is not None else (os.cpu_count() or 1)
