@@ -28,31 +28,15 @@ parks the worlds of the slots beyond K and builds new ones as K first reaches th
 """
 from __future__ import annotations
 
-import dataclasses
 import logging
-import math
 
 import numpy as np
 
-from actions.events import recent_events, record_event_times
-from actions.modes import FREE
-from physics.scene import Scene
-
-from .adaptive import particles_needed
-from .belief import Belief, SpeedVariance, compute_belief
+from .collect import Belief, Collectors
 from .config import EstimatorConfig, reasoning_due
-from .holding import places_after_update
-from .likelihood import held_unseen_in_view
-from .model import SceneModel, initial_poses
-from .step import Move, Settled
-from .observations import Frame
-from .perception_memory import PerceptionMemory
-from .person import with_person
-from .pool import BatchOutput, WorldPool
+from .model import SceneModel
+from .pool import WorldPool
 from .resampling import effective_sample_size, keep_survivors_in_place, normalise_log_weights, systematic_resample
-from .shard import camera_key
-from .state import ParticleState
-from .timeline import Timeline
 
 log = logging.getLogger(__name__)
 
@@ -74,7 +58,8 @@ class SceneEstimator:
     """Particle filter over pybullet worlds for one scene.
 
     Args:
-        scene: the scene (static objects, shapes, initial poses, optional camera).
+        scene: the scene (:class:`~physics.scene.Scene`: static objects, shapes, initial poses,
+            optional camera).
         config: estimator configuration; :meth:`EstimatorConfig.paper` for the paper's reasoner.
         rng: source of all randomness (default: ``numpy.random.default_rng(0)``).
 
@@ -95,8 +80,7 @@ class SceneEstimator:
     is_in = _StateField()
     event_t = _StateField()
 
-    def __init__(self, scene: Scene, config: EstimatorConfig | None = None,
-                 rng: np.random.Generator | None = None):
+    def __init__(self, scene, config: EstimatorConfig | None = None, rng: np.random.Generator | None = None):
         self.scene = scene
         self.config = cfg = config or EstimatorConfig.paper()
         self.rng = rng if rng is not None else np.random.default_rng(0)
@@ -106,40 +90,55 @@ class SceneEstimator:
         self.pool = WorldPool(scene, K, cfg.workers, cfg.physics, cfg.worlds,
                               max_particles=cfg.max_particles if cfg.adaptive.enabled else None)
         try:
-            self.memory = PerceptionMemory(scene, initial_poses(scene)[0], cfg.reasoner, cfg.follow_hands,
-                                           from_onset=cfg.moving_teleports, hands=cfg.hands)
-            self.model = SceneModel(scene, cfg, self.memory, self.pool.initial_params)
-            self.state: ParticleState = self.model.initial_state(self.rng)
+            self.model = SceneModel(scene, cfg, self.pool.initial_params)
+            self.state = self.model.initial_state(self.rng)
         except BaseException:
             self.pool.close()
             if getattr(self, "model", None) is not None:
                 self.model.close()
             raise
         self.static, self.dynamic, self.hollow = self.model.static, self.model.dynamic, self.model.hollow
-        self._speed_variance = SpeedVariance(cfg.noise.covariance_speed_time, self.dynamic)
-        self.timeline = Timeline(cfg.event_threshold)
-        self.recoveries = 0
-        self._weighed = np.zeros(self.M, dtype=bool)  # objects some evidence weighed since the last resampling
+        self.collect = Collectors(scene, cfg, self.pool, self.dynamic, self.static)
         self.reseeded = 0  # particles re-seeded from survivors (exploded simulations, dead workers)
         self.k_range = [K, K, 0]  # the fewest and the most particles over the updates, and their sum
         self.n_updates = 0
         self.last_belief: Belief | None = None
-        self.t_frame: float | None = None
         self.t_tick: float | None = None
-        self._last_frame: Frame | None = None  # the last observed frame (outliers dropped)
-        self._detected_since_tick = np.zeros(M, dtype=bool)
-        self._cameras_since_tick: dict | None = None  # cameras of the frames since the last update
-        self._scene_camera_since_tick = False  # a frame without cameras (the scene's) since then
-        self.last_hands: dict = {}  # the tracked hands of the last frame that had any
+
+    # -- what the model and the collectors hold -------------------------------------------------------
+    @property
+    def memory(self):
+        """The perception memory (:class:`~estimator.perception_memory.PerceptionMemory`)."""
+        return self.model.memory
 
     @property
-    def rejected_detections(self) -> int:
-        """Detections and hands dropped so far for lying outside the scene's workspace."""
-        return self.memory.rejected
+    def timeline(self):
+        """The timeline of facts and events so far (:class:`~estimator.timeline.Timeline`)."""
+        return self.collect.timeline
 
     @property
     def known(self) -> np.ndarray:
         return self.model.known
+
+    @property
+    def t_frame(self) -> float | None:
+        """Time (s) of the last frame observed (None before any)."""
+        return self.model.inputs.t_frame
+
+    @property
+    def last_hands(self) -> dict:
+        """The tracked hands of the last frame that had any."""
+        return self.model.inputs.last_hands
+
+    @property
+    def recoveries(self) -> int:
+        """Updates after which every particle had zero weight (detected objects re-seeded)."""
+        return self.model.recoveries
+
+    @property
+    def rejected_detections(self) -> int:
+        """Detections and hands dropped so far for lying outside the scene's workspace."""
+        return self.model.memory.rejected
 
     # -- life cycle -----------------------------------------------------------------------------------
     def close(self) -> None:
@@ -154,176 +153,73 @@ class SceneEstimator:
         self.close()
 
     # -- the update -----------------------------------------------------------------------------------
-    def update(self, frame: Frame) -> Belief | None:
-        """Process one perception frame; returns the belief if a reasoning step ran, else None."""
+    def update(self, frame) -> Belief | None:
+        """Process one perception frame (:class:`~estimator.observations.Frame`); returns the belief if
+        a reasoning step ran, else None."""
         self.observe(frame)
         if not reasoning_due(self.t_tick, frame.t, self.config.reasoner.horizon):
             return None
         return self.step()
 
-    def observe(self, frame: Frame) -> None:
-        """Record one perception frame in the perception memory without running a reasoning step,
-        however much time has passed (a live stream that fell behind: the frames that arrived during
-        a long update are observed, and the next :meth:`step` simulates the whole elapsed time; the
-        velocity fit keeps every frame). Raises ``ValueError`` when ``frame.t`` does not increase."""
-        if self.t_frame is not None and not frame.t > self.t_frame:
-            raise ValueError(f"frame time must increase: {frame.t} after {self.t_frame}")
-        frame = self.memory.admit(frame)  # detections outside the workspace are outliers
-        detected = self.memory.record(frame)
-        self.t_frame = frame.t
-        self._last_frame = frame
-        self._detected_since_tick |= detected
-        if frame.hands:
-            self.last_hands = dict(frame.hands)
-        if frame.cameras is None:
-            self._scene_camera_since_tick = True
-        else:
-            own = self._cameras_since_tick if self._cameras_since_tick is not None else {}
-            own.update((camera_key(c), c) for c in frame.cameras.values())
-            self._cameras_since_tick = own
+    def observe(self, frame) -> None:
+        """Record one perception frame without running a reasoning step, however much time has passed
+        (a live stream that fell behind: the frames that arrived during a long update are observed,
+        and the next :meth:`step` simulates the whole elapsed time; the velocity fit keeps every
+        frame). Raises ``ValueError`` when ``frame.t`` does not increase."""
+        self.model.observe(frame)
 
     def step(self) -> Belief:
         """Run a reasoning step at the time of the last frame :meth:`observe` recorded, whether or not
         a horizon has passed since the previous step (it simulates the whole elapsed time, at most
         ``max_gap``); returns the belief. Raises ``ValueError`` before any frame, or when no frame
-        was observed since the last step."""
-        frame = self._last_frame
-        if frame is None or (self.t_tick is not None and not frame.t > self.t_tick):
+        was observed since the last step.
+
+        The step: the model proposes (its moves and the worlds' input), the worlds run, the model
+        weighs (settles, and sums its terms) and commits the particles, the collectors make the
+        belief; then resampling, when the effective sample size is low or the count must change."""
+        t = self.t_frame
+        if t is None or (self.t_tick is not None and not t > self.t_tick):
             raise ValueError("step() needs a frame observed since the last reasoning step")
-        detected = self._detected_since_tick
-        self._detected_since_tick = np.zeros(self.M, bool)
-        cameras = self._tick_cameras()
-        belief = self._tick(frame, detected, cameras)
-        self.last_belief = belief
-        return belief
-
-    def _tick_cameras(self) -> tuple | None:
-        """The cameras that took the frames since the last update, and forget them: None when every
-        frame was the scene camera's (old streams: the pool asks the scene camera, as always), else
-        each distinct camera once (the scene's too if one frame was its)."""
-        own, scene_cam = self._cameras_since_tick, self._scene_camera_since_tick
-        self._cameras_since_tick, self._scene_camera_since_tick = None, False
-        if own is None:
-            return None
-        cams = list(own.values())
-        if scene_cam and self.scene.camera is not None and camera_key(self.scene.camera) not in own:
-            cams.insert(0, self.scene.camera)
-        return tuple(cams)
-
-    def _tick(self, frame: Frame, detected: np.ndarray, cameras: tuple | None = None) -> Belief:
-        """One reasoning step at ``frame.t``; ``detected (M,)``: objects detected since the last one;
-        ``cameras``: those that took the frames since then (None: the scene's)."""
         cfg, model, K = self.config, self.model, self.K
-        t = frame.t
         # the first update only places the objects; after a gap, at most max_gap is simulated
         dt = 0.0 if self.t_tick is None else min(t - self.t_tick, cfg.reasoner.max_gap)
-        n_steps = int(round(dt / cfg.physics.time_step))
-        # perceive
-        perceived = self.memory.perceived(t)
-        # move (model), propagate (pool), settle (model)
-        move = model.move(self.state, frame, detected, perceived, dt, self.rng, cameras)
-        batch = model.batch(move, self.state, *self.pool.cache.loads(move.poses, move.velocities, move.fused))
-        out = self.pool.run(batch, n_steps, cfg.reasoner.d_sim_perc, cfg.lazy_checks, cfg.moving_teleports,
-                            cameras=cameras)  # None: the scene's camera
-        bad = self._reset_exploded(out, move.poses, move.modes, t)
-        # what the worlds hold now, before the model sets velocities (a ball let go falls at its speed)
-        produced = (out.poses.copy(), out.velocities.copy())
-        settled = model.settle(self.state, move, out, t, dt, detected, perceived)
-        # weigh (the model's terms)
-        evidence = model.evidence(move, settled, out, frame, detected, perceived, self.state.unseen_in_view)
-        logw = model.log_weight(self.state.log_weights, evidence)
-        weights, _ = normalise_log_weights(logw)
-        if not np.any(np.isfinite(logw)):
-            logw, weights = self._recover(t, settled, detected)
+        proposal = model.propose(self.state, dt, self.rng)
+        out = self.pool.advance(proposal.batch, int(round(dt / cfg.physics.time_step)), cfg.reasoner.d_sim_perc,
+                                cfg.lazy_checks, cfg.moving_teleports, proposal.cameras, proposal.move.fused)
+        bad = ~out.finite  # exploded, or lost with their worker: weighed zero, then re-seeded
+        if np.any(bad):
+            log.warning("t=%.3f: %d particle simulation(s) exploded or lost; they are re-seeded from the "
+                        "others", t, bad.sum())
+        weighed = model.weigh(self.state, proposal, out, self.rng)
+        weights, _ = normalise_log_weights(weighed.log_weights)
         ess = effective_sample_size(weights)
-        # commit
-        hidden = places_after_update(self.state, evidence, settled, t, self.rng, cfg.visibility_threshold)
-        self._commit(move, settled, logw, bad, held_unseen_in_view(evidence, cfg.visibility_threshold), hidden,
-                     produced)
-        self.memory.end_tick(perceived, detected, settled.tick_vel)
+        self.state = model.commit(self.state, proposal, weighed, self.rng)
         self.t_tick = t
         self.n_updates += 1
-        # summarise
-        record_event_times(self.state.event_t, settled.codes, t, settled.times, self.state.push_decided)
-        step_events = recent_events(self.state.event_t, weights, t, cfg.event_window, self.object_ids,
-                                    threshold=cfg.hypothesis_min_p, push_decided=self.state.push_decided)
-        belief = compute_belief(t, self.object_ids, self.known, perceived, settled.poses, weights, settled.modes,
-                                settled.on_top, settled.is_in, step_events, ess, self.static, cfg.hypothesis_min_p,
-                                cov_floor=cfg.noise.covariance_floor_std ** 2,
-                                dof=cfg.noise.position_dof or math.inf, params=self.state.params)
-        belief = self._speed_variance(belief, detected, dt)
-        n, resize = K, False
-        if cfg.adaptive.enabled:  # the count this belief needs (resampled to below), and the K that made it
-            n = particles_needed(settled.poses, settled.modes, weights, self.known & self.dynamic, cfg.adaptive)[0]
-            resize = n > K or n < cfg.adaptive.shrink_below * K
-            belief = dataclasses.replace(belief, n_particles=K)
+        n = model.particles_needed(weighed.settled, weights) if cfg.adaptive.enabled else K
         self.k_range = [min(self.k_range[0], K), max(self.k_range[1], K), self.k_range[2] + K]
-        if self.scene.person is not None:  # P(visible to) and P(reachable by) the person
-            belief = with_person(belief, self.pool, self.scene.person, settled.poses, weights,
-                                 np.flatnonzero(self.known & self.dynamic), self.known, self.object_ids,
-                                 self.last_hands, cfg.visibility_threshold)
-        self._update_timeline(t, belief)
-        # resample; particles whose simulation exploded or whose worker died take a survivor's state
-        self._weighed |= detected | np.any(evidence.visible >= cfg.visibility_threshold, axis=0)
-        if K > 1 and (ess < cfg.resample_threshold * K or resize):
-            self._resample(weights, self.known & self.dynamic & ~perceived, settled, n)
+        belief = self.collect(t, self.state, weighed.settled, weights, ess, self.known, proposal.perceived,
+                              proposal.detected, dt, self.last_hands, K if cfg.adaptive.enabled else None)
+        self.last_belief = belief
+        if K > 1 and (ess < cfg.resample_threshold * K or n > K or n < cfg.adaptive.shrink_below * K):
+            self._resample(weights, weighed.settled, proposal.perceived, n)
         elif K > 1 and np.any(bad) and np.any(weights > 0):
             self._reseed(bad, weights)
         if K > 1 and np.any(bad) and np.any(weights > 0):
             self.reseeded += int(bad.sum())
         return belief
 
-    # -- pieces of the update -------------------------------------------------------------------------
-    @staticmethod
-    def _reset_exploded(out: BatchOutput, poses: np.ndarray, modes: np.ndarray, t: float) -> np.ndarray:
-        """Particles ``(K,)`` whose simulation exploded (or whose worker died) get back their state
-        before physics, at rest (in ``out``, in place; the model weighs them zero, and the update
-        ends by giving them a survivor's state). Returns their mask."""
-        bad = ~out.finite
-        if np.any(bad):
-            log.warning("t=%.3f: %d particle simulation(s) exploded or lost; they are re-seeded from the "
-                        "others", t, bad.sum())
-            out.poses[bad] = poses[bad]
-            out.velocities[bad] = 0.0
-            out.modes[bad] = modes[bad]
-        return bad
-
-    def _recover(self, t: float, settled: Settled, detected: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Every particle has zero weight: the model re-seeds the detected objects ``(M,)`` (in
-        ``settled``, in place); returns uniform log-weights and weights ``(K,)``."""
-        self.recoveries += 1
-        log.warning("t=%.3f: every particle has zero weight; re-seeding detected objects from perception", t)
-        self.model.reseed(settled.poses, settled.velocities, detected, self.rng)
-        return np.zeros(self.K), np.full(self.K, 1.0 / self.K)
-
-    def _commit(self, move: Move, settled: Settled, logw: np.ndarray, bad: np.ndarray,
-                unseen_in_view: np.ndarray, hidden: tuple[np.ndarray, ...],
-                produced: tuple[np.ndarray, np.ndarray]) -> None:
-        """The particles after this update (the largest finite log-weight made 0); ``hidden``: see
-        :func:`~estimator.holding.places_after_update`; ``produced``: the poses and velocities
-        ``(K, M, 7)``, ``(K, M, 6)`` the worlds hold (entries the model changed since differ, and are
-        loaded at the next update)."""
-        self.pool.cache.hold(*produced, bad)  # exploded worlds must be reloaded from the arrays
-        self.state = self.state.after_update(move, settled, logw, unseen_in_view, hidden, settled.modes == FREE)
-
-    def _resample(self, weights: np.ndarray, hidden: np.ndarray, settled: Settled, n: int) -> None:
-        """Systematic resampling to ``n`` particles (K changes with it), then the model's regularisation of
-        hidden objects ``hidden (M,)`` and of the physical parameters. The worlds keep what they hold
-        (the pool's :class:`~estimator.world_cache.WorldCache` follows the particles).
-
-        Hidden objects that nothing weighed since the last resampling (never detected nor in view in
-        any particle since, see :attr:`_weighed`), free and at rest in every particle, and supporting
-        nothing, keep each particle's own values (:meth:`ParticleState.take`): the weights are about
-        other objects, and resampling them too would only lose their spread (a cube picked up in
-        plain view left a marble hidden in a bin one particle's position). They need no kernel."""
+    def _resample(self, weights: np.ndarray, settled, perceived: np.ndarray, n: int) -> None:
+        """Systematic resampling to ``n`` particles (K changes with it); the state's arrays are taken
+        generically (:meth:`~estimator.state.ParticleState.take`), the objects the model names keeping
+        each particle's own values; then the model's regularisation. The worlds keep what they hold
+        (the pool follows the particles)."""
         anc = keep_survivors_in_place(systematic_resample(weights, self.rng, n))
-        own = hidden & ~self._weighed & self.model.unweighable(settled)
-        kernels = self.model.regularisation_kernels(self.state.poses, weights, hidden & ~own)
+        own, kernels = self.model.before_resampling(self.state, settled, perceived, weights)
         self.state = self.state.take(anc, own)
-        self._weighed = np.zeros(self.M, dtype=bool)
-        self.pool.cache.follow(anc)  # (slots beyond n: the pool parks their worlds at its next run)
-        self.K = self.model.K = n
-        self.model.regularise(self.state, kernels, self.rng)
+        self.pool.follow(anc)  # (slots beyond n: the pool parks their worlds at its next run)
+        self.K = n
+        self.model.after_resampling(self.state, kernels, self.rng)
 
     def _reseed(self, bad: np.ndarray, weights: np.ndarray) -> None:
         """Particles ``bad (K,)`` take the state (and weight) of survivors drawn by ``weights (K,)``
@@ -333,19 +229,7 @@ class SceneEstimator:
         logw = self.state.log_weights[anc]
         self.state = self.state.take(anc)
         self.state.log_weights = logw
-        self.pool.cache.follow(anc)
-
-    def _update_timeline(self, t: float, belief: Belief) -> None:
-        facts = {}
-        for r in belief.relations:
-            facts[(r["predicate"], r["subject"], r["object"])] = r["p"]
-        for oid, ob in belief.objects.items():
-            if ob.p_held > 0:
-                facts[("isHeld", oid, None)] = ob.p_held
-            if ob.perceived:
-                facts[("isPerceived", oid, None)] = 1.0
-        self.timeline.observe_facts(t, facts)
-        self.timeline.observe_events(t, belief.events)
+        self.pool.follow(anc)
 
     # -- convenience ---------------------------------------------------------------------------------
     def run(self, frames) -> list[Belief]:

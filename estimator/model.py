@@ -18,10 +18,12 @@ and the worlds and calls, at each update:
 """
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from actions.episodes import EpisodeRule, carried, update_events
-from actions.events import N_ACTIONS
+from actions.events import N_ACTIONS, record_event_times
 from actions.modes import FREE, HELD, PLACE, PUSH
 from actions.push import REF_Z, empty_holds, late_picks
 from physics.penetration import StaticGeometry
@@ -30,12 +32,13 @@ from physics.visibility import sphere_occlusion
 
 from .config import RELEASE_DOWN_SPEED, EstimatorConfig
 from .fusion import ensemble_kalman_step
-from .holding import dropped_behind_cover, held_targets, let_go_out_of_view, push_cannot_lift, release_on_loss
+from .adaptive import particles_needed
+from .holding import (dropped_behind_cover, held_targets, let_go_out_of_view, places_after_update, push_cannot_lift,
+                      release_on_loss)
+from .inputs import StepInputs
 from .noise import process_noise, regularisation_kernels
-from .likelihood import (DetectionTerm, Evidence, HandReachTerm, LogWeightTerm, ModeSwitchTerm, NegativeEvidenceTerm, ProposalTerm,
-                         VelocityTerm,
-                         add_terms,
-                         exploded_log_likelihood)
+from .likelihood import (DetectionTerm, Evidence, HandReachTerm, LogWeightTerm, ModeSwitchTerm, NegativeEvidenceTerm,
+                         ProposalTerm, VelocityTerm, add_terms, exploded_log_likelihood, held_unseen_in_view)
 from .motion import (MOVING_MAX_VERTICAL_SPEED, let_go_moving, out_of_reach, place, roll_released, rolled_along,
                      teleport_kinds, velocity_draws)
 from .observations import Frame
@@ -46,7 +49,9 @@ from .resting import slow
 from .relations import relations_and_support, supported_mask
 from .resampling import effective_sample_size, normalise_log_weights
 from .state import ParticleState
-from .step import Fall, Move, Settled
+from .step import Fall, Move, Proposal, Settled, Weighed
+
+log = logging.getLogger(__name__)
 
 
 def initial_poses(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
@@ -112,11 +117,16 @@ class SceneModel:
     ``known (M,)``: objects with an initial pose or perceived since; ``terms``: the log-weight terms.
     """
 
-    def __init__(self, scene: Scene, config: EstimatorConfig, memory: PerceptionMemory,
-                 base_params: np.ndarray):
+    def __init__(self, scene: Scene, config: EstimatorConfig, base_params: np.ndarray,
+                 memory: PerceptionMemory | None = None):
         self.scene = scene
         self.config = config
-        self.memory = memory
+        self.memory = memory if memory is not None else PerceptionMemory(
+            scene, initial_poses(scene)[0], config.reasoner, config.follow_hands,
+            from_onset=config.moving_teleports, hands=config.hands)
+        self.inputs = StepInputs(len(scene.objects), scene.camera)
+        self.recoveries = 0  # updates after which every particle had zero weight (reseed)
+        self.weighed = np.zeros(len(scene.objects), dtype=bool)  # objects weighed since the last resampling
         self.K, self.M = config.initial_particles, len(scene.objects)  # K changes with adaptive K (the filter sets it)
         self.static = np.array([o.static for o in scene.objects], dtype=bool)
         self.dynamic = ~self.static
@@ -149,6 +159,75 @@ class SceneModel:
                 NegativeEvidenceTerm(nz.miss_prob, cfg.visibility_threshold, nz.hand_occlusion),
                 ModeSwitchTerm(cfg.priors), HandReachTerm(cfg.priors.held_out_of_reach), ProposalTerm(),
                 VelocityTerm(nz.velocity_slack, nz.outlier_prob))
+
+    # -- the contract with the filter ----------------------------------------------------------------
+    def observe(self, frame: Frame) -> None:
+        """Record one perception frame (detections outside the workspace dropped as outliers). Raises
+        ``ValueError`` when ``frame.t`` does not come after the previous frame's time."""
+        self.inputs.check_time(frame.t)
+        frame = self.memory.admit(frame)
+        self.inputs.add(frame, self.memory.record(frame))
+
+    def propose(self, state: ParticleState, dt: float, rng: np.random.Generator) -> Proposal:
+        """The particles' motion before physics for an update at the newest frame's time, ``dt``
+        seconds after the previous one (:meth:`move`), and the worlds' input for it."""
+        frame = self.inputs.frame
+        detected, cameras = self.inputs.take()
+        perceived = self.memory.perceived(frame.t)
+        move = self.move(state, frame, detected, perceived, dt, rng, cameras)
+        return Proposal(frame.t, dt, frame, detected, perceived, cameras, move, self.batch(move, state))
+
+    def weigh(self, state: ParticleState, p: Proposal, out: BatchOutput, rng: np.random.Generator) -> Weighed:
+        """After physics (``out``, exploded particles already reset by the pool): the particles settled
+        (:meth:`settle`), the evidence and the new log-weights (:meth:`log_weight`). When every particle
+        has zero weight the detected objects are re-seeded from perception (:meth:`reseed`, in the
+        settled arrays) and the log-weights are all zero."""
+        settled = self.settle(state, p.move, out, p.t, p.dt, p.detected, p.perceived)
+        evidence = self.evidence(p.move, settled, out, p.frame, p.detected, p.perceived, state.unseen_in_view)
+        logw = self.log_weight(state.log_weights, evidence)
+        if not np.any(np.isfinite(logw)):
+            self.recoveries += 1
+            log.warning("t=%.3f: every particle has zero weight; re-seeding detected objects from perception", p.t)
+            self.reseed(settled.poses, settled.velocities, p.detected, rng)
+            logw = np.zeros(self.K)
+        self.weighed |= p.detected | np.any(evidence.visible >= self.config.visibility_threshold, axis=0)
+        return Weighed(settled, evidence, logw)
+
+    def commit(self, state: ParticleState, p: Proposal, w: Weighed, rng: np.random.Generator) -> ParticleState:
+        """The particles after the update (the largest finite log-weight made 0), their events recorded;
+        the perception memory closes the update."""
+        thr, settled = self.config.visibility_threshold, w.settled
+        hidden = places_after_update(state, w.evidence, settled, p.t, rng, thr)
+        new = state.after_update(p.move, settled, w.log_weights, held_unseen_in_view(w.evidence, thr), hidden,
+                                 settled.modes == FREE)
+        self.memory.end_tick(p.perceived, p.detected, settled.tick_vel)
+        record_event_times(new.event_t, settled.codes, p.t, settled.times, new.push_decided)
+        return new
+
+    def particles_needed(self, settled: Settled, weights: np.ndarray) -> int:
+        """How many particles the belief of ``settled`` under ``weights (K,)`` needs
+        (:func:`~estimator.adaptive.particles_needed`, over the known dynamic objects)."""
+        return particles_needed(settled.poses, settled.modes, weights, self.known & self.dynamic,
+                                self.config.adaptive)[0]
+
+    def before_resampling(self, state: ParticleState, settled: Settled, perceived: np.ndarray,
+                          weights: np.ndarray) -> tuple[np.ndarray, dict[int, np.ndarray]]:
+        """What resampling needs from the model: the objects ``(M,)`` each particle keeps its own
+        values of (hidden, known and dynamic, weighed by nothing since the last resampling,
+        :meth:`unweighable`: the weights are about other objects, and resampling them too would only
+        lose their spread; see :meth:`~estimator.state.ParticleState.take`), and the jitter kernels of
+        the other hidden objects (:meth:`regularisation_kernels`)."""
+        hidden = self.known & self.dynamic & ~perceived
+        own = hidden & ~self.weighed & self.unweighable(settled)
+        return own, self.regularisation_kernels(state.poses, weights, hidden & ~own)
+
+    def after_resampling(self, state: ParticleState, kernels: dict[int, np.ndarray],
+                         rng: np.random.Generator) -> None:
+        """In place on the resampled ``state`` (its K is the new count): regularisation
+        (:meth:`regularise`); nothing is weighed since."""
+        self.K = len(state.log_weights)
+        self.weighed = np.zeros(self.M, dtype=bool)
+        self.regularise(state, kernels, rng)
 
     # -- the prior ------------------------------------------------------------------------------------
     def initial_state(self, rng: np.random.Generator) -> ParticleState:
@@ -458,12 +537,12 @@ class SceneModel:
         free_unseen = (modes == FREE) & (~perceived & self.dynamic & self.known)[None, :] & ~resting
         return process_noise(poses, free_unseen, supported, last_motion, dt, self.config.noise, rng)
 
-    def batch(self, move: Move, state: ParticleState, reset: np.ndarray, settled: np.ndarray | None) -> BatchInput:
-        """The pool's input for ``move``; ``reset (K, M)``: entries the worlds must load; ``settled
-        (K, M)``: those that a world produced at rest, unchanged since (see :class:`BatchInput`)."""
+    def batch(self, move: Move, state: ParticleState) -> BatchInput:
+        """The pool's input for ``move`` (which entries to load, and which a world produced at rest,
+        the pool's cache decides: :meth:`~estimator.pool.WorldPool.advance`)."""
         return BatchInput(poses=move.poses, velocities=move.velocities, params=state.params, modes=move.modes,
                           check=move.check, target=move.target, target_vel=move.target_vel, contents=state.is_in,
-                          depenetrate=move.depenetrate, reset=reset, settled=settled, vis_query=move.vis_query)
+                          depenetrate=move.depenetrate, vis_query=move.vis_query)
 
     # -- after physics --------------------------------------------------------------------------------
     def settle(self, state: ParticleState, move: Move, out: BatchOutput, t: float, dt: float,

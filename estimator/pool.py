@@ -88,7 +88,7 @@ class WorldPool:
         settings = settings or PhysicsSettings()
         self.groups = shard_bounds(n_slots, min(n_slots, worlds or DEFAULT_WORLDS))
         self.slot_of = np.arange(n_slots) if max_particles is None else interleaved_slots(self.groups)
-        self.cache = WorldCache()  # what each slot's world holds (the filter keeps it told)
+        self.cache = WorldCache()  # what each slot's world holds (advance and follow keep it told)
         self._used = self._slots_used(n_particles)
         self._local: _Shard | None = None
         self.last_run_seconds = 0.0
@@ -189,6 +189,32 @@ class WorldPool:
         self.last_run_seconds = time.perf_counter() - t0
         self.last_worker_seconds = [payload if status == "ok" else 0.0 for status, payload in replies]
         return out
+
+    def advance(self, batch: BatchInput, n_steps: int, d_sim_perc: float, lazy: bool = False,
+                moving: bool = False, cameras: tuple[CameraSpec, ...] | None = None,
+                fused: np.ndarray | None = None) -> BatchOutput:
+        """:meth:`run` for the particles' next update, the pool keeping its :attr:`cache` told: the
+        entries of ``batch`` to load (``reset``) and those a world produced at rest (``settled``) are
+        the cache's (:meth:`~estimator.world_cache.WorldCache.loads`; ``fused (K, M)``: entries only
+        moved horizontally at rest), and what the worlds produce is remembered. Particles whose
+        simulation exploded or whose worker died (``finite`` False) get back their state of ``batch``,
+        at rest, and their worlds load in full at the next update."""
+        reset, settled = self.cache.loads(batch.poses, batch.velocities, fused)
+        out = self.run(dataclasses.replace(batch, reset=reset, settled=settled), n_steps, d_sim_perc, lazy,
+                       moving, cameras)
+        bad = ~out.finite
+        if np.any(bad):
+            out.poses[bad] = batch.poses[bad]
+            out.velocities[bad] = 0.0
+            out.modes[bad] = batch.modes[bad]
+        self.cache.hold(out.poses.copy(), out.velocities.copy(), bad)
+        return out
+
+    def follow(self, ancestors: np.ndarray) -> None:
+        """Particle ``i`` is now a copy of particle ``ancestors[i]`` (``(n,)``: resampling, which may
+        change their number); the worlds keep what they hold (:meth:`WorldCache.follow`; slots beyond
+        ``n`` are parked at the next run)."""
+        self.cache.follow(ancestors)
 
     def _slots_used(self, K: int) -> np.ndarray:
         """``(n_slots,)`` bool: the slots of particles ``0 .. K-1``."""

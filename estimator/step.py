@@ -108,3 +108,32 @@ class Settled:
     tick_vel: np.ndarray
     holds: np.ndarray
     times: np.ndarray
+
+
+@dataclass(frozen=True)
+class Proposal:
+    """One update's proposal (:meth:`~estimator.model.SceneModel.propose`): at time ``t`` (s), ``dt``
+    (s) after the previous update, from ``frame`` (the newest), with the objects ``detected (M,)``
+    since the previous update and ``perceived (M,)`` now, the ``cameras`` that took the frames (None:
+    the scene's), the particles' ``move`` and the worlds' input ``batch``
+    (:class:`~estimator.propagate.BatchInput`, without what the pool's cache decides)."""
+
+    t: float
+    dt: float
+    frame: object
+    detected: np.ndarray
+    perceived: np.ndarray
+    cameras: tuple | None
+    move: Move
+    batch: object
+
+
+@dataclass(frozen=True)
+class Weighed:
+    """One update after physics (:meth:`~estimator.model.SceneModel.weigh`): the particles ``settled``
+    (:class:`Settled`), the ``evidence`` the terms read (:class:`~estimator.likelihood.Evidence`) and
+    the new unnormalised ``log_weights (K,)`` (all zero after a recovery)."""
+
+    settled: Settled
+    evidence: object
+    log_weights: np.ndarray

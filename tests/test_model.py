@@ -34,7 +34,7 @@ def make(config):
     sc = scene()
     memory = PerceptionMemory(sc, initial_poses(sc)[0], config.reasoner, config.follow_hands)
     base = np.tile([0.5, 0.0, 0.0, 0.1, 0.2], (len(sc.objects), 1))
-    return SceneModel(sc, config, memory, base)
+    return SceneModel(sc, config, base, memory)
 
 
 def test_initial_state_parks_unknown_objects_and_draws_parameters_from_their_priors():
@@ -550,7 +550,7 @@ def test_round_objects_rolling_friction_is_scaled_log_uniformly_and_boxes_keep_t
     cfg = EstimatorConfig(particles=4000, noise=NoiseConfig())
     memory = PerceptionMemory(sc, initial_poses(sc)[0], cfg.reasoner, cfg.follow_hands)
     base = np.tile([0.5, 0.002, 0.0, 0.1, 0.2], (len(sc.objects), 1))  # every object has one
-    st = SceneModel(sc, cfg, memory, base).initial_state(np.random.default_rng(0))
+    st = SceneModel(sc, cfg, base, memory).initial_state(np.random.default_rng(0))
     lo, hi = cfg.noise.rolling_friction_scale
     for m in (BALL, CUP, MYSTERY):  # sphere, cylinder, sphere
         f = np.log(st.params[:, m, 1] / 0.002)
@@ -560,7 +560,7 @@ def test_round_objects_rolling_friction_is_scaled_log_uniformly_and_boxes_keep_t
         assert abs(f.mean() - np.log(lo * hi) / 2) < 3 * sd / np.sqrt(len(f))
     assert np.all(st.params[:, CRATE, 1] == 0.002) and np.all(st.params[:, TABLE, 1] == 0.002)
     fixed = EstimatorConfig(particles=50, noise=NoiseConfig(rolling_friction_range=(0.0, 0.001)))
-    st = SceneModel(sc, fixed, memory, base).initial_state(np.random.default_rng(0))
+    st = SceneModel(sc, fixed, base, memory).initial_state(np.random.default_rng(0))
     assert np.all(st.params[:, [CRATE, BALL], 1] <= 0.001)  # an absolute range replaces the scale
 
 
