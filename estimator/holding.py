@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from actions.modes import FREE, HELD, PLACE, RELEASE, ModePriors, switch_events
+from actions.modes import FREE, HELD, PLACE, RELEASE, ModePriors
 from actions.push import PICK_T, lifted
 
 from .config import NoiseConfig
@@ -26,48 +26,6 @@ def stratified_uniforms(K: int, M: int, rng: np.random.Generator) -> np.ndarray:
     ``floor(K p)`` or ``ceil(K p)`` particles of a column."""
     offsets = rng.random(M)
     return np.stack([(rng.permutation(K) + offsets[m]) / K for m in range(M)], axis=1) if M else np.zeros((K, 0))
-
-
-def release_on_loss(modes: np.ndarray, perceived: np.ndarray, supported: np.ndarray, rng: np.random.Generator,
-                    memory: PerceptionMemory, priors: ModePriors,
-                    tracked: np.ndarray | None = None,
-                    left_view: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Releases of held objects that are not perceived (``modes (K, M)`` int8, ``perceived (M,)``),
-    or that ``left_view (M,)`` now: seen moving along their support at the last update, not detected
-    in this one, with no tracked hand. Those are let go in every particle: with no hand to follow,
-    physics is the only model of where they go (a ball flicked behind a box rolls on and stops), not
-    the detection carried on at a constant velocity until it stops counting as perceived.
-
-    With probability ``release_on_loss`` when they were perceived at the last update; for the objects
-    whose hand is tracked (``tracked (M,)``) ``release_on_loss_carried`` when the hand has moved more
-    than ``carry_distance`` since the object was last seen (:meth:`PerceptionMemory.hand_travel`), else
-    ``release_on_loss_still``; ``release`` per update after (not while the tracked hand has carried
-    the object more than ``carry_distance`` since it was seen). Returns the new modes ``(K, M)`` and
-    the event codes of the switches ``(K, M)`` (``supported (K, M)``: Place or Release).
-
-    The draws are stratified over the particles (:func:`stratified_uniforms`): a release of
-    probability ``p`` lets go ``K p`` particles give or take one, not a binomial count (at
-    ``release_on_loss_carried`` 0.024 and K = 64, 1 or 2 rather than 1.5 +- 1.2): the
-    share that let go is what the weights then compare with the particles that kept it."""
-    K, M = modes.shape
-    new = modes.copy()
-    lost = memory.perceived_prev & ~perceived
-    u = stratified_uniforms(K, M, rng)
-    gone = ~perceived
-    on_loss = np.full(M, priors.release_on_loss)
-    later = np.full(M, priors.release)
-    if tracked is not None and np.any(tracked):
-        tracked = np.asarray(tracked, dtype=bool)
-        carried = memory.hand_travel() > priors.carry_distance  # NaN (no hand): False
-        on_loss[tracked & carried] = priors.release_on_loss_carried
-        on_loss[tracked & ~carried] = priors.release_on_loss_still
-        later[tracked & carried] = 0.0  # what a moving hand carries, it keeps
-    p_rel = np.where(lost, on_loss, later)
-    if left_view is not None:  # let go for certain
-        left_view = np.asarray(left_view, dtype=bool)
-        gone, p_rel = gone | left_view, np.where(left_view, 1.0, p_rel)
-    new[(new == HELD) & gone[None, :] & (u < p_rel[None, :])] = FREE
-    return new, switch_events(modes, new, supported)
 
 
 def held_targets(frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: np.ndarray, perceived: np.ndarray,

@@ -24,32 +24,31 @@ import numpy as np
 
 from actions.episodes import EpisodeRule, carried, update_events
 from actions.events import N_ACTIONS, record_event_times
-from actions.modes import FREE, HELD, PLACE, PUSH
+from actions.modes import FREE, HELD, PUSH
 from actions.push import REF_Z, empty_holds, late_picks
 from physics.penetration import StaticGeometry
 from physics.scene import Scene
 from physics.visibility import sphere_occlusion
 
-from .config import RELEASE_DOWN_SPEED, EstimatorConfig
-from .fusion import ensemble_kalman_step
 from .adaptive import particles_needed
-from .holding import (dropped_behind_cover, held_targets, let_go_out_of_view, places_after_update, push_cannot_lift,
-                      release_on_loss)
+from .config import RELEASE_DOWN_SPEED, EstimatorConfig
+from .holding import dropped_behind_cover, places_after_update
 from .inputs import StepInputs
-from .noise import process_noise, regularisation_kernels
 from .likelihood import (DetectionTerm, Evidence, HandReachTerm, LogWeightTerm, ModeSwitchTerm, NegativeEvidenceTerm,
                          ProposalTerm, VelocityTerm, add_terms, exploded_log_likelihood, held_unseen_in_view)
-from .motion import (MOVING_MAX_VERTICAL_SPEED, let_go_moving, out_of_reach, place, roll_released, rolled_along,
-                     teleport_kinds, velocity_draws)
+from .mechanisms import PHASES, Draft, Mechanism, mechanisms_for
+from .mechanisms.teleport import moving_beyond_noise
+from .motion import out_of_reach, roll_released, rolled_along
+from .noise import regularisation_kernels
 from .observations import Frame
 from .params import param_bounds, shrink_params
 from .perception_memory import HAND_RADIUS, PerceptionMemory
 from .pool import BatchInput, BatchOutput
-from .resting import slow
 from .relations import relations_and_support, supported_mask
 from .resampling import effective_sample_size, normalise_log_weights
+from .resting import slow
 from .state import ParticleState
-from .step import Fall, Move, Proposal, Settled, Weighed
+from .step import Move, Proposal, Settled, Weighed
 
 log = logging.getLogger(__name__)
 
@@ -79,9 +78,6 @@ def diverged_by(move: Move, out: BatchOutput) -> np.ndarray:
     return np.where(over, out.max_divergence, np.nan)
 
 
-FUSION_MIN_STEP = 5e-4
-"""Ensemble Kalman steps of resting objects shorter than this (m) are not taken: a converged object
-stays asleep in its world (:meth:`SceneModel.fuse_resting`)."""
 
 CARRIER_SHIFT = 0.02
 """An object perceived moving and more than this (m) away horizontally from where it was still
@@ -94,16 +90,7 @@ than two of its standard deviations away from what the particles predicted (squa
 two axes: 4) has its frictions' kernel widened to ``NoiseConfig.param_widen`` at the next
 resampling: every particle is wrong about how it slows down."""
 
-FUSION_SETTLED = 1.5e-3
-"""A resting object whose particles' weighted mean is within this (m, horizontally) of the average of
-its detections while still takes no Kalman step: it has converged (:meth:`SceneModel.fuse_resting`)."""
 
-SET_MOVING_SIGMAS = 4.0
-"""An object at rest is set moving by an agent nobody tracks only when its perceived horizontal
-speed exceeds this many standard errors of the fitted velocity (per axis). The speed pure detection
-noise gives a still object is Rayleigh: it exceeds k errors with probability exp(-k^2 / 2), and a
-run checks every still object at every update (ten objects over 50 updates: 500 checks), so k = 3
-(1 %) would set a few still objects moving per run; k = 4 (3e-4), one run in seven."""
 
 
 class SceneModel:
@@ -145,6 +132,15 @@ class SceneModel:
         # the static bodies, to stop paths at their surfaces (config.static_clip)
         solid = bool(np.any(self.static)) or scene.floor
         self.geometry = StaticGeometry(scene, config.physics) if config.static_clip and solid else None
+        self.mechanisms: list[Mechanism] = mechanisms_for(self)
+        self._hooks = {phase: [getattr(m, phase) for m in self.mechanisms if hasattr(m, phase)] for phase in PHASES}
+
+    def mechanism(self, kind: type) -> Mechanism:
+        """The mechanism of class ``kind`` in :attr:`mechanisms` (``LookupError`` when there is none)."""
+        for m in self.mechanisms:
+            if isinstance(m, kind):
+                return m
+        raise LookupError(f"no {kind.__name__} among this model's mechanisms")
 
     def close(self) -> None:
         """Release the static geometry's pybullet client."""
@@ -274,147 +270,46 @@ class SceneModel:
              dt: float, rng: np.random.Generator, cameras: tuple | None = None) -> Move:
         """Everything before physics, for ``dt`` seconds since the last update: ``detected (M,)`` since
         the last update, ``perceived (M,)`` now; ``cameras``: the cameras (:class:`CameraSpec`) that
-        took the frames since the last update (None: the scene's camera only). Updates :attr:`known`
-        and the memory's velocities."""
-        cfg, mem = self.config, self.memory
+        took the frames since the last update (None: the scene's camera only). The mechanisms' hooks
+        (:mod:`estimator.mechanisms`) run phase by phase on a :class:`~estimator.mechanisms.Draft`;
+        then what physics checks and reports. Updates :attr:`known` and the memory's velocities."""
+        cfg, mem, K, M = self.config, self.memory, self.K, self.M
         poses, vel = state.poses.copy(), state.velocities.copy()
-        prev_modes = state.modes.copy()
-        predicted = poses.copy()  # before teleports: what each particle expected
-        if cfg.moving_teleports:  # ... at frame.t, carried on at its velocity, without the last
-            predicted[..., :3] += vel[..., :3] * dt - state.jitter  # teleport's noise (the paper: where it was)
-        jitter = np.zeros((self.K, self.M, 3))
-        # teleports and first sightings
         newly_known = perceived & ~self.known
-        tele = perceived & (~mem.perceived_prev | mem.jumped() | newly_known)
-        # a finite difference across a jump or a gap is no velocity; one across a reasoning period
-        # of continuous tracking is (moving_teleports: an object tracked in motion keeps moving)
-        tick_vel = mem.tick_velocity()
-        moving = falling = np.zeros(self.M, dtype=bool)
-        following = mem.following_hand(frame)
-        if cfg.moving_teleports:  # moving along, or rolled off an edge: keeps its velocity and spin
-            moving, falling = teleport_kinds(perceived & mem.perceived_prev & ~newly_known & detected, tick_vel,
-                                             mem.previous_tick_velocity())
-            # seen rolling off an edge (with no tracked hand to move it), it is placed on its fall
-            # even if it moved little since the last update (one late detection): a fixed target
-            # would make it held in the air
-            tele = tele | (falling & ~following)
-            moving, falling = moving & tele, falling & tele
-        far = self._out_of_reach(frame, detected)
-        spinning = moving | falling
-        # teleported in motion, an object keeps the detections' fitted velocity (falling, its
-        # horizontal part, and the vertical one of a free fall, below); at rest, none
-        mem.perc_vel[tele & ~spinning] = 0.0
-        mem.perc_vel[falling, 2] = 0.0
-        # an object teleported in motion starts where it was at this update's start, so that physics
-        # brings it to its detection at frame.t (placed at the detection, the belief would be dt ahead)
-        start = mem.position_at(frame.t - dt) if cfg.moving_teleports else None
-        fall_now, fall = None, np.zeros(self.M, dtype=bool)
-        if cfg.moving_teleports and np.any(falling):  # ... falling, on the free fall through its
-            (z0, z1), (vz0, _), vz_std = mem.free_fall((frame.t - dt, frame.t), cfg.physics.gravity,
-                                                         cfg.noise.position_std)  # last detections
-            fall = falling & np.isfinite(z0) & ~following
-            start[fall, 2], mem.perc_vel[fall, 2] = z0[fall], vz0[fall]
-            fall_now = Fall(fall, z1, (z1 - z0) / dt)
-        set_moving = None
-        # how fast it was going in each particle where it was free (its physics, friction included),
-        # to weigh against the velocity now perceived
-        speed_check = None
-        if cfg.moving_teleports and cfg.noise.velocity_slack > 0:
-            along = moving & ~falling & mem.perceived_prev & rolled_along(mem.previous_tick_velocity())
-            if np.any(along):
-                speed_check = along[None, :] & (prev_modes == FREE)
-                speed_check = (speed_check, state.velocities[..., :2].copy(), mem.perc_vel[:, :2].copy(),
-                               mem.velocity_std(cfg.noise.position_std))
-        if np.any(tele):
-            jitter[:, tele] = self.teleport(poses, vel, np.flatnonzero(tele), newly_known, state.is_in, rng,
-                                            spinning, start, prev_modes == HELD)
-            jitter[..., 2] = 0.0  # a support undoes the vertical noise: only the horizontal persists
-            if np.any(fall):  # when the fall began is known to the vertical velocity's error
-                vel[:, fall, 2] += rng.normal(0.0, 1.0, (self.K, int(fall.sum()))) * vz_std[fall]
-            if cfg.moving_teleports:  # at rest in a particle, nothing in its world set it moving: an agent
-                started = (spinning[None, :] & (prev_modes == FREE) & (np.linalg.norm(  # did; it stays, diverges
-                    state.velocities[..., :2], axis=-1) < MOVING_MAX_VERTICAL_SPEED))  # from its target, held
-                # ... if one can reach it: a Pick needs an agent within reach (a tracked hand); with
-                # none, it was set moving (flicked, knocked) and physics takes it on at its velocity
-                unreached = np.ones(self.M, dtype=bool) if far is None else far
-                # seen moving beyond what the detection noise makes of a still object (a horizontal
-                # speed past SET_MOVING_SIGMAS standard errors of the fitted velocity): noise is no agent
-                set_moving = started & (moving & unreached & self.moving_beyond_noise())[None, :]
-                fresh = np.isfinite(mem.moving_since) & (mem.moving_since >= frame.t - dt - cfg.reasoner.place_dwell)
-                set_moving &= fresh[None, :] & (np.linalg.norm(state.velocities[..., :3], axis=-1)
-                                                < self.episode_rule.rest_speed)
-                vel[started & ~set_moving] = 0.0
-        self.known |= perceived
-        left_view = None
-        if cfg.moving_teleports:  # seen moving along at the last update (its last two detections, or
-            # the line fitted since it started moving: one noisy pair may read a 0.25 m/s roll as
-            # 0.18), not now, no tracked hand
-            along = rolled_along(mem.previous_tick_velocity()) | (np.isfinite(mem.moving_since)
-                                                                   & rolled_along(mem.perc_vel[:, :3]))
-            left_view = perceived & ~detected & along & ~following
-        modes, release_codes = self.release(prev_modes, perceived, state.supported, rng, following, left_view)
-        cover_t, proposal, grip = let_go_out_of_view(state, poses, vel, modes, release_codes, frame, mem,
-                                                     following, perceived, detected, cfg.priors, cfg.noise,
-                                                     rng, cfg.reasoner.push_lift, cfg.hands.measurement_std,
-                                                     self.round)
-        cover = np.isfinite(cover_t)
-        flicked, flick_weight = self.let_go_moving(modes, state.supported, detected & perceived, tick_vel, far, rng)
-        if np.any(flicked):  # let go in motion: physics takes it on at its velocity
-            modes[flicked] = FREE
-            release_codes[flicked] = PLACE
-        proposal = proposal + flick_weight
-        let_go_now = (prev_modes == HELD) & (modes == FREE)
-        if left_view is not None and np.any(left_view):  # let go as it left view: at the velocity of the
-            # line through its detections since it started moving (one noisy pair is no velocity), with
-            # that velocity's standard error per particle
-            gone = let_go_now & left_view[None, :]
-            idx = np.flatnonzero(gone.any(axis=0))
-            drawn = velocity_draws(mem.perc_vel, mem.velocity_std(cfg.noise.position_std), idx, self.K, rng)
-            vel[:, idx, :2] = np.where(gone[:, idx, None], drawn, vel[:, idx, :2])
-        self.roll_released(vel, let_go_now & ~cover, state.supported)
-        # at rest in the particle (on a support, slower than rest_speed) before this update
-        resting = state.supported & (np.linalg.norm(state.velocities[..., :3], axis=-1)
-                                     < self.config.noise.rest_speed)
-        nudged = self.fuse_resting(poses, state.log_weights, modes, resting, detected & perceived & ~tele, rng)
-        # a nudged object that was barely moving is set at rest: its world loads it asleep, without
-        # waking what it touches (woken, a stack would settle again after every step of the fusion)
-        vel[nudged & slow(vel)] = 0.0
-        let_go = state.let_go_unseen.copy()
-        let_go[(release_codes != 0) & (mem.perceived_prev & ~perceived)[None, :]] = frame.t
-        # detected in an earlier frame of the update only: moved on with its tracked hand, or, seen
-        # moving, at its velocity
-        stale = mem.stale_in_hand(frame) & detected
-        detections = mem.detections_now(stale, frame.t, detected if cfg.moving_teleports else None)
-        target, target_vel, hold_error = self.held_targets(frame, poses, modes, detected, perceived, dt, rng,
-                                                           state.hold_error, tele, fall_now, detections, stale,
-                                                           grip)
-        if cfg.noise.hand_occlusion < 1.0:  # as let_go_out_of_view: not in the paper's mode
-            push_cannot_lift(target, target_vel, poses, modes, state.holds, detected, cfg.reasoner.push_lift)
-        jolted = self.process_noise(poses, modes, perceived, state.supported, resting, state.last_motion, dt, rng)
+        no = np.zeros(M, dtype=bool)
+        fresh = detected if cfg.fresh_checks else perceived
+        u = Draft(state=state, frame=frame, detected=detected, perceived=perceived, dt=dt, rng=rng, cameras=cameras,
+                  # a finite difference across a jump or a gap is no velocity; one across a reasoning
+                  # period of continuous tracking is (moving_teleports: an object tracked in motion keeps moving)
+                  tick_vel=mem.tick_velocity(), following=mem.following_hand(frame),
+                  far=self._out_of_reach(frame, detected), poses=poses, vel=vel, prev_modes=state.modes.copy(),
+                  predicted=poses.copy(),  # before teleports: what each particle expected
+                  jitter=np.zeros((K, M, 3)), newly_known=newly_known,
+                  tele=perceived & (~mem.perceived_prev | mem.jumped() | newly_known),  # teleports, first sightings
+                  moving=no, falling=no, spinning=no, cover_t=np.full((K, M), np.nan), proposal=np.zeros(K),
+                  # at rest in the particle (on a support, slower than rest_speed) before this update
+                  resting=state.supported & (np.linalg.norm(state.velocities[..., :3], axis=-1) < cfg.noise.rest_speed),
+                  check=np.broadcast_to(perceived & fresh, (K, M)).copy(),
+                  jolted=np.zeros((K, M), dtype=bool), let_go=state.let_go_unseen.copy(),
+                  target=poses.copy(), target_vel=np.zeros((K, M, 6)), hold_error=state.hold_error)
+        for phase in PHASES:
+            for hook in self._hooks[phase]:
+                hook(u)
+        if u.modes is None:  # no mechanism releases anything
+            u.modes, u.release_codes = u.prev_modes.copy(), np.zeros((K, M), dtype=np.int8)
         # what physics checks and reports
         vis_query = self.known & self.dynamic & ~detected
         has_camera = self.scene.camera is not None if cameras is None else len(cameras) > 0
         if not (cfg.negative_evidence and has_camera):
-            vis_query = np.zeros(self.M, dtype=bool)
-        fresh = detected if cfg.fresh_checks else perceived
-        check = np.broadcast_to(perceived & fresh, (self.K, self.M)).copy()
-        if self.geometry is not None:
-            self.clip_targets(poses, target, target_vel, (modes == HELD) | check)
-        placed = tele | self._just_initialised
-        self._just_initialised = np.zeros(self.M, dtype=bool)
-        depen = (np.broadcast_to(placed & (cfg.noise.position_std > 0), (self.K, self.M)) | jolted
-                 | state.jolted | cover) & (modes == FREE)
-        return Move(poses, vel, predicted, prev_modes, modes, release_codes, tele, target, target_vel, check,
-                    depen, vis_query, hold_error, let_go, cameras, cover_t, proposal, nudged, jitter, far,
-                    fall_now, detections, set_moving if set_moving is not None and set_moving.any() else None,
-                    speed_check, grip)
-
-    def moving_beyond_noise(self) -> np.ndarray:
-        """``(M,)`` bool: objects whose perceived horizontal speed exceeds :data:`SET_MOVING_SIGMAS`
-        standard errors of their fitted velocity (per axis): seen moving, not merely noisy."""
-        mem = self.memory
-        speed = np.linalg.norm(mem.perc_vel[:, :2], axis=1)
-        return speed > SET_MOVING_SIGMAS * mem.velocity_std(self.config.noise.position_std)
+            vis_query = np.zeros(M, dtype=bool)
+        placed = u.tele | self._just_initialised
+        self._just_initialised = np.zeros(M, dtype=bool)
+        depen = (np.broadcast_to(placed & (cfg.noise.position_std > 0), (K, M)) | u.jolted
+                 | state.jolted | u.cover) & (u.modes == FREE)
+        set_moving = u.set_moving if u.set_moving is not None and u.set_moving.any() else None
+        return Move(u.poses, u.vel, u.predicted, u.prev_modes, u.modes, u.release_codes, u.tele, u.target, u.target_vel,
+                    u.check, depen, vis_query, u.hold_error, u.let_go, cameras, u.cover_t, u.proposal, u.nudged,
+                    u.jitter, u.far, u.fall, u.detections, set_moving, u.speed_check, u.grip)
 
     def unheld_overrides(self, move: Move, out: BatchOutput, supported: np.ndarray, seen: np.ndarray,
                          tick_vel: np.ndarray) -> np.ndarray | None:
@@ -427,33 +322,12 @@ class SceneModel:
         if not self.config.moving_teleports:
             return None
         unreached = np.ones(self.M, dtype=bool) if move.out_of_reach is None else move.out_of_reach
-        cand = seen & unreached & self.dynamic & rolled_along(tick_vel) & self.moving_beyond_noise()
+        cand = (seen & unreached & self.dynamic & rolled_along(tick_vel)
+                & moving_beyond_noise(self.memory, self.config.noise.position_std))
         if not np.any(cand):
             return None
         out_mask = (move.modes == FREE) & (out.modes == HELD) & cand[None, :] & supported
         return out_mask if np.any(out_mask) else None
-
-    def clip_targets(self, poses: np.ndarray, target: np.ndarray, target_vel: np.ndarray, which: np.ndarray) -> None:
-        """In place on ``target (K, M, 7)`` and ``target_vel (K, M, 6)``: the paths of the entries
-        ``which (K, M)`` from ``poses`` to their targets stop at the surface of static geometry they
-        would enter (:meth:`~physics.penetration.StaticGeometry.clip`), and those stopped have no target
-        velocity (a hand cannot carry a cup through the table; a detection sunk into it by the
-        tracker's error is not where the cup is)."""
-        for m in np.flatnonzero(which.any(axis=0) & self.dynamic & self.known).tolist():
-            rows = np.flatnonzero(which[:, m])
-            end, frac = self.geometry.clip(m, poses[rows, m], target[rows, m])
-            stopped = ~(frac == 1.0)
-            if np.any(stopped):
-                target[rows[stopped], m] = end[stopped]
-                target_vel[rows[stopped], m] = 0.0
-
-    def let_go_moving(self, modes: np.ndarray, supported: np.ndarray, seen: np.ndarray, tick_vel: np.ndarray,
-                      far: np.ndarray | None, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        """Let-goes in motion (:func:`~estimator.motion.let_go_moving`, at ``ModePriors.let_go_moving``)
-        of the dynamic objects ``seen (M,)`` in this update that are ``far (M,)`` from every tracked
-        hand (:meth:`_out_of_reach`; None: no hand tracked, all of them)."""
-        cand = seen & self.dynamic & (np.ones(self.M, bool) if far is None else far)
-        return let_go_moving(modes, supported, cand, tick_vel, self.config.priors.let_go_moving, rng)
 
     def roll_released(self, vel: np.ndarray, released: np.ndarray, supported: np.ndarray) -> None:
         """In place on ``vel (K, M, 6)``: balls let go now (``released (K, M)``) on a support
@@ -462,80 +336,6 @@ class SceneModel:
         rolled = released & (supported | rolled_along(self.memory.previous_tick_velocity())[None, :])
         if np.any(rolled):
             roll_released(vel, rolled, self.ball_radius)
-
-    def teleport(self, poses: np.ndarray, vel: np.ndarray, idx: np.ndarray, newly_known: np.ndarray,
-                 is_in: np.ndarray, rng: np.random.Generator, spinning: np.ndarray | None = None,
-                 start: np.ndarray | None = None, held: np.ndarray | None = None) -> np.ndarray:
-        """Alg. 2 (:func:`~estimator.motion.place`), in place: objects ``idx`` at their last detection,
-        or at ``start (M, 3)`` m (the detections carried back to the update's start,
-        :meth:`~estimator.perception_memory.PerceptionMemory.position_at`), with the memory's
-        perceived velocities (and, teleported in motion, their standard error as velocity noise). Returns
-        the position noise ``(K, len(idx), 3)`` m."""
-        mem = self.memory
-        positions = mem.last_pose[:, :3] if start is None else start
-        return place(poses, vel, idx, newly_known, is_in, positions, mem.last_pose[:, 3:], mem.last_has_orientation,
-                     mem.perc_vel, self.config.noise, rng, spinning, held, self.ball_radius,
-                     mem.velocity_std(self.config.noise.position_std),
-                     held if self.config.moving_teleports else None)
-
-    def fuse_resting(self, poses: np.ndarray, log_weights: np.ndarray, modes: np.ndarray, resting: np.ndarray,
-                     seen: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """In place on ``poses (K, M, 7)``: the horizontal position of every object ``seen (M,)`` now
-        (detected, perceived, not teleported), perceived still (no motion onset since it was last
-        at rest) and, in a particle (``log_weights (K,)``), free and ``resting (K, M)``, takes an
-        ensemble Kalman step towards its latest detection (:func:`~estimator.fusion.ensemble_kalman_step`;
-        the prior variance floored at ``fusion_floor_std``, steps under ``FUSION_MIN_STEP`` not taken).
-        Returns the entries moved ``(K, M)`` (no entry when ``fuse_resting`` is off)."""
-        nz, mem = self.config.noise, self.memory
-        out = np.zeros((self.K, self.M), dtype=bool)
-        still = seen & self.dynamic & np.isnan(mem.moving_since) & np.isfinite(mem.still_position[:, 0])
-        if not nz.fuse_resting or self.K < 2 or not np.any(still):
-            return out
-        idx = np.flatnonzero(still)
-        mask = (modes[:, idx] == FREE) & resting[:, idx]
-        if not np.any(mask):
-            return out
-        weights, _ = normalise_log_weights(log_weights)
-        # converged: the cloud's mean within FUSION_SETTLED of the average still detection, the
-        # object is left asleep (a step every update would wake it in every world)
-        mean = np.einsum("k,kmd->md", weights, poses[:, idx, :2])
-        mask &= (np.linalg.norm(mean - mem.still_position[idx, :2], axis=1) > FUSION_SETTLED)[None, :]
-        std = mem.last_std[idx]
-        std = np.where(np.isfinite(std), std, max(nz.position_std, 1e-3))
-        new, moved = ensemble_kalman_step(poses[:, idx, :2], weights, mem.last_pose[idx, :2], std, mask, rng,
-                                          floor_std=nz.fusion_floor_std, min_step=FUSION_MIN_STEP)
-        poses[:, idx, :2] = new
-        out[:, idx] = moved
-        return out
-
-    def release(self, modes: np.ndarray, perceived: np.ndarray, supported: np.ndarray,
-                rng: np.random.Generator, tracked: np.ndarray | None = None,
-                left_view: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Releases of held objects that are not perceived or just left view in motion
-        (:func:`~estimator.holding.release_on_loss`)."""
-        return release_on_loss(modes, perceived, supported, rng, self.memory, self.config.priors, tracked,
-                               left_view)
-
-    def held_targets(self, frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: np.ndarray,
-                     perceived: np.ndarray, dt: float, rng: np.random.Generator,
-                     hold_error: np.ndarray, teleported: np.ndarray | None = None,
-                     falling: Fall | None = None, detections: np.ndarray | None = None,
-                     stale: np.ndarray | None = None,
-                     grip: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Targets, target velocities and hand-offset errors (:func:`~estimator.holding.held_targets`)."""
-        return held_targets(frame, poses, modes, detected, perceived, dt, rng, hold_error, self.memory,
-                            self.config.noise, self.config.moving_teleports, teleported, falling, detections,
-                            stale, grip, self.config.hands.measurement_std)
-
-    def process_noise(self, poses: np.ndarray, modes: np.ndarray, perceived: np.ndarray, supported: np.ndarray,
-                      resting: np.ndarray, last_motion: np.ndarray, dt: float,
-                      rng: np.random.Generator) -> np.ndarray:
-        """Process noise (:func:`~estimator.noise.process_noise`), in place, on the free, unperceived,
-        known dynamic objects that are not ``resting (K, M)`` (on a support and slower than
-        ``rest_speed``: a resting object does not wander, and, untouched, sleeps in its world).
-        Returns the objects moved by more than 2 mm std ``(K, M)``."""
-        free_unseen = (modes == FREE) & (~perceived & self.dynamic & self.known)[None, :] & ~resting
-        return process_noise(poses, free_unseen, supported, last_motion, dt, self.config.noise, rng)
 
     def batch(self, move: Move, state: ParticleState) -> BatchInput:
         """The pool's input for ``move`` (which entries to load, and which a world produced at rest,
@@ -551,8 +351,8 @@ class SceneModel:
         object perceived at rest on a support is let go; Release in view: a held object perceived
         falling (fast, or accelerating down with nothing under it) was let go; the events."""
         hr, cfg, mem = self.config.reasoner, self.config, self.memory
-        if self.geometry is not None:
-            out.poses = self.out_of_static(out.poses, out.aabbs)
+        for mechanism in self.mechanisms:
+            out.poses = mechanism.after_physics(out.poses, out.aabbs)
         new_modes = out.modes.copy()  # out.modes stays what physics made (Evidence.diverged)
         valid = np.broadcast_to(self.known, (self.K, self.M))
         on_top, is_in, supported = relations_and_support(
@@ -640,29 +440,6 @@ class SceneModel:
                 fell &= np.isfinite(vz_now)[None, :]
                 velocities[..., 2] = np.where(fell, vz_now[None, :], velocities[..., 2])
         return Settled(out.poses, velocities, ev.modes, on_top, is_in, supported, codes, vel, holds, times)
-
-    def out_of_static(self, poses: np.ndarray, aabbs: np.ndarray) -> np.ndarray:
-        """``poses (K, M, 7)`` after physics with the known dynamic objects more than
-        :data:`~physics.penetration.INVARIANT_DEPTH` deep inside static geometry pushed out of it
-        (:meth:`~physics.penetration.StaticGeometry.push_out`; a box test leaves out, cheaply, every
-        object that cannot be that deep): a step can end in the middle of an impact (a cup that fell
-        70 cm reaches the floor at 3.7 m/s, 1.5 cm per step), and a stack whose blocks the prior
-        perturbed apart is pressed into its support while the blocks separate; no particle may
-        report an object inside the table or the floor. A new array when any moves; the worlds
-        reload them at the next update (they differ from what the worlds hold). ``aabbs (K, M, 2, 3)``:
-        the objects' bounding boxes after physics, which pick the candidates in one test
-        (:meth:`~physics.penetration.StaticGeometry.may_be_inside`)."""
-        check = (self.dynamic & self.known)[None, :] & self.geometry.may_be_inside(aabbs)
-        if not np.any(check):
-            return poses
-        out = poses
-        for m in np.flatnonzero(check.any(axis=0)).tolist():
-            rows = np.flatnonzero(check[:, m])
-            moved, deep = self.geometry.push_out(m, poses[rows, m])
-            if np.any(deep):
-                out = poses.copy() if out is poses else out
-                out[rows[deep], m] = moved[deep]
-        return out
 
     def _seen_z(self, t: float, detected: np.ndarray) -> np.ndarray:
         """Height ``(M,)`` (m) where each object detected since the last update is seen now: the lower

@@ -4,7 +4,8 @@ import numpy as np
 from actions.modes import FREE, HELD, PLACE, ModePriors
 from actions.push import AIRBORNE, PICK_T, REF_Z, SMOOTH_Z, TOP_Z, empty_holds
 from estimator.config import ReasonerConfig
-from estimator.holding import push_grips, pushes_ended, release_on_loss, slide_around_hand, stratified_uniforms
+from estimator.holding import push_grips, pushes_ended, slide_around_hand, stratified_uniforms
+from estimator.mechanisms.release import release_on_loss
 from estimator.model import initial_poses
 from estimator.observations import Detection, Frame
 from estimator.perception_memory import PerceptionMemory

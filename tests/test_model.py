@@ -9,6 +9,12 @@ from actions.modes import FREE, HELD, PLACE, RELEASE
 from actions.push import LET_GO_T, PICK_T, REF_Z
 from estimator.config import EstimatorConfig, NoiseConfig
 from estimator.likelihood import Evidence
+from estimator.mechanisms.flick import LetGoMoving
+from estimator.mechanisms.follow_hand import FollowHands
+from estimator.mechanisms.process_noise import ProcessNoise
+from estimator.mechanisms.release import ReleaseOnLoss
+from estimator.mechanisms.rest_fusion import FusionAtRest
+from estimator.mechanisms.teleport import Teleports
 from estimator.model import SceneModel, initial_poses
 from estimator.params import param_bounds
 from estimator.observations import Detection, Frame
@@ -65,7 +71,7 @@ def test_teleport_carries_contents_with_rotation():
     is_in = np.zeros((2, 5, 5), dtype=bool)
     is_in[0, BALL, CRATE] = True  # only particle 0 has the ball in the crate
     poses, vel = st.poses.copy(), st.velocities.copy()
-    model.teleport(poses, vel, np.array([CRATE]), np.zeros(5, bool), is_in, np.random.default_rng(0))
+    model.mechanism(Teleports).teleport(poses, vel, np.array([CRATE]), np.zeros(5, bool), is_in, np.random.default_rng(0))
     assert np.allclose(poses[:, CRATE], [0.2, 0.1, 0.16, *YAW90])
     assert np.allclose(vel[:, CRATE, :3], [0.1, 0.0, 0.0])
     # the ball's offset (0.08, 0, -0.02) turned by 90 degrees about z: (0, 0.08, -0.02)
@@ -76,7 +82,7 @@ def test_teleport_carries_contents_with_rotation():
     poses2, vel2 = st.poses.copy(), st.velocities.copy()
     newly = np.zeros(5, bool)
     newly[CRATE] = True
-    model.teleport(poses2, vel2, np.array([CRATE]), newly, is_in, np.random.default_rng(0))
+    model.mechanism(Teleports).teleport(poses2, vel2, np.array([CRATE]), newly, is_in, np.random.default_rng(0))
     assert np.all(poses2[0, BALL] == st.poses[0, BALL])
 
 
@@ -90,7 +96,7 @@ def test_teleport_with_perception_noise_keeps_the_contents_rigidly_attached():
     is_in[:, BALL, CRATE] = True
     before = pose_compose(pose_inverse(st.poses[:, CRATE]), st.poses[:, BALL])  # ball in the crate's frame
     poses, vel = st.poses.copy(), st.velocities.copy()
-    model.teleport(poses, vel, np.array([CRATE]), np.zeros(5, bool), is_in, np.random.default_rng(2))
+    model.mechanism(Teleports).teleport(poses, vel, np.array([CRATE]), np.zeros(5, bool), is_in, np.random.default_rng(2))
     after = pose_compose(pose_inverse(poses[:, CRATE]), poses[:, BALL])
     assert np.allclose(after[:, :3], before[:, :3], atol=1e-9)
     assert np.allclose(np.abs(np.sum(after[:, 3:] * before[:, 3:], axis=-1)), 1.0, atol=1e-9)
@@ -124,7 +130,7 @@ def test_held_targets_follow_the_tracked_hand_or_drift():
         modes = st.modes.copy()
         modes[:2, CUP] = HELD  # held in particles 0 and 1, free in 2
         none = np.zeros(5, bool)
-        target, target_vel, err = model.held_targets(frame, st.poses, modes, none, none, 0.25,
+        target, target_vel, err = model.mechanism(FollowHands).held_targets(frame, st.poses, modes, none, none, 0.25,
                                                      np.random.default_rng(7), st.hold_error)
         assert np.all(err == 0)
         if follow:
@@ -149,7 +155,7 @@ def test_held_target_of_a_perceived_object_is_its_perception_without_drift(movin
     perceived = model.memory.perceived(0.4)
     tele, det = np.zeros(5, bool), np.zeros(5, bool)
     tele[CUP], det[CUP] = teleported, detected
-    target, target_vel, _ = model.held_targets(Frame(0.4), st.poses, modes, det, perceived, 0.3,
+    target, target_vel, _ = model.mechanism(FollowHands).held_targets(Frame(0.4), st.poses, modes, det, perceived, 0.3,
                                                np.random.default_rng(0), st.hold_error, tele)
     # at the detection; with moving teleports, one not detected in this update (last seen 0.3 s ago
     # moving up at 1 m/s) is where that detection carried on puts it now, and goes on
@@ -236,7 +242,7 @@ def test_process_noise_touches_only_unperceived_free_known_dynamic_objects():
     resting[2, BALL] = True  # at rest on its support in particle 2: a resting object does not wander
     last_motion = np.zeros((4, 5))
     last_motion[0, BALL] = 0.1  # rolled 10 cm: large model error, capped
-    jolted = model.process_noise(poses, modes, perceived, supported, resting, last_motion, 0.5,
+    jolted = model.mechanism(ProcessNoise).process_noise(poses, modes, perceived, supported, resting, last_motion, 0.5,
                                  np.random.default_rng(4))
     changed = np.any(poses != st.poses, axis=-1)
     expect = np.zeros((4, 5), bool)
@@ -263,7 +269,7 @@ def test_held_target_adds_each_particles_offset_error_to_the_tracked_hand():
     before = np.zeros((3, 5, 3))
     before[:, CUP] = [[0.01, 0.0, 0.0], [0.0, -0.01, 0.0], [0.0, 0.0, 0.0]]
     none = np.zeros(5, bool)
-    target, _, err = model.held_targets(frame, st.poses, modes, none, none, 0.1, np.random.default_rng(3), before)
+    target, _, err = model.mechanism(FollowHands).held_targets(frame, st.poses, modes, none, none, 0.1, np.random.default_rng(3), before)
     from estimator.held import hand_offset_walk
     expect = hand_offset_walk(before[:, CUP], 0.1, 0.02, 0.5, np.random.default_rng(3))
     np.testing.assert_allclose(err[:, CUP], expect)
@@ -272,7 +278,7 @@ def test_held_target_adds_each_particles_offset_error_to_the_tracked_hand():
     detected = none.copy()
     detected[CUP] = True
     model.memory.last_seen[CUP] = frame.t  # detected in this update's last frame
-    _, _, err = model.held_targets(frame, st.poses, modes, detected, detected, 0.1, np.random.default_rng(3), before)
+    _, _, err = model.mechanism(FollowHands).held_targets(frame, st.poses, modes, detected, detected, 0.1, np.random.default_rng(3), before)
     assert np.all(err == 0)
     # detected in an earlier frame of the update only: the hand has moved on since (its filtered
     # position, over the frames recorded since), and the object with it, plus each particle's error
@@ -284,7 +290,7 @@ def test_held_target_adds_each_particles_offset_error_to_the_tracked_hand():
     moved = mem.hand_position("human/right") - mem.hold_hand_position[CUP]
     assert 0.0 < moved[0] <= 0.06 and np.allclose(moved[1:], 0.0)
     stale = mem.stale_in_hand(later) & detected  # as the model's move computes them
-    target, _, err = model.held_targets(later, st.poses, modes, detected, detected, 0.1, np.random.default_rng(3),
+    target, _, err = model.mechanism(FollowHands).held_targets(later, st.poses, modes, detected, detected, 0.1, np.random.default_rng(3),
                                         before, None, None, mem.detections_now(stale, later.t), stale)
     np.testing.assert_allclose(err[:, CUP], expect)
     np.testing.assert_allclose(target[:, CUP, :3], np.array([1.0, 0.0, 0.95]) + moved + expect)
@@ -312,7 +318,7 @@ def test_release_on_loss_depends_on_whether_the_tracked_hand_carried_the_object(
         assert not perceived[CUP] and model.memory.perceived_prev[CUP]
         trk = model.memory.following_hand(Frame(1.0, {}, {"human/right": np.array(hand_end)})) if tracked \
             else np.zeros(5, bool)
-        new, codes = model.release(modes, perceived, st.supported, np.random.default_rng(1), trk)
+        new, codes = model.mechanism(ReleaseOnLoss).releases(modes, perceived, st.supported, np.random.default_rng(1), trk)
         assert np.all((new[:, CUP] == FREE) == expect_released), (hand_end, tracked)
 
 
@@ -325,7 +331,7 @@ def test_release_on_loss_and_later_releases():
     perceived = np.zeros(5, bool)
     perceived[CRATE] = True  # perceived and held: never released here (Place is decided after physics)
     supported = np.array([[False] * 5, [True] * 5])
-    new, codes = model.release(modes, perceived, supported, np.random.default_rng(0))
+    new, codes = model.mechanism(ReleaseOnLoss).releases(modes, perceived, supported, np.random.default_rng(0))
     assert list(new[:, CUP]) == [FREE, FREE] and list(codes[:, CUP]) == [RELEASE, PLACE]
     assert list(new[:, BALL]) == [HELD, HELD] and list(new[:, CRATE]) == [HELD, HELD]
     assert np.all(modes[:, CUP] == HELD)  # input untouched
@@ -540,9 +546,11 @@ def test_a_still_resting_object_takes_a_kalman_step_to_its_detection_and_a_movin
     # converged (the cloud's mean at the average still detection): no step, the object sleeps on
     st.poses[:, CUP, :2] = mem.still_position[CUP, :2] + np.random.default_rng(2).normal(0, 0.002, (400, 2))
     st.poses[:, CUP, :2] -= st.poses[:, CUP, :2].mean(axis=0) - mem.still_position[CUP, :2]
-    assert not model.fuse_resting(st.poses.copy(), st.log_weights, st.modes, resting, detected, np.random.default_rng(1))[:, CUP].any()
+    fusion = model.mechanism(FusionAtRest)
+    assert not fusion.fuse_resting(st.poses.copy(), st.log_weights, st.modes, resting, detected,
+                                   np.random.default_rng(1))[:, CUP].any()
     off = make(EstimatorConfig(particles=400, noise=NoiseConfig(fuse_resting=False)))
-    assert not off.fuse_resting(st.poses.copy(), st.log_weights, st.modes, resting, detected, np.random.default_rng(1)).any()
+    assert not any(isinstance(m, FusionAtRest) for m in off.mechanisms)  # off: not among the mechanisms
 
 
 def test_round_objects_rolling_friction_is_scaled_log_uniformly_and_boxes_keep_theirs():
@@ -575,18 +583,17 @@ def test_let_go_in_motion_is_tried_only_out_of_reach_of_the_tracked_hands_and_ne
     rolling = np.zeros((5, 3))
     rolling[BALL] = [0.5, 0.0, 0.0]
     model.memory.last_pose[BALL, :3] = [0.1, 0.0, 0.14]
-    let, logw = model.let_go_moving(modes, supported, seen, rolling, model._out_of_reach(Frame(0.0), seen),
+    let, logw = model.mechanism(LetGoMoving).let_go_moving(modes, supported, seen, rolling, model._out_of_reach(Frame(0.0), seen),
                                     np.random.default_rng(3))
     assert let[:, BALL].any() and not let[:, [TABLE, CRATE, CUP, MYSTERY]].any()  # no hand tracked
     hand_near = Frame(0.0, {}, {"right": np.array([0.2, 0.0, 0.2])})
-    assert not model.let_go_moving(modes, supported, seen, rolling, model._out_of_reach(hand_near, seen),
+    assert not model.mechanism(LetGoMoving).let_go_moving(modes, supported, seen, rolling, model._out_of_reach(hand_near, seen),
                                     np.random.default_rng(3))[0].any()
     hand_far = Frame(0.0, {}, {"right": np.array([1.0, 0.0, 0.2])})
-    assert model.let_go_moving(modes, supported, seen, rolling, model._out_of_reach(hand_far, seen),
+    assert model.mechanism(LetGoMoving).let_go_moving(modes, supported, seen, rolling, model._out_of_reach(hand_far, seen),
                                np.random.default_rng(3))[0].any()
     paper = make(EstimatorConfig.paper())
-    let1, w1 = paper.let_go_moving(modes[:1], supported[:1], seen, rolling, None, np.random.default_rng(3))
-    assert not let1.any() and np.all(w1 == 0)
+    assert not any(isinstance(m, LetGoMoving) for m in paper.mechanisms)  # the paper lets nothing go in motion
 
 
 def test_a_held_object_that_leaves_view_rolling_is_let_go_at_its_fitted_velocity_with_its_standard_error():
