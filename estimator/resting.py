@@ -9,16 +9,12 @@ fusion of detections nudges while slower than them is set at rest and loaded asl
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from physics.sleep import sleep
 from physics.transforms import quat_from_rotvec, quat_multiply
 from physics.world import World
 
-if TYPE_CHECKING:
-    from .propagate import ParticleWorld
 
 REST_SPEED = 0.005
 """m/s: with sleeping enabled, a free object moving slower than this (and turning slower than
@@ -38,7 +34,7 @@ def slow(vel: np.ndarray) -> np.ndarray:
     return (np.linalg.norm(vel[..., :3], axis=-1) < REST_SPEED) & (np.linalg.norm(vel[..., 3:], axis=-1) < REST_SPIN)
 
 
-def sleep_resting(pws: list["ParticleWorld"], candidates: np.ndarray, vel_in: np.ndarray,
+def sleep_resting(pws: list, candidates: np.ndarray, vel_in: np.ndarray,
                   vel_out: np.ndarray) -> None:
     """Put to sleep the ``candidates (K, M)`` at rest at both ends of the update (velocities
     ``(K, M, 6)``, :func:`slow`) that are still awake (a sleeping body reads back exactly zero

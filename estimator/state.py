@@ -1,14 +1,43 @@
 """The particles: a structure of arrays, K particles by M objects."""
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
+from actions.events import N_ACTIONS
+from actions.push import HOLD_FIELDS
 from physics.transforms import carry_pose
 
 
-@dataclass
+@dataclass(frozen=True)
+class ArraySpec:
+    """A per-particle array declared by the state (:data:`ARRAYS`) or by a mechanism
+    (:attr:`~estimator.mechanisms.base.Mechanism.arrays`): shape ``(K, M) + tail`` (an entry of
+    ``tail`` may be ``"M"`` or ``"M+1"``), ``dtype`` and the value it starts with, ``fill``."""
+
+    tail: tuple = ()
+    dtype: type = float
+    fill: float = 0.0
+
+    def make(self, K: int, M: int) -> np.ndarray:
+        """The array for K particles and M objects, filled."""
+        tail = tuple(M if d == "M" else M + 1 if d == "M+1" else int(d) for d in self.tail)
+        return np.full((K, M) + tail, self.fill, dtype=self.dtype)
+
+
+ARRAYS = {
+    "on_top": ArraySpec(("M+1",), bool, False), "is_in": ArraySpec(("M",), bool, False),
+    "event_t": ArraySpec((N_ACTIONS,), float, -np.inf), "supported": ArraySpec((), bool, False),
+    "last_motion": ArraySpec(), "jolted": ArraySpec((), bool, False),
+    "unseen_in_view": ArraySpec((), np.int32, 0), "push_decided": ArraySpec((), float, -np.inf),
+    "holds": ArraySpec((HOLD_FIELDS,), float, np.nan), "jitter": ArraySpec((3,)),
+}
+"""The arrays every particle state holds besides the core ones (poses, velocities, parameters, modes,
+log-weights): relations, events and episodes, the negative evidence's count, the teleports' noise.
+The mechanisms declare theirs (:attr:`~estimator.mechanisms.base.Mechanism.arrays`)."""
+
+
 class ParticleState:
     """The state of K particles over M objects (positions in metres, quaternions x, y, z, w).
 
@@ -51,31 +80,31 @@ class ParticleState:
       such push is out of view.
     """
 
-    poses: np.ndarray
-    velocities: np.ndarray
-    params: np.ndarray
-    modes: np.ndarray
-    log_weights: np.ndarray
-    on_top: np.ndarray
-    is_in: np.ndarray
-    event_t: np.ndarray
-    supported: np.ndarray
-    last_motion: np.ndarray
-    jolted: np.ndarray
-    unseen_in_view: np.ndarray
-    hold_error: np.ndarray
-    let_go_unseen: np.ndarray
-    hidden_at: np.ndarray
-    hidden_t: np.ndarray
-    hidden_n: np.ndarray
-    down_at: np.ndarray
-    down_t: np.ndarray
-    rest_at: np.ndarray
-    rest_t: np.ndarray
-    push_decided: np.ndarray
-    holds: np.ndarray
-    jitter: np.ndarray
-    push_grip: np.ndarray
+    def __init__(self, **arrays: np.ndarray):
+        self.__dict__.update(arrays)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The names of the state's arrays, in the order they were given."""
+        return tuple(self.__dict__)
+
+    @classmethod
+    def initial(cls, K: int, M: int, core: dict[str, np.ndarray], declared: dict[str, ArraySpec]) -> "ParticleState":
+        """The state of K particles over M objects from the ``core`` arrays given (poses, velocities,
+        parameters, modes, log-weights, by name) and every other array from its declaration
+        (:class:`~estimator.mechanisms.base.ArraySpec`: :data:`ARRAYS` and the mechanisms')."""
+        arrays = dict(core)
+        for name, spec in declared.items():
+            if name not in arrays:
+                arrays[name] = spec.make(K, M)
+        return cls(**arrays)
+
+    def replace(self, **arrays: np.ndarray) -> "ParticleState":
+        """A new state with the arrays named in ``arrays`` replaced (the others shared, not copied)."""
+        unknown = set(arrays) - set(self.__dict__)
+        if unknown:
+            raise KeyError(f"the particle state holds no array named {sorted(unknown)}")
+        return ParticleState(**{**self.__dict__, **arrays})
 
     def after_update(self, move, settled, log_weights: np.ndarray, unseen_in_view: np.ndarray,
                      hidden: tuple[np.ndarray, ...], free: np.ndarray) -> "ParticleState":
@@ -85,15 +114,15 @@ class ParticleState:
         :func:`~estimator.holding.places_after_update`; ``free (K, M)`` bool: the entries free
         after it (the others keep no teleport jitter: they are at their target)."""
         K, M = free.shape
-        return ParticleState(
-            poses=settled.poses, velocities=settled.velocities, params=self.params, modes=settled.modes,
+        return self.replace(
+            poses=settled.poses, velocities=settled.velocities, modes=settled.modes,
             log_weights=log_weights - np.max(log_weights[np.isfinite(log_weights)]), on_top=settled.on_top,
-            is_in=settled.is_in, event_t=self.event_t, supported=settled.supported,
+            is_in=settled.is_in, supported=settled.supported,
             last_motion=np.linalg.norm(settled.poses[..., :3] - move.poses[..., :3], axis=-1),
             jolted=np.zeros((K, M), dtype=bool), unseen_in_view=unseen_in_view,
             hold_error=move.hold_error, let_go_unseen=move.let_go_unseen, hidden_at=hidden[0],
             hidden_t=hidden[1], hidden_n=hidden[2], down_at=hidden[3], down_t=hidden[4],
-            rest_at=hidden[5], rest_t=hidden[6], push_decided=self.push_decided, holds=settled.holds,
+            rest_at=hidden[5], rest_t=hidden[6], holds=settled.holds,
             jitter=move.jitter * free[..., None], push_grip=(move.push_grip if move.push_grip is not None
                                                          else np.full((K, M), np.nan)))
 
@@ -106,7 +135,7 @@ class ParticleState:
         only lose their spread. Those in or on another object (``is_in``, ``on_top`` of the particle
         before) are carried rigidly from that support's pose in the particle to its pose in the
         ancestor."""
-        out = ParticleState(*(getattr(self, f.name)[ancestors].copy() for f in fields(self)))
+        out = ParticleState(**{name: value[ancestors].copy() for name, value in self.__dict__.items()})
         out.log_weights = np.zeros(len(ancestors))
         if own is None or not np.any(own):
             return out

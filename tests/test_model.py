@@ -16,6 +16,7 @@ from estimator.mechanisms.release import ReleaseOnLoss
 from estimator.mechanisms.rest_fusion import FusionAtRest
 from estimator.mechanisms.teleport import Teleports
 from estimator.model import SceneModel, initial_poses
+from estimator.regularisation import regularisation_kernels, regularise
 from estimator.params import param_bounds
 from estimator.observations import Detection, Frame
 from estimator.perception_memory import PerceptionMemory
@@ -473,16 +474,16 @@ def test_regularisation_jitters_only_free_copies_of_hidden_objects():
     w = np.full(400, 1 / 400)
     hidden = np.zeros(5, bool)
     hidden[[BALL, CUP]] = True
-    kernels = model.regularisation_kernels(st.poses, w, hidden)
+    kernels = regularisation_kernels(model, st.poses, w, hidden)
     assert set(kernels) == {BALL, CUP}
     hidden_ball = np.zeros(5, bool)
     hidden_ball[BALL] = True
-    kernels = model.regularisation_kernels(st.poses, w, hidden_ball)
+    kernels = regularisation_kernels(model, st.poses, w, hidden_ball)
     cov = kernels[BALL] @ kernels[BALL].T
     assert np.sqrt(np.max(np.linalg.eigvalsh(cov))) <= 0.01 + 1e-12
     before = st.poses.copy()
     params = st.params.copy()
-    model.regularise(st, kernels, np.random.default_rng(6))
+    regularise(model, st, kernels, np.random.default_rng(6))
     moved = np.any(st.poses != before, axis=-1)
     assert np.all(moved[50:, BALL]) and not moved[:50].any() and not moved[:, [CRATE, CUP]].any()
     assert np.array_equal(st.jolted[:, BALL], ~np.isin(np.arange(400), np.arange(50)))
@@ -503,12 +504,12 @@ def test_a_hidden_objects_kernel_keeps_its_spread_when_the_weights_pick_one_part
     hidden = np.zeros(5, bool)
     hidden[BALL] = True
     cov = np.cov(st.poses[:, BALL, :3].T, bias=True)
-    even = model.regularisation_kernels(st.poses, np.full(400, 1 / 400), hidden)[BALL]
+    even = regularisation_kernels(model, st.poses, np.full(400, 1 / 400), hidden)[BALL]
     assert np.allclose(even @ even.T, 0.25 * cov, rtol=1e-6, atol=1e-12)
     w = np.full(400, 1e-12)
     w[0] = 1.0
     w /= w.sum()
-    one = model.regularisation_kernels(st.poses, w, hidden)[BALL]
+    one = regularisation_kernels(model, st.poses, w, hidden)[BALL]
     share = 1.0 / (400 * np.sum(w ** 2))
     mixed = share * w + (1.0 - share) / 400
     assert np.allclose(one @ one.T, 0.25 * np.cov(st.poses[:, BALL, :3].T, aweights=mixed, bias=True),

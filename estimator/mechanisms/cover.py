@@ -5,13 +5,23 @@ an object pushed out of view slides around the hand that pushes it (the push gri
 paper's mode."""
 from __future__ import annotations
 
+import numpy as np
+
 from ..holding import let_go_out_of_view
-from . import Draft, Mechanism
+from .base import ArraySpec, Draft, Mechanism
 
 
 class LetGoBehindCover(Mechanism):
     """Fills :attr:`Draft.cover_t` (when each object let go now behind cover was let go), adds the
     proposal's log-weight factor and the push grips (:attr:`Draft.grip`)."""
+
+    arrays = {"hidden_at": ArraySpec((3,)), "hidden_t": ArraySpec((), float, -np.inf),
+              "hidden_n": ArraySpec((), np.int32, 0), "down_at": ArraySpec((3,)),
+              "down_t": ArraySpec((), float, -np.inf), "rest_at": ArraySpec((3,)),
+              "rest_t": ArraySpec((), float, -np.inf), "push_grip": ArraySpec((), float, np.nan)}
+    """Where (and when) a held object was while its tracked hand kept it out of view, where it was
+    lowest then, where it last rested out of view (see :class:`~estimator.state.ParticleState`), and
+    the grip of the hand that pushes it out of view (NaN: none)."""
 
     def release(self, u: Draft) -> None:
         model, cfg = self.model, self.model.config

@@ -9,7 +9,7 @@ import numpy as np
 from actions.modes import FREE, PLACE
 
 from ..motion import let_go_moving
-from . import Draft, Mechanism
+from .base import Draft, Mechanism
 
 
 class LetGoMoving(Mechanism):

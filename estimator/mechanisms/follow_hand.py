@@ -9,12 +9,16 @@ import numpy as np
 
 from ..holding import held_targets, push_cannot_lift
 from ..step import Fall
-from . import Draft, Mechanism
+from .base import ArraySpec, Draft, Mechanism
 
 
 class FollowHands(Mechanism):
     """Fills :attr:`Draft.detections`, :attr:`Draft.target`, :attr:`Draft.target_vel` and
     :attr:`Draft.hold_error`."""
+
+    arrays = {"hold_error": ArraySpec((3,))}
+    """``hold_error (K, M, 3)`` m: how far a held, undetected object following a tracked hand is from the
+    hand plus its offset at the last detection (:func:`estimator.held.hand_offset_walk`)."""
 
     def target(self, u: Draft) -> None:
         mem, cfg = self.model.memory, self.model.config

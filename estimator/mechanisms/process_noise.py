@@ -7,7 +7,7 @@ import numpy as np
 from actions.modes import FREE
 
 from ..noise import process_noise
-from . import Draft, Mechanism
+from .base import Draft, Mechanism
 
 
 class ProcessNoise(Mechanism):

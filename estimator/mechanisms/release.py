@@ -17,7 +17,7 @@ from actions.modes import FREE, HELD, ModePriors, switch_events
 from ..holding import stratified_uniforms
 from ..motion import rolled_along, velocity_draws
 from ..perception_memory import PerceptionMemory
-from . import Draft, Mechanism
+from .base import ArraySpec, Draft, Mechanism
 
 
 def release_on_loss(modes: np.ndarray, perceived: np.ndarray, supported: np.ndarray, rng: np.random.Generator,
@@ -66,6 +66,10 @@ class ReleaseOnLoss(Mechanism):
     """Releases of held objects that are not perceived (:func:`release_on_loss`); then, once every
     let-go is decided, the velocities of those that left view moving and of balls let go on a support,
     and when each was let go (:attr:`Draft.let_go`)."""
+
+    arrays = {"let_go_unseen": ArraySpec((), float, -np.inf)}
+    """``let_go_unseen (K, M)``: time (s) at which the particle let the object go when it stopped being
+    perceived (-inf: never); its fall happened unseen, in the ``t_perceived`` before."""
 
     def __init__(self, model):
         super().__init__(model)

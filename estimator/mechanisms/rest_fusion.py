@@ -11,7 +11,7 @@ from actions.modes import FREE
 from ..fusion import ensemble_kalman_step
 from ..resampling import normalise_log_weights
 from ..resting import slow
-from . import Draft, Mechanism
+from .base import Draft, Mechanism
 
 FUSION_MIN_STEP = 5e-4
 """Ensemble Kalman steps of resting objects shorter than this (m) are not taken: a converged object

@@ -9,7 +9,7 @@ import numpy as np
 
 from actions.modes import HELD
 
-from . import Draft, Mechanism
+from .base import Draft, Mechanism
 
 
 class StaticClip(Mechanism):

@@ -16,7 +16,7 @@ from actions.modes import FREE, HELD
 
 from ..motion import MOVING_MAX_VERTICAL_SPEED, place, teleport_kinds
 from ..step import Fall
-from . import Draft, Mechanism
+from .base import Draft, Mechanism
 
 SET_MOVING_SIGMAS = 4.0
 """An object at rest is set moving by an agent nobody tracks only when its perceived horizontal

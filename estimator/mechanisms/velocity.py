@@ -7,7 +7,7 @@ from __future__ import annotations
 from actions.modes import FREE
 
 from ..motion import rolled_along
-from . import Draft, Mechanism
+from .base import Draft, Mechanism
 
 
 class VelocityEvidence(Mechanism):

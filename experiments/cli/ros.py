@@ -9,9 +9,7 @@ import sys
 
 from experiments.cli.common import add_estimator_arguments
 
-#: options that a ROS private parameter (``~name``) may set when the command line does not
-PARAMETERS = ("scene", "topics", "world_frame", "config", "particles", "workers", "seed", "horizon",
-              "t_perceived", "d_sim_perc", "d_perc_prev", "reset_after", "timeline_window")
+from experiments.ros.parameters import PARAMETERS  # noqa: F401  (the options ~name may set)
 
 
 def add_ros_arguments(p: argparse.ArgumentParser) -> None:

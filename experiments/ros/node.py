@@ -457,7 +457,7 @@ def _wait_for_master(ros, timeout: float, quiet: bool) -> None:
 
 def _parameters(rospy, args) -> None:
     """Fill the options the command line left out from the node's private parameters (``~name``)."""
-    from experiments.cli.ros import PARAMETERS
+    from experiments.ros.parameters import PARAMETERS
 
     for name in PARAMETERS:
         if getattr(args, name, None) is None and rospy.has_param("~" + name):
