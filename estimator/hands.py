@@ -7,7 +7,7 @@ and a held object that its hand carries out of view is put at the hand plus its 
 hand's noise enters twice, once in the offset and once in the hand now; the errors of the object
 that result are what the particles' spread then has to cover (``NoiseConfig.held_offset_std``).
 Here the hand is a constant-velocity Kalman filter (the pose tracker's model,
-:func:`~estimator.tracker.transition` and :func:`~estimator.tracker.process_noise`), and the offset
+:func:`transition` and :func:`process_noise`, which the pose tracker :mod:`estimator.tracker` uses too), and the offset
 an exponential average of (detection - raw hand), whose noise averages out because the raw hand's
 errors are independent from frame to frame.
 
@@ -18,9 +18,21 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from filterpy.common import Q_discrete_white_noise
 
 from .config import HandConfig
-from .tracker import process_noise, transition
+
+
+def transition(dt: float) -> np.ndarray:
+    """Constant-velocity transition ``F (6, 6)`` over ``dt`` seconds."""
+    f = np.eye(6)
+    f[:3, 3:] = dt * np.eye(3)
+    return f
+
+
+def process_noise(dt: float, accel_std: float) -> np.ndarray:
+    """White-acceleration process noise ``Q (6, 6)`` over ``dt`` s, ordered ``[x, y, z, vx, vy, vz]``."""
+    return Q_discrete_white_noise(dim=2, dt=dt, var=accel_std ** 2, block_size=3, order_by_dim=False)
 
 
 class HandFilter:

@@ -28,11 +28,11 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import KalmanFilter
 from scipy.stats import chi2
 
 from .belief import Belief, region_radius_sq
+from .hands import process_noise, transition
 from .observations import Detection, Frame
 
 H_POS = np.hstack([np.eye(3), np.zeros((3, 3))])
@@ -129,18 +129,6 @@ def moments(ob, region: float) -> tuple[np.ndarray, np.ndarray]:
     if math.isfinite(ob.position_dof):
         cov = cov * (region_radius_sq(region, ob.position_dof) / chi2.ppf(region, 3))
     return np.asarray(mean, float).reshape(3), cov.reshape(3, 3)
-
-
-def transition(dt: float) -> np.ndarray:
-    """Constant-velocity transition ``F (6, 6)`` over ``dt`` seconds."""
-    f = np.eye(6)
-    f[:3, 3:] = dt * np.eye(3)
-    return f
-
-
-def process_noise(dt: float, accel_std: float) -> np.ndarray:
-    """White-acceleration process noise ``Q (6, 6)`` over ``dt`` s, ordered ``[x, y, z, vx, vy, vz]``."""
-    return Q_discrete_white_noise(dim=2, dt=dt, var=accel_std ** 2, block_size=3, order_by_dim=False)
 
 
 @dataclass

@@ -10,7 +10,8 @@ from scipy.stats import chi2
 
 from estimator.belief import Belief, ObjectBelief, region_radius_sq
 from estimator.observations import Detection, Frame
-from estimator.tracker import H_POS, PhysicsAwareTracker, TrackerConfig, process_noise, transition
+from estimator.hands import process_noise, transition
+from estimator.tracker import H_POS, PhysicsAwareTracker, TrackerConfig
 
 DT = 1 / 30
 
