@@ -150,7 +150,7 @@ def late_picks(codes: np.ndarray, times: np.ndarray, holds: np.ndarray, held: np
     A particle can take an object in hand an update or two before the object's detections leave
     where it rested by more than the tracker's noise (the particle weighs every detection; the
     perception memory calls the object moved only beyond the noise,
-    :meth:`~estimator.perception_memory.PerceptionMemory.onset`); that switch is silent (a still
+    :meth:`~estimator.model.perception_memory.PerceptionMemory.onset`); that switch is silent (a still
     object was moved by no one). Once the object is seen to have started moving, the episode's Pick
     is that start.
 

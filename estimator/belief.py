@@ -15,7 +15,8 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.stats import chi2, f as f_dist
+from scipy.stats import chi2
+from scipy.stats import f as f_dist
 
 from actions.events import EventRecord
 from actions.modes import HELD
@@ -51,7 +52,7 @@ class ObjectBelief:
     agrees on the support). ``orientation (4,)`` x,y,z,w and ``angular_std`` rad (weighted RMS
     angle to it) are the weighted chordal mean over all particles. ``mean_position`` ``None``
     (objects built by hand) means ``position``. ``person`` (only when the scene names a person):
-    ``{"id", "p_visible", "p_reachable"}`` (:mod:`estimator.person`). ``position_dof``: the
+    ``{"id", "p_visible", "p_reachable"}`` (:mod:`estimator.applications.person`). ``position_dof``: the
     position is a multivariate Student-t with these degrees of freedom and covariance
     ``position_cov`` (``inf``: Gaussian); :meth:`region` gives its ellipsoids. ``parameters`` (dynamic
     objects): the posterior of its physical parameters over the particles, ``{name: (mean, std)}``

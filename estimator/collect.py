@@ -2,7 +2,7 @@
 
 :class:`Collectors` turns the particles after an update into the :class:`~estimator.belief.Belief`
 (recent events, hypotheses, relations, the widening of moving objects' covariances), adds the
-person's view when the scene names a person (:mod:`estimator.person`) and records the timeline
+person's view when the scene names a person (:mod:`estimator.applications.person`) and records the timeline
 (:class:`~estimator.timeline.Timeline`). K particles, M objects.
 """
 from __future__ import annotations
@@ -14,8 +14,8 @@ import numpy as np
 
 from actions.events import recent_events
 
+from .applications.person import with_person
 from .belief import Belief, SpeedVariance, compute_belief
-from .person import with_person
 from .timeline import Timeline
 
 __all__ = ["Belief", "Collectors"]
@@ -37,7 +37,7 @@ class Collectors:
                  perceived: np.ndarray, detected: np.ndarray, dt: float, hands: dict,
                  n_particles: int | None = None) -> Belief:
         """The belief at ``t`` (s) of the particles ``state`` (:class:`~estimator.state.ParticleState`,
-        its events recorded) after the update ``settled`` (:class:`~estimator.step.Settled`), weighed
+        its events recorded) after the update ``settled`` (:class:`~estimator.model.step.Settled`), weighed
         ``weights (K,)`` (effective sample size ``ess``); ``known``, ``perceived`` and ``detected``
         ``(M,)`` bool; ``dt`` (s) since the previous update; ``hands``: the tracked hands;
         ``n_particles``: the K reported (adaptive runs; None: not reported). Records the timeline."""

@@ -135,7 +135,7 @@ class NoiseConfig:
     * ``fuse_resting`` / ``fusion_floor_std`` (m): perceived objects that rest, still, on a support
       take, in each particle, an ensemble Kalman step towards each detection (horizontal; prior
       variance the particles' weighted one plus ``fusion_floor_std**2``): a resting object is a
-      static parameter of the filter, which resampling alone cannot move (:mod:`estimator.fusion`).
+      static parameter of the filter, which resampling alone cannot move (:mod:`estimator.model.fusion`).
     * ``motion_noise``: unperceived free objects resting on or in something also get position noise
       with a standard deviation of this fraction of the distance they moved in the last update
       (rolling and sliding are chaotic: the model error grows with motion; flight is not noised).
@@ -155,7 +155,7 @@ class NoiseConfig:
     * ``held_offset_std`` (m per axis) and ``held_offset_time`` (s): a held object that follows its
       tracked hand out of sight is at the hand plus the offset it had when last detected, plus an
       error per particle that grows from zero to this standard deviation with this time constant
-      (the grasp slips, the hand turns: :func:`~estimator.held.hand_offset_walk`). The standard
+      (the grasp slips, the hand turns: :func:`~estimator.worlds.held.hand_offset_walk`). The standard
       deviation is fitted on the simulator's scenarios (``scene-estimator fit-priors``).
     * ``held_drift_std`` (m per sqrt(s)): growth of the uncertainty of a held, unperceived object
       that has no tracked hand to follow.
@@ -171,18 +171,18 @@ class NoiseConfig:
       keep theirs. None: not perturbed.
     * ``velocity_slack`` (m/s): an object seen moving along its support at two updates running is
       weighed on its perceived velocity against the velocity the particle's physics had given it
-      (:class:`~estimator.likelihood.VelocityTerm`: how fast a rolled ball slows down tells its
+      (:class:`~estimator.model.likelihood.VelocityTerm`: how fast a rolled ball slows down tells its
       rolling friction, which a teleport at every update hides from the position); this is added in
       quadrature to the perceived velocity's standard error. 0: not weighed.
     * ``param_jitter``: after resampling, parameters are shrunk toward their weighted mean by
       ``a = sqrt(1 - jitter**2)`` and jittered so that their spread is kept (Liu & West; frictions
-      and masses in log space, :mod:`estimator.params`); 0 disables.
+      and masses in log space, :mod:`estimator.model.params`); 0 disables.
     * ``param_floor``: the Liu-West kernel of a parameter the prior perturbs keeps at least this
       spread (log units: 0.1 is 10 %; linear for restitution), so that a resampling driven by
       something else does not fix a parameter for good before the evidence about it arrives.
     * ``param_widen``: the floor of the frictions' kernel (log units) of an object whose motion
       surprises every particle the same way (its perceived velocity consistently two standard
-      deviations from theirs: :meth:`~estimator.model.SceneModel.note_surprise`): the evidence says
+      deviations from theirs: :func:`~estimator.model.weighing.note_surprise`): the evidence says
       its friction is not where the particles have it; 0.35 is about the spread of a factor-two
       prior.
     * ``param_reach``: evidence may carry a parameter beyond its prior range by this factor (a
@@ -289,7 +289,7 @@ class NoiseConfig:
 @dataclass(frozen=True)
 class HandConfig:
     """How the positions of tracked hands, and the offsets of held objects to them, are read
-    (:mod:`estimator.hands`). A tracked hand (a skeleton tracker's wrist) is noisier than an
+    (:mod:`estimator.model.hands`). A tracked hand (a skeleton tracker's wrist) is noisier than an
     object's detection; the object a hand carries out of view is put at the hand plus its offset,
     so both errors become the hidden object's.
 
@@ -297,7 +297,7 @@ class HandConfig:
       simulator's scenarios (``scene-estimator fit-priors``: tracked minus true hand, RMS per axis).
     * ``accel_std`` (m/s^2): white acceleration of each hand's constant-velocity Kalman filter;
       the 99th percentile of held objects' accelerations in the scenarios, as the pose tracker's
-      (:attr:`~estimator.tracker.TrackerConfig.accel_std`): a hand moves what it holds.
+      (:attr:`~estimator.applications.tracker.TrackerConfig.accel_std`): a hand moves what it holds.
     * ``restart_gap`` (s): a hand not tracked for longer than this starts again at its next
       position, at rest.
     * ``offset_time`` (s): a held object's offset to its hand is the exponential average of
@@ -402,7 +402,7 @@ class EstimatorConfig:
       when last detected (the paper's reasoner ignores hands: off in paper mode).
     * ``hands``: how tracked hands and held objects' offsets to them are read (:class:`HandConfig`).
     * ``lazy_checks``: test an object's divergence only when it could have crossed the threshold
-      since the last test (see :func:`~estimator.propagate.propagate`); off in paper mode, which
+      since the last test (see :func:`~estimator.worlds.propagate.propagate`); off in paper mode, which
       tests after every step. Reading poses back is most of the estimator's cost over bare stepping.
     * ``fresh_checks``: only objects detected since the previous update are tested for divergence
       (a released object is not pulled back to where it was last seen); the paper tests every object
@@ -424,7 +424,7 @@ class EstimatorConfig:
       (the ground-truth simulator keeps pybullet's 1e-7): resting scenes step faster; URDFs are
       loaded without their visual meshes and textures (much less memory and start-up); objects at
       rest sleep (stepping skips them) until touched, reset or moved (see
-      :func:`~estimator.propagate.propagate_batch`).
+      :func:`~estimator.worlds.propagate.propagate_batch`).
     * ``visibility_threshold``: fraction of an object's sample points in view for it to count as
       visible to the camera.
     * ``static_clip``: a held object's path to its target (a tracked hand, a detection carried on at

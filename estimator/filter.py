@@ -7,12 +7,12 @@ the physics reasoner of Sallami et al. (IROS 2019), its "paper mode".
 
 This module is the algorithm, a sequential Monte Carlo loop; what it runs on is apart:
 
-* :class:`~estimator.perception_memory.PerceptionMemory`: last perceived pose, time and velocity of
+* :class:`~estimator.model.perception_memory.PerceptionMemory`: last perceived pose, time and velocity of
   each object, and its tracked hand; perceived = seen within ``t_perceived``;
 * :class:`~estimator.model.SceneModel`: how a particle moves (teleports, releases, held targets,
   process noise), what physics reports back (Place / Release) and how a particle is weighed (the
-  terms of :mod:`estimator.likelihood`);
-* :class:`~estimator.pool.WorldPool`: the K particle worlds, where physics runs (Alg. 1);
+  terms of :mod:`estimator.model.likelihood`);
+* :class:`~estimator.worlds.pool.WorldPool`: the K particle worlds, where physics runs (Alg. 1);
 * :mod:`estimator.resampling`: normalisation, effective sample size and systematic resampling.
 
 One update (time t, previous update at t0, ``n = round((t - t0) / time_step)`` simulation steps; the
@@ -35,8 +35,8 @@ import numpy as np
 from .collect import Belief, Collectors
 from .config import EstimatorConfig, reasoning_due
 from .model import SceneModel
-from .pool import WorldPool
 from .resampling import effective_sample_size, keep_survivors_in_place, normalise_log_weights, systematic_resample
+from .worlds.pool import WorldPool
 
 log = logging.getLogger(__name__)
 
@@ -108,7 +108,7 @@ class SceneEstimator:
     # -- what the model and the collectors hold -------------------------------------------------------
     @property
     def memory(self):
-        """The perception memory (:class:`~estimator.perception_memory.PerceptionMemory`)."""
+        """The perception memory (:class:`~estimator.model.perception_memory.PerceptionMemory`)."""
         return self.model.memory
 
     @property

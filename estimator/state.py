@@ -13,7 +13,7 @@ from physics.transforms import carry_pose
 @dataclass(frozen=True)
 class ArraySpec:
     """A per-particle array declared by the state (:data:`ARRAYS`) or by a mechanism
-    (:attr:`~estimator.mechanisms.base.Mechanism.arrays`): shape ``(K, M) + tail`` (an entry of
+    (:attr:`~estimator.model.mechanisms.base.Mechanism.arrays`): shape ``(K, M) + tail`` (an entry of
     ``tail`` may be ``"M"`` or ``"M+1"``), ``dtype`` and the value it starts with, ``fill``."""
 
     tail: tuple = ()
@@ -35,7 +35,7 @@ ARRAYS = {
 }
 """The arrays every particle state holds besides the core ones (poses, velocities, parameters, modes,
 log-weights): relations, events and episodes, the negative evidence's count, the teleports' noise.
-The mechanisms declare theirs (:attr:`~estimator.mechanisms.base.Mechanism.arrays`)."""
+The mechanisms declare theirs (:attr:`~estimator.model.mechanisms.base.Mechanism.arrays`)."""
 
 
 class ParticleState:
@@ -63,20 +63,20 @@ class ParticleState:
     * ``let_go_unseen (K, M)``: time (s) at which the particle let the object go when it stopped
       being perceived (-inf: never); its fall happened unseen, in the ``t_perceived`` before;
     * ``hold_error (K, M, 3)``: m, how far a held, undetected object following a tracked hand is from
-      the hand plus its offset at the last detection (:func:`estimator.held.hand_offset_walk`).
+      the hand plus its offset at the last detection (:func:`estimator.worlds.held.hand_offset_walk`).
     * ``hidden_at (K, M, 3)`` m, ``hidden_t (K, M)`` s, ``hidden_n (K, M)`` int32: a uniform sample of
       where (and when) a held object was while its tracked hand kept it out of the camera's view, over
-      the ``hidden_n`` updates it was (:func:`estimator.holding.hidden_places`); ``down_at (K, M, 3)``,
+      the ``hidden_n`` updates it was (:func:`estimator.model.holding.hidden_places`); ``down_at (K, M, 3)``,
       ``down_t (K, M)``: where and when it was lowest over those updates (where it would have been
-      put down: :func:`estimator.holding.lowest_hidden_place`); ``rest_at (K, M, 3)`` m, ``rest_t
+      put down: :func:`estimator.model.holding.lowest_hidden_place`); ``rest_at (K, M, 3)`` m, ``rest_t
       (K, M)`` s (-inf: none): where and when it last rested on a support out of view, undetected
-      (where a hand that sets it down leaves it: :func:`estimator.holding.resting_place`).
+      (where a hand that sets it down leaves it: :func:`estimator.model.holding.resting_place`).
     * ``jitter (K, M, 3)`` m: the horizontal perception noise the last update's teleport added to
       each free object's position (zero for objects it did not teleport, held ones, and vertically:
       a support undoes it): what the particle's next prediction of a detection leaves out, so that it
       is scored on its physics, not on that draw.
     * ``push_grip (K, M)``: in [0, 1], how the contact of the hand that pushes an object out of view
-      slides (1 frictionless, 0 gripped; :func:`estimator.holding.slide_around_hand`); NaN when no
+      slides (1 frictionless, 0 gripped; :func:`estimator.model.holding.slide_around_hand`); NaN when no
       such push is out of view.
     """
 
@@ -92,7 +92,7 @@ class ParticleState:
     def initial(cls, K: int, M: int, core: dict[str, np.ndarray], declared: dict[str, ArraySpec]) -> "ParticleState":
         """The state of K particles over M objects from the ``core`` arrays given (poses, velocities,
         parameters, modes, log-weights, by name) and every other array from its declaration
-        (:class:`~estimator.mechanisms.base.ArraySpec`: :data:`ARRAYS` and the mechanisms')."""
+        (:class:`~estimator.model.mechanisms.base.ArraySpec`: :data:`ARRAYS` and the mechanisms')."""
         arrays = dict(core)
         for name, spec in declared.items():
             if name not in arrays:
@@ -108,10 +108,10 @@ class ParticleState:
 
     def after_update(self, move, settled, log_weights: np.ndarray, unseen_in_view: np.ndarray,
                      hidden: tuple[np.ndarray, ...], free: np.ndarray) -> "ParticleState":
-        """The particles after an update from this state: ``move`` (:class:`~estimator.step.Move`)
-        and ``settled`` (:class:`~estimator.step.Settled`) of the update, ``log_weights (K,)`` (the
+        """The particles after an update from this state: ``move`` (:class:`~estimator.model.step.Move`)
+        and ``settled`` (:class:`~estimator.model.step.Settled`) of the update, ``log_weights (K,)`` (the
         largest finite one made 0), ``unseen_in_view (K, M)``, ``hidden``: the seven arrays of
-        :func:`~estimator.holding.places_after_update`; ``free (K, M)`` bool: the entries free
+        :func:`~estimator.model.holding.places_after_update`; ``free (K, M)`` bool: the entries free
         after it (the others keep no teleport jitter: they are at their target)."""
         K, M = free.shape
         return self.replace(
@@ -131,7 +131,7 @@ class ParticleState:
 
         Objects ``own (M,)`` bool keep each particle's own pose, velocity, parameters and relations
         (as subject), not the ancestor's: nothing weighed them (see
-        :meth:`~estimator.filter.SceneEstimator._resample`), so resampling them with the others would
+        :meth:`~estimator.model.SceneModel.before_resampling`), so resampling them with the others would
         only lose their spread. Those in or on another object (``is_in``, ``on_top`` of the particle
         before) are carried rigidly from that support's pose in the particle to its pose in the
         ancestor."""

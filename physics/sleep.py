@@ -16,7 +16,7 @@ from .world import World
 def wake(world: World, indices) -> None:
     """Wake objects ``indices`` (needed after a reset when :attr:`PhysicsSettings.sleeping`).
     Bullet clears a woken body's velocity in the next step: a body loaded with a velocity while
-    asleep must be given it again after that step (see :func:`estimator.propagate.propagate_batch`)."""
+    asleep must be given it again after that step (see :func:`estimator.worlds.propagate.propagate_batch`)."""
     c = world.client
     change = pb.changeDynamics
     for i in indices:

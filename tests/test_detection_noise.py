@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from estimator.detection_noise import ONSET_FALSE_ALARM, ONSET_SIGMAS, DetectionNoise, onset_distance
+from estimator.model.detection_noise import ONSET_FALSE_ALARM, ONSET_SIGMAS, DetectionNoise, onset_distance
 
 
 def _scatters(rng, sigma, n_points, count):

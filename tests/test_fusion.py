@@ -1,8 +1,8 @@
-"""The ensemble Kalman step of resting objects (estimator.fusion)."""
+"""The ensemble Kalman step of resting objects (estimator.model.fusion)."""
 import numpy as np
 import pytest
 
-from estimator.fusion import ensemble_kalman_step, weighted_axis_variance
+from estimator.model.fusion import ensemble_kalman_step, weighted_axis_variance
 
 
 def test_one_step_gives_the_kalman_posterior_in_mean_and_variance():

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from estimator.config import HandConfig, config_from_dict
-from estimator.hands import HandFilter, average_offset, filtered_track
+from estimator.model.hands import HandFilter, average_offset, filtered_track
 from physics.errors import ConfigError
 
 
@@ -15,7 +15,7 @@ def test_a_hand_that_moves_as_the_model_says_has_the_error_its_covariance_says()
     a starting velocity of 1 m/s standard deviation per axis), seen 1 cm off per axis at 30
     frames/s for 1 s: the normalised error (x - truth)^T P^-1 (x - truth) of the position averages
     3 (its chi-square mean) within 3 standard errors."""
-    from estimator.hands import process_noise, transition
+    from estimator.model.hands import process_noise, transition
     cfg = HandConfig(measurement_std=0.01)
     rng = np.random.default_rng(11)
     f, q = transition(1 / 30), process_noise(1 / 30, cfg.accel_std)

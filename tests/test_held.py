@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from estimator.held import depenetrate, glide_paths
+from estimator.worlds.held import depenetrate, glide_paths
 from physics.transforms import quat_angle, quat_from_rotvec
 from physics.world import World
 
@@ -47,7 +47,7 @@ def test_hand_offset_walk_variance_follows_the_ornstein_uhlenbeck_law():
     std^2 (1 - exp(-2 t / tau)); checked on 3 x 4000 draws against the chi-square band (99.9 %)."""
     from scipy.stats import chi2
 
-    from estimator.held import hand_offset_walk
+    from estimator.worlds.held import hand_offset_walk
 
     rng = np.random.default_rng(11)
     std, tau, dt = 0.02, 0.5, 0.08

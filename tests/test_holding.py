@@ -1,14 +1,14 @@
-"""Held objects in the scene model (estimator/holding.py): release at loss by hand state, targets."""
+"""Held objects in the scene model (estimator/model/holding.py): release at loss by hand state, targets."""
 import numpy as np
 
 from actions.modes import FREE, HELD, PLACE, ModePriors
 from actions.push import AIRBORNE, PICK_T, REF_Z, SMOOTH_Z, TOP_Z, empty_holds
 from estimator.config import ReasonerConfig
-from estimator.holding import push_grips, pushes_ended, slide_around_hand, stratified_uniforms
-from estimator.mechanisms.release import release_on_loss
+from estimator.model.holding import push_grips, pushes_ended, slide_around_hand, stratified_uniforms
+from estimator.model.mechanisms.release import release_on_loss
 from estimator.model import initial_poses
 from estimator.observations import Detection, Frame
-from estimator.perception_memory import PerceptionMemory
+from estimator.model.perception_memory import PerceptionMemory
 from physics.scene import scene_from_dict
 
 
@@ -74,7 +74,7 @@ def test_a_held_object_that_leaves_view_in_motion_is_let_go_in_every_particle():
 
 
 def test_where_a_held_object_last_rested_out_of_view_is_kept_until_it_starts_again():
-    from estimator.holding import resting_place
+    from estimator.model.holding import resting_place
 
     K, M = 2, 1
     at, tt = np.zeros((K, M, 3)), np.full((K, M), -np.inf)
@@ -96,7 +96,7 @@ def test_a_held_object_set_down_out_of_view_is_let_go_when_its_hand_lifts_away()
     hand rose, nor after the crossing, nor without a tracked hand; let go where it rested, a Place."""
     from types import SimpleNamespace
 
-    from estimator.holding import let_go_where_rested, set_down_behind_cover
+    from estimator.model.holding import let_go_where_rested, set_down_behind_cover
 
     priors = ModePriors(put_down_touched=0.8, carry_distance=0.05)
     K = 4000
@@ -124,7 +124,7 @@ def test_a_held_object_set_down_out_of_view_is_let_go_when_its_hand_lifts_away()
 def test_hidden_places_are_a_uniform_sample_over_the_hidden_updates():
     """Reservoir sampling: after n hidden updates each of them is the sample with probability 1/n
     (a binomial band over many particles); a reset entry starts again; visible updates never count."""
-    from estimator.holding import hidden_places
+    from estimator.model.holding import hidden_places
 
     K, M, n = 4000, 1, 5
     rng = np.random.default_rng(7)
@@ -148,7 +148,7 @@ def test_the_lowest_hidden_place_is_kept_with_its_time():
     """Where (and when) the held object was lowest over its hidden updates, counted by
     :func:`hidden_places`; visible updates do not count; a reset entry starts again, its first
     hidden update then taken whatever its height."""
-    from estimator.holding import hidden_places, lowest_hidden_place
+    from estimator.model.holding import hidden_places, lowest_hidden_place
 
     K, M = 2, 1
     rng = np.random.default_rng(3)
@@ -184,7 +184,7 @@ def test_release_behind_cover_draws_from_the_posterior_and_weighs_the_move():
     from dataclasses import replace
 
     from estimator.config import NoiseConfig
-    from estimator.holding import release_behind_cover
+    from estimator.model.holding import release_behind_cover
 
     K, M = 5000, 2
     noise, priors = NoiseConfig(), ModePriors()

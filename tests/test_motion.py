@@ -1,4 +1,4 @@
-"""estimator.motion alone, on hand-built arrays: teleport kinds, placing, rolling spin, reach, let-goes."""
+"""estimator.model.motion alone, on hand-built arrays: teleport kinds, placing, rolling spin, reach, let-goes."""
 import math
 
 import numpy as np
@@ -6,8 +6,8 @@ import pytest
 
 from actions.modes import FREE, HELD, ModePriors
 from estimator.config import NoiseConfig
-from estimator.likelihood import mode_switch_log_prior
-from estimator.motion import let_go_moving, out_of_reach, place, roll_released, rolled_along, rolling_spin, teleport_kinds
+from estimator.model.likelihood import mode_switch_log_prior
+from estimator.model.motion import let_go_moving, out_of_reach, place, roll_released, rolled_along, rolling_spin, teleport_kinds
 
 
 def test_rolled_along_means_faster_than_the_threshold_horizontally_and_slower_vertically():
@@ -164,7 +164,7 @@ def test_no_let_go_in_motion_when_falling_or_slow_or_never_tried(velocity):
 
 
 def test_drop_heights_measure_the_fall_to_the_highest_top_under_the_footprint():
-    from estimator.motion import drop_heights
+    from estimator.model.motion import drop_heights
 
     # particle 0: a cup (object 1) 5 cm over a table top (object 0, top at 0.6); particle 1: the same
     # cup beside the table, 0.7 m over the floor; object 2, a box beside the cup, never counts

@@ -1,8 +1,8 @@
-"""The scene model's noise (estimator.noise): process noise and regularisation kernels, alone."""
+"""The scene model's noise (estimator.model.noise): process noise and regularisation kernels, alone."""
 import numpy as np
 
 from estimator.config import NoiseConfig
-from estimator.noise import process_noise, regularisation_kernels
+from estimator.model.noise import process_noise, regularisation_kernels
 
 
 def _poses(K, M):

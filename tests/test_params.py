@@ -1,9 +1,9 @@
-"""estimator.params: Liu-West shrinkage of the physical parameters."""
+"""estimator.model.params: Liu-West shrinkage of the physical parameters."""
 import math
 
 import numpy as np
 
-from estimator.params import shrink_params
+from estimator.model.params import shrink_params
 
 
 def test_liu_west_shrinkage_keeps_mean_and_spread():

@@ -7,8 +7,8 @@ import pytest
 from estimator.config import HandConfig, ReasonerConfig
 from estimator.model import initial_poses
 from estimator.observations import Detection, Frame
-from estimator.detection_noise import ONSET_FALSE_ALARM, ONSET_SIGMAS
-from estimator.perception_memory import MOTION_ONSET, VELOCITY_WINDOW, PerceptionMemory
+from estimator.model.detection_noise import ONSET_FALSE_ALARM, ONSET_SIGMAS
+from estimator.model.perception_memory import MOTION_ONSET, VELOCITY_WINDOW, PerceptionMemory
 from physics.scene import scene_from_dict
 
 TABLE, CUP, BALL = range(3)
@@ -181,7 +181,7 @@ def test_detections_and_hands_outside_the_workspace_are_rejected_and_counted():
 
 
 def test_hand_travel_is_the_filtered_hand_displacement_since_the_object_was_last_seen():
-    """The hand's position is its filtered one (estimator.hands), remembered at each detection of
+    """The hand's position is its filtered one (estimator.model.hands), remembered at each detection of
     the object it holds; hand_travel is the distance from there to the hand now (NaN for objects
     no hand held). Exact positions: a still hand is where it is; one that moved and stopped is,
     after a second, where it stopped."""
@@ -224,7 +224,7 @@ def test_held_offset_is_averaged_over_the_frames_that_show_object_and_hand():
 
 
 def test_motion_onset_is_the_last_still_detection_and_ends_when_still_again():
-    from estimator.perception_memory import MOTION_ONSET
+    from estimator.model.perception_memory import MOTION_ONSET
 
     mem = memory()
     rng = np.random.default_rng(4)
@@ -258,7 +258,7 @@ def test_an_object_that_starts_moving_slowly_after_a_pause_is_not_still_again():
     before the new detection it moved under MOTION_ONSET (it looks still), but the new detection is
     farther than MOTION_ONSET from the one a place_dwell before it: the onset stays. Held still
     instead, it is still again."""
-    from estimator.perception_memory import MOTION_ONSET
+    from estimator.model.perception_memory import MOTION_ONSET
 
     for slides in (True, False):
         mem = memory()

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from estimator.pool import BatchInput, WorldPool, shard_bounds
+from estimator.worlds.pool import BatchInput, WorldPool, shard_bounds
 from physics.visibility import first_copies, visible_fractions
 
 from helpers import TABLE_TOP, table_scene
@@ -188,7 +188,7 @@ def test_looks_with_copies_and_shortcuts_equal_plain_ray_tests_for_any_worker_co
     """Particle 3 copies particle 2 (same client), 5 copies 1 (another client, another worker): a
     look computes each distinct particle once. Its answers, with the box tests, solids (the wall,
     the table top) and short rays, equal plain ray tests in each particle's world."""
-    from estimator.search.looks import static_boxes
+    from estimator.applications.search.looks import static_boxes
     from physics import sightlines
     from physics.scene import CameraSpec
 
@@ -236,7 +236,7 @@ def test_looks_with_copies_and_shortcuts_equal_plain_ray_tests_for_any_worker_co
 
 
 def test_a_shard_keeps_a_bounded_number_of_cameras_the_scenes_always_first_built():
-    from estimator.shard import CACHED_CAMERAS, _Shard
+    from estimator.worlds.shard import CACHED_CAMERAS, _Shard
     from physics.scene import CameraSpec
     from physics.world import PhysicsSettings
 
@@ -258,7 +258,7 @@ def test_a_shard_keeps_a_bounded_number_of_cameras_the_scenes_always_first_built
 
 
 def test_a_pool_with_room_for_more_spreads_any_k_over_its_clients_builds_as_needed_and_parks_what_it_drops():
-    from estimator.pool import interleaved_slots
+    from estimator.worlds.pool import interleaved_slots
 
     assert interleaved_slots([(0, 3), (3, 6), (6, 8)]).tolist() == [0, 3, 6, 1, 4, 7, 2, 5]
     m = 2

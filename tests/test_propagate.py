@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from actions.modes import FREE, HELD
-from estimator.propagate import (PER_PARTICLE, BatchInput, ParticleWorld, StepInput, depenetrate, propagate,
+from estimator.worlds.propagate import (PER_PARTICLE, BatchInput, ParticleWorld, StepInput, depenetrate, propagate,
                                  propagate_batch)
 from physics.world import PhysicsSettings, World
 

@@ -8,12 +8,12 @@ from actions.modes import HELD
 from estimator.config import EstimatorConfig, NoiseConfig
 from estimator.filter import SceneEstimator
 from estimator.observations import Frame
-from estimator.search import (ClosedLoopSearch, ParticleSet, Region, SearchConfig, Viewpoint, ViewpointError,
+from estimator.applications.search import (ClosedLoopSearch, ParticleSet, Region, SearchConfig, Viewpoint, ViewpointError,
                               plan_search, read_viewpoints)
-from estimator.search.looks import static_boxes, travel_costs
-from estimator.search.plan import (bayes_after_miss, brute_force_order, exact_order, expected_cost, greedy_order,
+from estimator.applications.search.looks import static_boxes, travel_costs
+from estimator.applications.search.plan import (bayes_after_miss, brute_force_order, exact_order, expected_cost, greedy_order,
                                    plan_order)
-from estimator.search.regions import assign, derive_regions, region_probabilities, table_of
+from estimator.applications.search.regions import assign, derive_regions, region_probabilities, table_of
 from experiments.cli import main
 from physics.scene import CameraSpec
 
@@ -324,7 +324,7 @@ def test_the_person_sees_and_reaches_a_cup_the_robot_cannot_see():
 # -- point guesses and what the person hides ----------------------------------------------------------------
 
 def test_a_look_at_a_point_aims_at_it_and_finds_what_is_there():
-    from estimator.search import look_at_point
+    from estimator.applications.search import look_at_point
 
     with _split_estimator() as est:
         cup = est.object_ids.index("cup")
@@ -338,7 +338,7 @@ def test_a_look_at_a_point_aims_at_it_and_finds_what_is_there():
 
 
 def test_a_plan_never_looks_where_it_cannot_find_the_object():
-    from estimator.search import person_hides
+    from estimator.applications.search import person_hides
 
     with _split_estimator() as est:
         cup = est.object_ids.index("cup")

@@ -8,8 +8,8 @@ import pytest
 from estimator.config import EstimatorConfig
 from estimator.filter import SceneEstimator
 from estimator.observations import Frame
-from estimator.search import PlannedLook, SearchConfig, Viewpoint
-from estimator.search.looks import static_boxes
+from estimator.applications.search import PlannedLook, SearchConfig, Viewpoint
+from estimator.applications.search.looks import static_boxes
 from experiments.search.trial import (FLOOR_MARGIN, MAX_LOOKS, SearchTrialSpec, choose_target, region_points,
                                       run_search_trial, search_with)
 from physics.scene import CameraSpec

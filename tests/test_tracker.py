@@ -10,8 +10,8 @@ from scipy.stats import chi2
 
 from estimator.belief import Belief, ObjectBelief, region_radius_sq
 from estimator.observations import Detection, Frame
-from estimator.hands import process_noise, transition
-from estimator.tracker import H_POS, PhysicsAwareTracker, TrackerConfig
+from estimator.model.hands import process_noise, transition
+from estimator.applications.tracker import H_POS, PhysicsAwareTracker, TrackerConfig
 
 DT = 1 / 30
 

@@ -1,7 +1,7 @@
-"""What each particle's world holds (estimator/world_cache.py)."""
+"""What each particle's world holds (estimator/worlds/world_cache.py)."""
 import numpy as np
 
-from estimator.world_cache import WorldCache
+from estimator.worlds.world_cache import WorldCache
 
 
 def _state(K=3, M=2, seed=0):

@@ -7,7 +7,7 @@
 
 Runs the estimator over the stream up to ``--at`` (default: its end), then prints the search regions
 ranked by probability, the order of the looks, the viewpoint of each, its probability of finding the
-object and the expected cost (:func:`estimator.search.plan_search`). ``--json`` prints one JSON
+object and the expected cost (:func:`estimator.applications.search.plan_search`). ``--json`` prints one JSON
 object (``regions``, ``plan``, ``expected_cost``, and ``object``, ``t``, ``p_found``, ``method``).
 """
 from __future__ import annotations
@@ -21,7 +21,7 @@ import numpy as np
 
 from estimator.filter import SceneEstimator
 from estimator.observations import ObservationReader
-from estimator.search import SearchConfig, plan_search, read_viewpoints
+from estimator.applications.search import SearchConfig, plan_search, read_viewpoints
 from physics.errors import InputError
 from physics.scene import load_scene
 

@@ -25,7 +25,7 @@ import time
 import numpy as np
 
 from estimator.observations import ObservationReader
-from estimator.tracker import PhysicsAwareTracker, TrackerConfig
+from estimator.applications.tracker import PhysicsAwareTracker, TrackerConfig
 from physics.scene import load_scene
 
 

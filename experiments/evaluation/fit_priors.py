@@ -4,7 +4,7 @@ What is fitted (see :class:`actions.modes.ModePriors` and :class:`estimator.conf
 
 * ``release_on_loss_carried`` / ``release_on_loss_still``: an object stops counting as perceived
   (``t_perceived`` after its last detection) while the tracked hand that was within
-  :data:`~estimator.perception_memory.HAND_RADIUS` of it at that detection held it in truth. The
+  :data:`~estimator.model.perception_memory.HAND_RADIUS` of it at that detection held it in truth. The
   hand has *carried* it when it moved more than ``carry_distance`` (smoothed as the estimator does)
   in between, else it is *still*. The prior is the fraction of such losses where the object was in
   truth no longer held at the loss, with Laplace's rule ``(released + 1) / (losses + 2)`` (no data
@@ -22,12 +22,12 @@ What is fitted (see :class:`actions.modes.ModePriors` and :class:`estimator.conf
   object is held in truth and not detected, after a detection with a tracked hand within that
   radius, the root-mean-square per axis of the true position minus where the memory puts it (the
   hand now plus the object's offset to it:
-  :meth:`~estimator.perception_memory.PerceptionMemory.hand_target`).
+  :meth:`~estimator.model.perception_memory.PerceptionMemory.hand_target`).
 * ``hand_std`` (:class:`~estimator.config.HandConfig` ``measurement_std``): over the frames with a
   tracked hand, the root-mean-square per axis of the tracked minus the true hand.
 * ``held_out_of_reach``: over the frames with a tracked hand where an object is held in truth and
   detected, the fraction where its detection lies farther than
-  :data:`~estimator.perception_memory.HAND_RADIUS` from every tracked hand; Laplace's rule.
+  :data:`~estimator.model.perception_memory.HAND_RADIUS` from every tracked hand; Laplace's rule.
 * ``hand_occlusion``: over the frames where an object is held in truth and the scene alone (the
   estimator's worlds: no hand, no person) would show it to the camera, the fraction where the truth
   (with the hand and the person) does not; again with Laplace's rule. Every held frame counts:
@@ -43,7 +43,7 @@ What is fitted (see :class:`actions.modes.ModePriors` and :class:`estimator.conf
   the fewest samples (a hand lowering an object faster is read as a drop; a drop slower, as still
   held, until the next step), the middle of the interval of such thresholds; it applies only with
   nothing under the object, which this count does not check.
-* ``accel_std`` (:class:`~estimator.tracker.TrackerConfig`, m/s^2): over the truth's frames where
+* ``accel_std`` (:class:`~estimator.applications.tracker.TrackerConfig`, m/s^2): over the truth's frames where
   an object is held (in a hand, which moves it as no physics does), its acceleration per axis from
   second differences of the true positions; the 99th percentile of their magnitudes, a robust
   maximum. A constant-velocity Kalman filter whose white acceleration is of the order of the largest
@@ -65,9 +65,9 @@ from actions.modes import ModePriors
 from estimator.config import RELEASE_DOWN_SPEED, EstimatorConfig, HandConfig, ReasonerConfig, reasoning_due
 from estimator.model import initial_poses
 from estimator.observations import parse_frame
-from estimator.hands import filtered_track
-from estimator.perception_memory import HAND_RADIUS, PerceptionMemory
-from estimator.tracker import PhysicsAwareTracker, TrackerConfig
+from estimator.model.hands import filtered_track
+from estimator.model.perception_memory import HAND_RADIUS, PerceptionMemory
+from estimator.applications.tracker import PhysicsAwareTracker, TrackerConfig
 from physics.visibility import Camera, local_sample_points, visible_fraction
 from physics.world import PhysicsSettings, World
 
@@ -117,7 +117,7 @@ def _hand_track(obs: list[dict]) -> list[np.ndarray | None]:
 
 
 def _filtered(hands: list[np.ndarray | None], t_obs: np.ndarray, config: HandConfig) -> list[np.ndarray | None]:
-    """The hand as the estimator's memory reads it at each frame (:func:`~estimator.hands.filtered_track`:
+    """The hand as the estimator's memory reads it at each frame (:func:`~estimator.model.hands.filtered_track`:
     its latest filtered position, None before the first)."""
     raw = np.array([np.full(3, np.nan) if h is None else h for h in hands]).reshape(-1, 3)
     track = filtered_track(t_obs, raw, config)
@@ -175,7 +175,7 @@ def count_losses(obs: list[dict], truth: list[dict], reasoner: ReasonerConfig, p
 def count_offsets(result, config: EstimatorConfig, spread: Spread, hand_error: Spread | None = None) -> None:
     """Add to ``spread`` the deviations of held, undetected objects from where the estimator's
     perception memory (``config.reasoner``, ``config.hands``; replayed on the stream of ``result``,
-    the simulator's) puts them by their hand (:meth:`~estimator.perception_memory.PerceptionMemory.hand_target`),
+    the simulator's) puts them by their hand (:meth:`~estimator.model.perception_memory.PerceptionMemory.hand_target`),
     one per frame while the truth holds them; to ``hand_error``, the tracked minus the true hand of
     every frame with a tracked hand the truth also has."""
     scene = result.scene
@@ -236,7 +236,7 @@ def count_set_downs(obs: list[dict], truth: list[dict], priors: ModePriors, touc
 def count_out_of_reach(obs: list[dict], truth: list[dict], out_of_reach: Counts) -> None:
     """Add the frames of one run (``obs``, ``truth``: the simulator's lines) with a tracked hand in
     which an object held in truth is detected: a hit when no tracked hand is within
-    :data:`~estimator.perception_memory.HAND_RADIUS` of the detection."""
+    :data:`~estimator.model.perception_memory.HAND_RADIUS` of the detection."""
     t_true = np.array([r["t"] for r in truth])
     for o in obs:
         if not o.get("hands") or not o["objects"]:
@@ -296,7 +296,7 @@ def count_descents(result, reasoner: ReasonerConfig, held: list[float], let_go: 
     and the one before; to ``let_go``, for each time the truth let an object go, the largest over
     the steps of the following ``window`` seconds (s) while it stays let go (the rule may fire at
     any of them; none if it was never seen falling then). ``filtered``: the stream as the Kalman
-    tracker filters it (:class:`~estimator.tracker.PhysicsAwareTracker`, no feedback; what
+    tracker filters it (:class:`~estimator.applications.tracker.PhysicsAwareTracker`, no feedback; what
     ``scene-estimator track`` writes and the estimator also takes), whose accelerations are damped."""
     scene, M = result.scene, len(result.scene.objects)
     tracker = PhysicsAwareTracker(TrackerConfig(feed_estimator=True), tuple(o.id for o in scene.objects

@@ -12,7 +12,7 @@ name                       what it is
                            does) and held objects do not follow the tracked hands
 ``particles-no-negative``  ablation: no negative evidence from the camera
 ``tracker``                a constant-velocity Kalman tracker alone
-                           (:class:`~estimator.tracker.PhysicsAwareTracker` without feedback): its
+                           (:class:`~estimator.applications.tracker.PhysicsAwareTracker` without feedback): its
                            positions and covariances, no relations; a lost object is unknown (NaN)
                            once its track is dropped
 ``tracker-feedback``       the tracker kept alive by the particle estimator, which runs beside it
@@ -43,7 +43,7 @@ from estimator.config import (AdaptiveConfig, EstimatorConfig, NoiseConfig, Reas
 from estimator.filter import SceneEstimator
 from estimator.observations import Frame
 from estimator.relations import relation_list, relation_masks
-from estimator.tracker import PhysicsAwareTracker, TrackerConfig
+from estimator.applications.tracker import PhysicsAwareTracker, TrackerConfig
 from physics.scene import Scene
 from physics.world import World
 
@@ -357,7 +357,7 @@ def run_method(name: str, scene: Scene, frames: list[Frame], particles: int, rng
 
 
 class TrackerMethod:
-    """The Kalman tracker (:class:`~estimator.tracker.PhysicsAwareTracker`) as a method.
+    """The Kalman tracker (:class:`~estimator.applications.tracker.PhysicsAwareTracker`) as a method.
 
     ``mode`` ``"alone"``: the tracker without feedback, reasoning on the estimator's schedule (every
     ``horizon`` s); its positions and position covariances, no relations, never held.
@@ -392,7 +392,7 @@ class TrackerMethod:
 
     def update(self, frame: Frame) -> tuple[StepEstimate, Belief | None] | None:
         """One frame; the step and the estimator's belief (``None`` when it has none) at a reasoning
-        step. The tracker's :class:`~estimator.tracker.Outcome` of the frame is :attr:`outcome`."""
+        step. The tracker's :class:`~estimator.applications.tracker.Outcome` of the frame is :attr:`outcome`."""
         self.outcome = self.tracker.update(frame)
         if self.mode == "input":
             belief = self.estimator.update(self.tracker.to_frame(hands=frame.hands, detected_only=True))

@@ -14,7 +14,7 @@ every method.
 ======================  ===========================================================================
 method                  looks
 ======================  ===========================================================================
-``closed-loop``         :class:`~estimator.search.ClosedLoopSearch` on the particle estimator: the
+``closed-loop``         :class:`~estimator.applications.search.ClosedLoopSearch` on the particle estimator: the
                         plan's first look; on a miss the look is fed to the estimator as a frame
                         (with the other objects it saw) and the plan is made again
 ``open-loop``           the particle estimator's first plan, look after look (Bayes' rule on the
@@ -26,7 +26,7 @@ method                  looks
 
 When a method has no look left (a plan exhausted, a baseline after its first look), it goes on
 with the regions it has not looked at, in a random order (seeded per trial and method), each
-looked at from the viewpoint :func:`~estimator.search.look_at_point` picks in that method's worlds
+looked at from the viewpoint :func:`~estimator.applications.search.look_at_point` picks in that method's worlds
 (the paper's reasoner's world for the baselines). Regions and their points are those a searcher
 without particles would use (:func:`region_points`).
 """
@@ -42,8 +42,8 @@ import numpy as np
 from estimator.config import EstimatorConfig
 from estimator.filter import SceneEstimator
 from estimator.observations import Detection, parse_frame
-from estimator.search import ClosedLoopSearch, PlannedLook, SearchConfig, look_at_point, plan_search
-from estimator.search.regions import derive_regions, table_of
+from estimator.applications.search import ClosedLoopSearch, PlannedLook, SearchConfig, look_at_point, plan_search
+from estimator.applications.search.regions import derive_regions, table_of
 
 from experiments.evaluation.methods import method_config
 from experiments.simulation.simulator import open_simulation

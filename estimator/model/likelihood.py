@@ -1,0 +1,434 @@
+"""The terms of a particle's log-weight, one pure array function each, and the terms as objects.
+
+K particles, M objects; positions in metres, quaternions ``(x, y, z, w)``, angles in radians. Every
+function returns log-likelihoods (natural log, float64) and needs no estimator object.
+
+* :func:`position_log_likelihood`: heavy-tailed (Gaussian plus uniform outliers) position likelihood;
+* :func:`orientation_log_likelihood`: heavy-tailed orientation likelihood;
+* :func:`detection_log_likelihood`: both, summed over the detected objects;
+* :func:`negative_evidence_log_likelihood`: undetected objects a particle puts in plain view;
+* :func:`mode_switch_log_prior`: the prior cost of the evidence-triggered mode switches;
+* :func:`hand_reach_log_likelihood`: a held object seen out of reach of every tracked hand;
+* :func:`exploded_log_likelihood`: zero weight for particles whose simulation exploded.
+
+The scene model (:class:`~estimator.model.SceneModel`) weighs a particle with a tuple of *terms*:
+callables ``term(evidence) -> (K,)`` that read what they need from one :class:`Evidence` (the
+per-update arrays) and call one of the functions above. A new term (a search look, a tracker
+pseudo-measurement) is a new function here, a term object calling it, and one entry in the tuple
+:func:`~estimator.model.weighing.log_weight_terms` returns; data it needs that :class:`Evidence` does not hold yet
+becomes a new field of it (filled in :func:`~estimator.model.weighing.evidence`). Terms are added one after the other
+to the previous log-weights, in the order of that tuple; exploded particles get -inf whatever the
+terms say.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from actions.modes import HELD, ModePriors
+from physics.transforms import quat_angle
+
+
+def _with_outliers(log_density: np.ndarray, outlier_prob: float) -> np.ndarray:
+    """``log((1 - eps) * exp(log_density) + eps)``: the mixture with a uniform outlier component of
+    unit density (``eps = outlier_prob``; 0 leaves ``log_density`` as it is)."""
+    if outlier_prob > 0:
+        return np.logaddexp(math.log1p(-outlier_prob) + log_density, math.log(outlier_prob))
+    return log_density
+
+
+def position_log_likelihood(positions: np.ndarray, detected: np.ndarray, std: np.ndarray,
+                            outlier_prob: float) -> np.ndarray:
+    """Log-likelihood ``(K, N)`` float64 of N detected positions under each particle.
+
+    Args:
+        positions: ``(K, N, 3)`` the particles' positions of the N detected objects (m).
+        detected: ``(N, 3)`` the detected positions (m).
+        std: ``(N,)`` standard deviation of each detection, per axis (m; isotropic Gaussian).
+        outlier_prob: weight ``eps`` in [0, 1) of a uniform outlier density of 1 per m^3: the
+            likelihood is ``(1 - eps) N(x; mu, std^2 I) + eps`` (heavy tails: one wild detection
+            does not kill every particle).
+    """
+    axes = np.repeat(np.asarray(std, dtype=float)[:, None], 3, axis=1)  # (N, 3): one std per axis
+    z2 = np.sum(((positions - detected) / axes) ** 2, axis=-1)
+    log_n = -0.5 * z2 - 0.5 * np.sum(np.log(2 * math.pi * axes**2), axis=-1)
+    return _with_outliers(log_n, outlier_prob)
+
+
+def velocity_log_likelihood(velocities: np.ndarray, seen: np.ndarray, std: np.ndarray, mask: np.ndarray,
+                            outlier_prob: float) -> np.ndarray:
+    """Log-likelihood ``(K,)`` float64 of perceived horizontal velocities under the particles'.
+
+    Args:
+        velocities: ``(K, M, 2)`` each particle's horizontal velocity of each object (m/s).
+        seen: ``(M, 2)`` the perceived velocities (m/s).
+        std: ``(M,)`` their standard deviation per axis (m/s).
+        mask: ``(K, M)`` bool, the entries weighed (the others add nothing).
+        outlier_prob: as :func:`position_log_likelihood`, a uniform outlier density of 1 per (m/s)^2.
+    """
+    std = np.asarray(std, dtype=float)
+    z2 = np.sum(((velocities - seen[None]) / std[None, :, None]) ** 2, axis=-1)
+    log_n = -0.5 * z2 - np.log(2 * math.pi * std ** 2)[None, :]
+    return np.where(mask, _with_outliers(log_n, outlier_prob), 0.0).sum(axis=1)
+
+
+def orientation_log_likelihood(orientations: np.ndarray, detected: np.ndarray, orientation_std: float,
+                               outlier_prob: float) -> np.ndarray:
+    """Log-likelihood ``(K, N)`` float64 of N detected orientations under each particle.
+
+    Args:
+        orientations: ``(K, N, 4)`` unit quaternions (x, y, z, w) of the particles' objects.
+        detected: ``(N, 4)`` detected unit quaternions (x, y, z, w).
+        orientation_std: standard deviation of the rotation angle between them (rad, > 0).
+        outlier_prob: weight ``eps`` of the outlier component, as :func:`position_log_likelihood`.
+
+    The log-density is ``-0.5 (angle / std)^2``, unnormalised (the constant is the same for every
+    particle), mixed with the outlier floor: ``log((1 - eps) exp(-0.5 (angle / std)^2) + eps)``.
+    """
+    ang = quat_angle(orientations, detected)
+    return _with_outliers(-0.5 * (ang / orientation_std) ** 2, outlier_prob)
+
+
+def detection_log_likelihood(poses: np.ndarray, detected: np.ndarray, has_orientation: np.ndarray,
+                             position_std: np.ndarray, orientation_std: float,
+                             outlier_prob: float) -> np.ndarray:
+    """Log-likelihood ``(K,)`` float64 of N detections: per object, the position term plus, for
+    detections with an orientation (when ``orientation_std > 0``), the orientation term; summed.
+
+    Args:
+        poses: ``(K, N, 7)`` the particles' poses (position m, quaternion x, y, z, w) of the objects.
+        detected: ``(N, 7)`` the detected poses (the quaternion is read only where ``has_orientation``).
+        has_orientation: ``(N,)`` bool, detections that came with an orientation.
+        position_std: ``(N,)`` m, see :func:`position_log_likelihood`.
+        orientation_std: rad; 0 ignores orientations.
+        outlier_prob: see :func:`position_log_likelihood`.
+    """
+    ll = position_log_likelihood(poses[..., :3], detected[:, :3], position_std, outlier_prob)
+    if orientation_std > 0 and np.any(has_orientation):
+        ll[:, has_orientation] += orientation_log_likelihood(
+            poses[:, has_orientation, 3:], detected[has_orientation, 3:], orientation_std, outlier_prob)
+    return ll.sum(axis=1)
+
+
+def negative_evidence_log_likelihood(visible: np.ndarray, modes: np.ndarray, queried: np.ndarray,
+                                     in_tracked_hand: np.ndarray, miss_prob: float,
+                                     visibility_threshold: float, hand_occlusion: float | np.ndarray = 1.0,
+                                     unseen_in_view: np.ndarray | None = None,
+                                     perceived: np.ndarray | None = None,
+                                     exempt: np.ndarray | None = None) -> np.ndarray:
+    """Log-likelihood ``(K,)`` float64 of *not* detecting the ``queried`` objects.
+
+    A particle pays ``log(miss_prob)`` for each queried object it puts in view of the camera (visible
+    fraction at least ``visibility_threshold``), nothing for the others.
+
+    An object HELD by a tracked hand may also be hidden by the hand or its person, which the particle
+    worlds do not contain, and such a hiding lasts (a cup carried behind the back stays there): with
+    probability ``hand_occlusion`` the person keeps it hidden, otherwise the camera misses it at each
+    update with ``miss_prob``. After ``n`` updates in view without a detection the likelihood is
+    ``h + (1 - h) miss_prob**n``; the update that makes it ``n + 1`` pays the ratio of the two. So a
+    hand that stays in plain view while its object is not seen any more makes the particles that keep
+    the object in it lose weight to those that let it go, but never more than a factor ``h`` in all.
+    ``hand_occlusion = 1`` exempts held objects. The count starts when the object stops being
+    ``perceived``: before, every particle holds it (no release happens while perceived) and pays the same.
+
+    Args:
+        visible: ``(K, M)`` float, fraction of each object's sample points the camera sees (0..1).
+        modes: ``(K, M)`` int8, FREE / HELD.
+        queried: ``(M,)`` bool, the known, dynamic, undetected objects whose visibility was computed.
+        in_tracked_hand: ``(M,)`` bool, objects whose hand (when last detected) is tracked now.
+        miss_prob: probability in (0, 1] that the camera misses an object in plain view.
+        visibility_threshold: fraction of points in view for an object to count as visible.
+        hand_occlusion: probability in [0, 1] that the person hides the object their hand holds, one
+            for all or ``(M,)`` per object (0 for an object whose hand has not moved since it was
+            seen: only the hand itself, already in ``visible``, can hide it then).
+        unseen_in_view: ``(K, M)`` int, ``n`` before this update (None: zeros).
+        perceived: ``(M,)`` bool, objects still perceived (None: none).
+        exempt: ``(K, M)`` bool, entries that pay nothing (``Evidence.fell_unseen``; None: none).
+    """
+    if not np.any(queried):
+        return np.zeros(len(visible))
+    in_hand = (modes == HELD) & np.asarray(in_tracked_hand, dtype=bool)[None, :]
+    seen = visible >= visibility_threshold
+    if exempt is not None:
+        seen = seen & ~exempt
+    out = math.log(miss_prob) * (seen & ~in_hand)[:, queried].sum(axis=1)
+    if perceived is not None:
+        in_hand = in_hand & ~np.asarray(perceived, dtype=bool)[None, :]
+    h = np.broadcast_to(np.asarray(hand_occlusion, dtype=float), (len(queried),))[queried]
+    if np.any(h < 1.0):
+        held_seen = (seen & in_hand)[:, queried] & (h < 1.0)[None, :]
+        if np.any(held_seen):
+            n = np.zeros(held_seen.shape) if unseen_in_view is None else unseen_in_view[:, queried].astype(float)
+            step = np.log(h + (1.0 - h) * miss_prob ** (n + 1)) - np.log(h + (1.0 - h) * miss_prob ** n)
+            out = out + np.where(held_seen, step, 0.0).sum(axis=1)
+    return out
+
+
+def hidden_by_person(unseen_in_view: np.ndarray, hand_occlusion: float, miss_prob: float) -> np.ndarray:
+    """The probability (float64, same shape as ``unseen_in_view``) that the person keeps a held
+    object hidden, after ``n = unseen_in_view`` updates in view without a detection, under the
+    model of :func:`negative_evidence_log_likelihood`: ``h / (h + (1 - h) miss_prob**n)`` (``h`` at
+    ``n = 0``; 1 when ``hand_occlusion`` is 1). What a look at the hand can still hope to see is
+    one minus this."""
+    h = float(hand_occlusion)
+    if h >= 1.0:
+        return np.ones(np.shape(unseen_in_view))
+    miss_n = float(miss_prob) ** np.asarray(unseen_in_view, dtype=float)
+    return h / (h + (1.0 - h) * miss_n)
+
+
+def held_unseen_in_view(ev: "Evidence", visibility_threshold: float) -> np.ndarray:
+    """The counts ``(K, M)`` int32 after this update: ``ev.unseen_in_view`` plus one where a held,
+    unperceived object in a tracked hand was queried and in view; zero for objects detected in this
+    update or not held (see :func:`negative_evidence_log_likelihood`)."""
+    n = ev.unseen_in_view.astype(np.int32, copy=True)
+    in_hand = (ev.modes == HELD) & (np.asarray(ev.in_tracked_hand, dtype=bool) & ~ev.perceived)[None, :]
+    counted = in_hand & ev.queried[None, :] & (ev.visible >= visibility_threshold)
+    n[counted] += 1
+    n[(ev.modes != HELD) | ev.detected[None, :]] = 0
+    return n
+
+
+def mode_switch_log_prior(priors: ModePriors, previous: np.ndarray, new: np.ndarray,
+                          perceived: np.ndarray) -> np.ndarray:
+    """Log-prior ``(K,)`` float64 of the Pick / Place switches of an update, summed over objects
+    (:meth:`ModePriors.log_prior_cost`: ``log(p)`` for a switch, ``log(1 - p)`` for an object that
+    could have switched and did not, 0 for unperceived objects; -inf for a switch of prior 0).
+
+    Args:
+        priors: the switch probabilities.
+        previous, new: ``(K, M)`` int8 modes before and after the update.
+        perceived: ``(M,)`` bool, objects perceived in this update.
+    """
+    return priors.log_prior_cost(previous, new, np.asarray(perceived, dtype=bool)[None, :]).sum(axis=1)
+
+
+def hand_reach_log_likelihood(modes: np.ndarray, out_of_reach: np.ndarray, held_out_of_reach: float) -> np.ndarray:
+    """Log-likelihood ``(K,)`` float64 of where the tracked hands are, given who holds what: each
+    particle pays ``log(held_out_of_reach)`` for every object it has HELD that is detected out of reach
+    of every tracked hand (an agent moves what it holds with a hand; the prior is the probability
+    that it is a hand nobody tracks). Free objects, and held objects within reach, pay nothing: the
+    hands' positions say nothing about them.
+
+    Args:
+        modes: ``(K, M)`` int8, FREE / HELD after this update.
+        out_of_reach: ``(M,)`` bool, objects detected in this update farther than the reach from every
+            hand tracked in it (none when no hand is tracked).
+        held_out_of_reach: probability in [0, 1] (0: such a particle gets zero weight).
+    """
+    n = np.sum((np.asarray(modes) == HELD) & np.asarray(out_of_reach, dtype=bool)[None, :], axis=1)
+    if held_out_of_reach > 0:
+        return n * math.log(held_out_of_reach)
+    return np.where(n > 0, -np.inf, 0.0)
+
+
+def exploded_log_likelihood(finite: np.ndarray) -> np.ndarray:
+    """``(K,)`` float64: 0 for particles whose simulation stayed finite, -inf (zero weight) for those
+    that exploded (NaN or runaway velocities; ``finite (K,)`` bool from the pool)."""
+    return np.where(finite, 0.0, -np.inf)
+
+
+# -- the terms the scene model evaluates ------------------------------------------------------------
+@dataclass(frozen=True)
+class Evidence:
+    """What the terms of one update read (K particles, M objects).
+
+    * ``poses (K, M, 7)``: the particles after physics; ``predicted (K, M, 7)``: before the update's
+      teleports (a teleported object is scored where the particle expected it, not where it was put).
+    * ``previous_modes``, ``modes`` ``(K, M)`` int8: modes at the previous update and now.
+    * ``detected (M,)``: dynamic objects detected since the previous update; ``teleported (M,)``;
+      ``perceived (M,)``: dynamic objects seen within ``t_perceived``.
+    * ``detected_poses (M, 7)``: latest detection per object, carried to the update's time when it
+      was detected in an earlier frame, by its tracked hand or at its velocity (m; quaternion x, y, z, w,
+      :meth:`~estimator.model.perception_memory.PerceptionMemory.detections_now`);
+      ``has_orientation (M,)``; ``detection_std (M,)`` m, the detector's position std (NaN: unknown).
+    * ``visible (K, M)``: visible fractions from the pool (0 where not queried); ``queried (M,)``:
+      objects whose visibility was computed; ``in_tracked_hand (M,)``: objects whose hand is tracked.
+    * ``finite (K,)``: particles whose simulation stayed finite.
+    * ``unseen_in_view (K, M)`` int: the particles' counts before this update (see
+      :class:`~estimator.state.ParticleState`).
+    * ``fell_unseen (K, M)`` bool: free objects the particle let go less than ``t_perceived`` ago
+      when they stopped being perceived: in truth they fell in the ``t_perceived`` before, unseen,
+      and the particle's late fall in view is no evidence against it (None: none).
+    * ``proposal_log_weight (K,)``: the weight factor of this update's importance moves (objects
+      let go behind cover, :func:`~estimator.model.holding.release_behind_cover`; None: none).
+    * ``fused (K, M)`` bool: resting objects moved towards their detection before physics
+      (:func:`~estimator.model.fusion.ensemble_kalman_step`), scored, as teleported ones, where the
+      particle expected them (None: none).
+    * ``out_of_reach (M,)`` bool: objects detected in this update out of reach of every tracked
+      hand (None: no hand tracked, or hands not followed).
+    * ``diverged (K, M)`` float: for free, checked objects that physics let diverge from their
+      detection by more than ``d_sim_perc`` during the update (Algorithm 1: the world then put
+      them on the perception and held them there), the divergence at that moment (m); NaN elsewhere
+      (None: none). They are scored at that distance from their detection, not where they were put:
+      the override is a correction, not evidence that the particle was right.
+    * ``carried (M,)`` bool: objects whose tracked hand has moved more than ``carry_distance`` since
+      they were last seen (the person may hide what they carry: ``NoiseConfig.hand_occlusion``
+      applies to them only; None: to every held object).
+    * ``velocity_check (K, M)`` bool: objects seen moving along their support at this update and
+      the last, free in the particle at the last one, whose horizontal velocity then,
+      ``predicted_velocity (K, M, 2)`` (m/s, what the particle's physics had made of it, friction
+      included), is weighed against the one perceived now, ``seen_velocity (M, 2)`` with standard
+      deviation ``seen_velocity_std (M,)`` (the line fitted through the detections over 0.2 s,
+      whose slope is the velocity about 0.1 s back: where the particle's is). A teleport in motion
+      gives every particle the perceived velocity again at every update, so the position alone
+      says little about how fast the object slows down; this does (None: none).
+    * ``fell (M,)`` bool: objects seen rolling along at the previous update and falling off their
+      support in this one (:class:`~estimator.model.step.Fall`); in the particles where they are free after
+      the update (free before, or let go by the Release rule) they are scored on their horizontal
+      position only. A particle's prediction carries the object on at its velocity, which knows
+      nothing of when the fall began: up to ``g dt**2 / 2`` (4.9 cm at 10 Hz) of height no particle
+      can explain better than another, and weighed at a detection's few millimetres it would leave
+      one survivor. A copy still held is weighed on its height: on a lagging (filtered) stream the
+      Release rule may not let it go, and held in the air it must not be spared (None: none).
+    """
+
+    poses: np.ndarray
+    predicted: np.ndarray
+    previous_modes: np.ndarray
+    modes: np.ndarray
+    detected: np.ndarray
+    teleported: np.ndarray
+    perceived: np.ndarray
+    detected_poses: np.ndarray
+    has_orientation: np.ndarray
+    detection_std: np.ndarray
+    visible: np.ndarray
+    queried: np.ndarray
+    in_tracked_hand: np.ndarray
+    finite: np.ndarray
+    unseen_in_view: np.ndarray
+    fell_unseen: np.ndarray | None = None
+    proposal_log_weight: np.ndarray | None = None
+    fused: np.ndarray | None = None
+    out_of_reach: np.ndarray | None = None
+    diverged: np.ndarray | None = None
+    fell: np.ndarray | None = None
+    carried: np.ndarray | None = None
+    velocity_check: np.ndarray | None = None
+    predicted_velocity: np.ndarray | None = None
+    seen_velocity: np.ndarray | None = None
+    seen_velocity_std: np.ndarray | None = None
+
+
+LogWeightTerm = Callable[[Evidence], np.ndarray]
+"""A term of the log-weight: ``term(evidence) -> (K,)`` float64."""
+
+
+@dataclass(frozen=True)
+class DetectionTerm:
+    """The detections of this update (:func:`detection_log_likelihood`). A detection without a std
+    uses ``max(default_std, 1e-3)`` m. Objects teleported or fused before physics are scored where
+    the particle expected them (``Evidence.predicted``); objects that physics let diverge
+    (``Evidence.diverged``) at their divergence from the detection, with the orientation the
+    particle expected (the isotropic position term depends on that distance only); objects that
+    fell off their support in the update (``Evidence.fell``), and are free after it, on their
+    horizontal position only."""
+
+    default_std: float
+    orientation_std: float
+    outlier_prob: float
+
+    def __call__(self, ev: Evidence) -> np.ndarray:
+        idx = np.flatnonzero(ev.detected)
+        if len(idx) == 0:
+            return np.zeros(len(ev.poses))
+        expected = np.broadcast_to(ev.teleported[idx][None, :], (len(ev.poses), len(idx)))
+        if ev.fused is not None:
+            expected = expected | ev.fused[:, idx]
+        src = np.where(expected[..., None], ev.predicted[:, idx], ev.poses[:, idx])  # a new array
+        if ev.diverged is not None:
+            d = ev.diverged[:, idx]
+            over = np.isfinite(d)
+            if np.any(over):  # a point at the divergence from the detection, along x
+                at = np.broadcast_to(ev.detected_poses[idx, :3], d.shape + (3,)).copy()
+                at[..., 0] += np.where(over, d, 0.0)
+                src[..., :3] = np.where(over[..., None], at, src[..., :3])
+                src[..., 3:] = np.where(over[..., None], ev.predicted[:, idx, 3:], src[..., 3:])
+        if ev.fell is not None and np.any(ev.fell[idx]):  # the height of a free one: the detection's own
+            flat = ev.fell[idx][None, :] & (ev.modes[:, idx] != HELD)
+            src[..., 2] = np.where(flat, ev.detected_poses[idx, 2][None, :], src[..., 2])
+        std = ev.detection_std[idx]
+        std = np.where(np.isfinite(std), std, max(self.default_std, 1e-3))
+        return detection_log_likelihood(src, ev.detected_poses[idx], ev.has_orientation[idx], std,
+                                        self.orientation_std, self.outlier_prob)
+
+
+@dataclass(frozen=True)
+class NegativeEvidenceTerm:
+    """Undetected objects in view (:func:`negative_evidence_log_likelihood`); ``hand_occlusion``
+    applies to the objects ``Evidence.carried`` says their hand carries (to every held one when it
+    is None), 0 to the others (1, paper mode's exemption, to all)."""
+
+    miss_prob: float
+    visibility_threshold: float
+    hand_occlusion: float = 1.0
+
+    def __call__(self, ev: Evidence) -> np.ndarray:
+        h = self.hand_occlusion
+        if ev.carried is not None and h < 1.0:
+            h = np.where(np.asarray(ev.carried, dtype=bool), h, 0.0)
+        return negative_evidence_log_likelihood(ev.visible, ev.modes, ev.queried, ev.in_tracked_hand,
+                                                self.miss_prob, self.visibility_threshold, h,
+                                                ev.unseen_in_view, ev.perceived, ev.fell_unseen)
+
+
+@dataclass(frozen=True)
+class VelocityTerm:
+    """Perceived velocities of objects moving on their support against what the particles' physics
+    made of their velocity over the last update (:func:`velocity_log_likelihood`; ``Evidence
+    .velocity_check``): how fast a rolled ball slows down is its rolling friction. ``slack`` (m/s)
+    is added in quadrature to each perceived velocity's standard error (the model's own error)."""
+
+    slack: float
+    outlier_prob: float
+
+    def __call__(self, ev: Evidence) -> np.ndarray:
+        if ev.velocity_check is None or not np.any(ev.velocity_check):
+            return np.zeros(len(ev.poses))
+        std = np.sqrt(np.asarray(ev.seen_velocity_std, dtype=float) ** 2 + self.slack ** 2)
+        return velocity_log_likelihood(ev.predicted_velocity, ev.seen_velocity, std, ev.velocity_check,
+                                       self.outlier_prob)
+
+
+@dataclass(frozen=True)
+class ModeSwitchTerm:
+    """The prior cost of Pick / Place (:func:`mode_switch_log_prior`)."""
+
+    priors: ModePriors
+
+    def __call__(self, ev: Evidence) -> np.ndarray:
+        return mode_switch_log_prior(self.priors, ev.previous_modes, ev.modes, ev.perceived)
+
+
+@dataclass(frozen=True)
+class HandReachTerm:
+    """Held objects seen out of reach of the tracked hands (:func:`hand_reach_log_likelihood`)."""
+
+    held_out_of_reach: float
+
+    def __call__(self, ev: Evidence) -> np.ndarray:
+        if ev.out_of_reach is None:
+            return np.zeros(len(ev.poses))
+        return hand_reach_log_likelihood(ev.modes, ev.out_of_reach, self.held_out_of_reach)
+
+
+@dataclass(frozen=True)
+class ProposalTerm:
+    """The weight factor of the scene model's importance moves (``Evidence.proposal_log_weight``)."""
+
+    def __call__(self, ev: Evidence) -> np.ndarray:
+        if ev.proposal_log_weight is None:
+            return np.zeros(len(ev.poses))
+        return np.asarray(ev.proposal_log_weight, dtype=float)
+
+
+def add_terms(log_weights: np.ndarray, terms: tuple[LogWeightTerm, ...], ev: Evidence) -> np.ndarray:
+    """``log_weights (K,)`` plus every term, added one after the other in the order given."""
+    out = log_weights.copy()
+    for term in terms:
+        out += term(ev)
+    return out

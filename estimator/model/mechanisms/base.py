@@ -1,0 +1,106 @@
+"""The parts every mechanism shares: the update's :class:`Draft`, the :class:`Mechanism` base and its
+declared arrays (:class:`ArraySpec`), the :data:`PHASES` (see :mod:`estimator.model.mechanisms`)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from actions.modes import FREE, HELD
+
+from ...state import ArraySpec
+
+__all__ = ["PHASES", "Draft", "Mechanism"]
+
+PHASES = ("perceive", "release", "let_go", "rest", "target", "noise", "check")
+"""The phases of an update's proposal, in the order they run."""
+
+
+@dataclass
+class Draft:
+    """The working arrays of one update's proposal, which the mechanisms' hooks read and write.
+
+    Inputs: ``state`` (:class:`~estimator.state.ParticleState` before the update), ``frame`` (the
+    newest), ``detected (M,)`` since the last update, ``perceived (M,)`` now, ``dt`` (s), ``rng``,
+    ``cameras`` (None: the scene's). Perception read once for all (:mod:`estimator.model.perception_memory`):
+    ``tick_vel (M, 3)`` m/s, ``following (M,)`` (detected in a tracked hand), ``far (M,)`` (detected
+    out of reach of every tracked hand; None: no hand tracked or hands not followed).
+
+    Working arrays (see :class:`~estimator.model.step.Move` for their meaning): ``poses``, ``vel``,
+    ``prev_modes``, ``modes``, ``release_codes``, ``predicted``, ``jitter``, ``tele``, ``newly_known``,
+    ``moving``, ``falling`` and ``spinning (M,)``, ``start (M, 3)``, ``fall`` (:class:`~estimator.model.step.Fall`),
+    ``set_moving``, ``speed_check``, ``left_view (M,)``, ``cover_t``, ``proposal (K,)``, ``grip``,
+    ``let_go``, ``resting``, ``nudged``, ``detections``, ``stale``, ``target``, ``target_vel``,
+    ``hold_error``, ``jolted``, ``check``."""
+
+    state: object
+    frame: object
+    detected: np.ndarray
+    perceived: np.ndarray
+    dt: float
+    rng: np.random.Generator
+    cameras: tuple | None
+    tick_vel: np.ndarray
+    following: np.ndarray
+    far: np.ndarray | None
+    poses: np.ndarray
+    vel: np.ndarray
+    prev_modes: np.ndarray
+    predicted: np.ndarray
+    jitter: np.ndarray
+    newly_known: np.ndarray
+    tele: np.ndarray
+    moving: np.ndarray
+    falling: np.ndarray
+    spinning: np.ndarray
+    start: np.ndarray | None = None
+    fall: object = None
+    set_moving: np.ndarray | None = None
+    speed_check: tuple | None = None
+    modes: np.ndarray | None = None
+    release_codes: np.ndarray | None = None
+    left_view: np.ndarray | None = None
+    cover_t: np.ndarray | None = None
+    proposal: np.ndarray | None = None
+    grip: np.ndarray | None = None
+    let_go: np.ndarray | None = None
+    resting: np.ndarray | None = None
+    nudged: np.ndarray | None = None
+    detections: np.ndarray | None = None
+    stale: np.ndarray | None = None
+    target: np.ndarray | None = None
+    target_vel: np.ndarray | None = None
+    hold_error: np.ndarray | None = None
+    jolted: np.ndarray | None = None
+    check: np.ndarray | None = None
+
+    @property
+    def t(self) -> float:
+        return self.frame.t
+
+    @property
+    def cover(self) -> np.ndarray:
+        """``(K, M)`` bool: the objects let go behind cover now."""
+        return np.isfinite(self.cover_t)
+
+    @property
+    def let_go_now(self) -> np.ndarray:
+        """``(K, M)`` bool: held at the last update, free now."""
+        return (self.prev_modes == HELD) & (self.modes == FREE)
+
+
+class Mechanism:
+    """One mechanism of the scene model, bound to it (``model``: its scene, configuration, perception
+    memory and static geometry). Subclasses override the hooks they need; the others do nothing.
+
+    ``arrays``: the per-particle arrays it keeps in the particle state, by name."""
+
+    arrays: dict[str, ArraySpec] = {}
+
+    def __init__(self, model):
+        self.model = model
+
+    def after_physics(self, poses: np.ndarray, aabbs: np.ndarray) -> np.ndarray:
+        """The particles' poses ``(K, M, 7)`` after physics (``aabbs (K, M, 2, 3)``), corrected (the
+        same array when nothing changes)."""
+        return poses

@@ -1,0 +1,33 @@
+"""Let go behind cover: a held object whose tracked hand hid it from the camera, and that is not
+perceived when the hand is seen again without it (or the hand leaves), was let go out of view: put
+down where it was lowest, or dropped at a place it was hidden (:func:`~estimator.model.holding.let_go_out_of_view`);
+an object pushed out of view slides around the hand that pushes it (the push grip). Not in the
+paper's mode."""
+from __future__ import annotations
+
+import numpy as np
+
+from ..holding import let_go_out_of_view
+from .base import ArraySpec, Draft, Mechanism
+
+
+class LetGoBehindCover(Mechanism):
+    """Fills :attr:`Draft.cover_t` (when each object let go now behind cover was let go), adds the
+    proposal's log-weight factor and the push grips (:attr:`Draft.grip`)."""
+
+    arrays = {"hidden_at": ArraySpec((3,)), "hidden_t": ArraySpec((), float, -np.inf),
+              "hidden_n": ArraySpec((), np.int32, 0), "down_at": ArraySpec((3,)),
+              "down_t": ArraySpec((), float, -np.inf), "rest_at": ArraySpec((3,)),
+              "rest_t": ArraySpec((), float, -np.inf), "push_grip": ArraySpec((), float, np.nan)}
+    """Where (and when) a held object was while its tracked hand kept it out of view, where it was
+    lowest then, where it last rested out of view (see :class:`~estimator.state.ParticleState`), and
+    the grip of the hand that pushes it out of view (NaN: none)."""
+
+    def release(self, u: Draft) -> None:
+        model, cfg = self.model, self.model.config
+        cover_t, proposal, u.grip = let_go_out_of_view(u.state, u.poses, u.vel, u.modes, u.release_codes, u.frame,
+                                                       model.memory, u.following, u.perceived, u.detected,
+                                                       cfg.priors, cfg.noise, u.rng, cfg.reasoner.push_lift,
+                                                       cfg.hands.measurement_std, model.round)
+        u.cover_t = cover_t
+        u.proposal = proposal

@@ -1,0 +1,23 @@
+"""Velocity evidence: an object seen moving along its support is weighed on how fast each particle's
+physics had it moving (its friction included) against the velocity now perceived
+(:class:`~estimator.model.likelihood.VelocityTerm`). Part of the full model (``moving_teleports``, with a
+``velocity_slack`` above 0)."""
+from __future__ import annotations
+
+from actions.modes import FREE
+
+from ..motion import rolled_along
+from .base import Draft, Mechanism
+
+
+class VelocityEvidence(Mechanism):
+    """Fills :attr:`Draft.speed_check`: the objects seen moving along their support at this and the
+    last update, free in the particle before it, with their velocity in it then and the perceived one."""
+
+    def perceive(self, u: Draft) -> None:
+        mem = self.model.memory
+        along = u.moving & ~u.falling & mem.perceived_prev & rolled_along(mem.previous_tick_velocity())
+        if along.any():
+            mask = along[None, :] & (u.prev_modes == FREE)
+            u.speed_check = (mask, u.state.velocities[..., :2].copy(), mem.perc_vel[:, :2].copy(),
+                             mem.velocity_std(self.model.config.noise.position_std))

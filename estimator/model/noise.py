@@ -1,0 +1,61 @@
+"""The scene model's noise: the process noise of free objects out of view and the kernels that
+jitter hidden objects after resampling (a regularised particle filter). Pure array functions; K
+particles, M objects, metres, seconds, quaternions x, y, z, w."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from physics.transforms import quat_from_rotvec, quat_multiply
+
+from ..belief import pose_stats
+from ..config import NoiseConfig
+
+
+def process_noise(poses: np.ndarray, free_unseen: np.ndarray, supported: np.ndarray, last_motion: np.ndarray,
+                  dt: float, noise: NoiseConfig, rng: np.random.Generator) -> np.ndarray:
+    """In place on ``poses (K, M, 7)``, for the entries ``free_unseen (K, M)``: a random walk of
+    ``process_position_std`` / ``process_orientation_std`` per sqrt(s) over ``dt`` seconds, plus
+    model error of ``motion_noise`` times the distance ``last_motion (K, M)`` an object moved on or
+    in its support (``supported (K, M)``) in the last update (rolling and sliding are chaotic;
+    flight is not), capped at ``max_jitter_std``. An object on its support is moved along it only
+    (horizontally, turned about the vertical): noise into the support or tilting it would be undone
+    by the contact solver at the cost of the object's momentum, and a rolling ball or can would
+    stop short. Returns the entries moved by more than 2 mm std ``(K, M)`` bool."""
+    K, M = free_unseen.shape
+    jolted = np.zeros((K, M), dtype=bool)
+    if (noise.process_position_std > 0 or noise.motion_noise > 0) and np.any(free_unseen):
+        rolling = np.where(supported, last_motion, 0.0)
+        s = np.sqrt(noise.process_position_std ** 2 * dt + (noise.motion_noise * rolling) ** 2)
+        s = np.minimum(s, noise.max_jitter_std)  # never through a wall
+        step = rng.normal(0.0, 1.0, (K, M, 3)) * s[..., None]
+        step[..., 2] = np.where(supported, 0.0, step[..., 2])  # its support holds it: along it only
+        poses[..., :3] += np.where(free_unseen[..., None], step, 0.0)
+        jolted = free_unseen & (s > 0.002)
+    if noise.process_orientation_std > 0 and np.any(free_unseen):
+        s = noise.process_orientation_std * math.sqrt(dt)
+        rotvec = rng.normal(0.0, s, (K, M, 3))
+        rotvec[..., :2] = np.where(supported[..., None], 0.0, rotvec[..., :2])  # on a support: about z only
+        dq = quat_from_rotvec(rotvec)
+        rotated = quat_multiply(dq, poses[..., 3:])
+        poses[..., 3:] = np.where(free_unseen[..., None], rotated, poses[..., 3:])
+    return jolted
+
+
+def regularisation_kernels(poses: np.ndarray, weights: np.ndarray, hidden: np.ndarray, bandwidth: float,
+                           max_std: float) -> dict[int, np.ndarray]:
+    """Per hidden object m (``hidden (M,)``) with a spread, the Cholesky factor ``(3, 3)`` (m) of the
+    jitter kernel: ``bandwidth`` times the weighted covariance of ``poses (K, M, 7)`` under
+    ``weights (K,)``, scaled down so that its largest std is at most ``max_std`` (m). Empty when
+    ``bandwidth`` is 0."""
+    kernels: dict[int, np.ndarray] = {}
+    if bandwidth > 0:
+        _, covs, _, _ = pose_stats(poses, weights)
+        for m in np.flatnonzero(hidden):
+            cov = covs[m]
+            if np.trace(cov) > 1e-10:
+                chol = np.linalg.cholesky(cov * bandwidth ** 2 + 1e-12 * np.eye(3))
+                largest = np.sqrt(np.max(np.linalg.eigvalsh(cov)) * bandwidth ** 2)
+                kernels[int(m)] = chol * min(1.0, max_std / largest)
+    return kernels

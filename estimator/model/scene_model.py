@@ -1,0 +1,323 @@
+"""The scene model: how a particle moves between two updates, and how it is weighed.
+
+K particles, M objects; positions in metres, quaternions ``(x, y, z, w)``, times in seconds. The
+model owns the perception memory (:class:`~estimator.model.perception_memory.PerceptionMemory`) and
+what arrived since the last update (:class:`~estimator.model.inputs.StepInputs`), and knows the
+scene and the configuration; the particle filter (:class:`~estimator.filter.SceneEstimator`) owns
+the particles and the worlds and calls, at each update, its narrow contract:
+
+1. :meth:`SceneModel.observe` for every frame;
+2. :meth:`SceneModel.propose`: the motion before physics (:meth:`SceneModel.move`: the hooks of the
+   mechanisms, :mod:`estimator.model.mechanisms`, phase by phase) and the worlds' input (physics
+   itself is the pool's, Alg. 1);
+3. :meth:`SceneModel.weigh`: the particles after physics (:mod:`estimator.model.settle`: relations,
+   Place and Release in view, the update's events) and their new log-weights
+   (:mod:`estimator.model.weighing`: the terms of :mod:`estimator.model.likelihood`);
+4. :meth:`SceneModel.commit`: the particles after the update;
+5. around resampling, :meth:`SceneModel.before_resampling` and :meth:`SceneModel.after_resampling`
+   (:mod:`estimator.model.regularisation`: kernel jitter of hidden free objects and Liu-West
+   shrinkage of the physical parameters).
+"""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from actions.episodes import EpisodeRule
+from actions.events import record_event_times
+from actions.modes import FREE
+from physics.penetration import StaticGeometry
+from physics.scene import Scene
+
+from ..adaptive import particles_needed
+from ..config import EstimatorConfig
+from ..observations import Frame
+from ..state import ARRAYS, ParticleState
+from ..worlds.pool import BatchInput, BatchOutput
+from . import regularisation, weighing
+from . import settle as settling
+from .holding import places_after_update
+from .inputs import StepInputs
+from .likelihood import Evidence, LogWeightTerm, held_unseen_in_view
+from .mechanisms import PHASES, Draft, Mechanism, mechanisms_for
+from .motion import out_of_reach, roll_released, rolled_along
+from .params import param_bounds
+from .perception_memory import HAND_RADIUS, PerceptionMemory
+from .step import Move, Proposal, Settled, Weighed
+
+log = logging.getLogger(__name__)
+
+
+def initial_poses(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """Initial poses ``(M, 7)`` of the scene's objects and which are known ``(M,)`` bool: objects
+    without a pose are parked far away (at ``(50 + 3 m, 50, -50)``) until first perceived."""
+    M = len(scene.objects)
+    poses = np.zeros((M, 7))
+    poses[:, 6] = 1.0
+    known = np.zeros(M, dtype=bool)
+    for i, o in enumerate(scene.objects):
+        if o.position is not None:
+            poses[i, :3] = o.position
+            poses[i, 3:] = o.orientation
+            known[i] = True
+        else:
+            poses[i, :3] = [50.0 + 3.0 * i, 50.0, -50.0]  # parked until first perceived
+    return poses, known
+
+
+
+
+
+
+
+
+
+
+class SceneModel:
+    """How the particles of ``scene`` move and are weighed (see the module docstring).
+
+    Args:
+        scene: the scene. config: the estimator's configuration.
+        memory: the perception memory the model reads (and whose velocities teleports reset).
+        base_params: ``(M, 5)`` the scene's physical parameters (the worlds' initial ones).
+
+    ``known (M,)``: objects with an initial pose or perceived since; ``terms``: the log-weight terms.
+    """
+
+    def __init__(self, scene: Scene, config: EstimatorConfig, base_params: np.ndarray,
+                 memory: PerceptionMemory | None = None):
+        self.scene = scene
+        self.config = config
+        self.memory = memory if memory is not None else PerceptionMemory(
+            scene, initial_poses(scene)[0], config.reasoner, config.follow_hands,
+            from_onset=config.moving_teleports, hands=config.hands)
+        self.inputs = StepInputs(len(scene.objects), scene.camera)
+        self.recoveries = 0  # updates after which every particle had zero weight (reseed)
+        self.weighed = np.zeros(len(scene.objects), dtype=bool)  # objects weighed since the last resampling
+        self.K, self.M = config.initial_particles, len(scene.objects)  # K changes with adaptive K (the filter sets it)
+        self.static = np.array([o.static for o in scene.objects], dtype=bool)
+        self.dynamic = ~self.static
+        self.hollow = np.array(scene.hollow, dtype=bool)
+        self.round = np.array([o.shape in ("sphere", "cylinder") for o in scene.objects], dtype=bool)
+        self.ball_radius = np.array([o.radius if o.shape == "sphere" else np.nan for o in scene.objects])
+        self.known = initial_poses(scene)[1]
+        self.base_params = base_params
+        self.param_bounds = param_bounds(config)
+        self.perturbed = np.zeros((self.M, 5), dtype=bool)  # parameters the prior spreads (initial_state)
+        self.surprise = np.zeros(self.M)  # how far the objects' motion is from the particles' (note_surprise)
+        hr = config.reasoner
+        self.episode_rule = EpisodeRule(hr.push_lift, hr.push_smoothing, hr.place_wait)
+        self._just_initialised = np.zeros(self.M, dtype=bool)
+        self.terms: tuple[LogWeightTerm, ...] = weighing.log_weight_terms(self)  # a new term goes there
+        # the static bodies, to stop paths at their surfaces (config.static_clip)
+        solid = bool(np.any(self.static)) or scene.floor
+        self.geometry = StaticGeometry(scene, config.physics) if config.static_clip and solid else None
+        self.mechanisms: list[Mechanism] = mechanisms_for(self)
+        self._hooks = {phase: [getattr(m, phase) for m in self.mechanisms if hasattr(m, phase)] for phase in PHASES}
+
+    def mechanism(self, kind: type) -> Mechanism:
+        """The mechanism of class ``kind`` in :attr:`mechanisms` (``LookupError`` when there is none)."""
+        for m in self.mechanisms:
+            if isinstance(m, kind):
+                return m
+        raise LookupError(f"no {kind.__name__} among this model's mechanisms")
+
+    def close(self) -> None:
+        """Release the static geometry's pybullet client."""
+        if self.geometry is not None:
+            self.geometry.close()
+            self.geometry = None
+
+    # -- the contract with the filter ----------------------------------------------------------------
+    def observe(self, frame: Frame) -> None:
+        """Record one perception frame (detections outside the workspace dropped as outliers). Raises
+        ``ValueError`` when ``frame.t`` does not come after the previous frame's time."""
+        self.inputs.check_time(frame.t)
+        frame = self.memory.admit(frame)
+        self.inputs.add(frame, self.memory.record(frame))
+
+    def propose(self, state: ParticleState, dt: float, rng: np.random.Generator) -> Proposal:
+        """The particles' motion before physics for an update at the newest frame's time, ``dt``
+        seconds after the previous one (:meth:`move`), and the worlds' input for it."""
+        frame = self.inputs.frame
+        detected, cameras = self.inputs.take()
+        perceived = self.memory.perceived(frame.t)
+        move = self.move(state, frame, detected, perceived, dt, rng, cameras)
+        return Proposal(frame.t, dt, frame, detected, perceived, cameras, move, self.batch(move, state))
+
+    def weigh(self, state: ParticleState, p: Proposal, out: BatchOutput, rng: np.random.Generator) -> Weighed:
+        """After physics (``out``, exploded particles already reset by the pool): the particles settled
+        (:meth:`settle`), the evidence and the new log-weights (:meth:`log_weight`). When every particle
+        has zero weight the detected objects are re-seeded from perception (:meth:`reseed`, in the
+        settled arrays) and the log-weights are all zero."""
+        settled = self.settle(state, p.move, out, p.t, p.dt, p.detected, p.perceived)
+        evidence = self.evidence(p.move, settled, out, p.frame, p.detected, p.perceived, state.unseen_in_view)
+        logw = self.log_weight(state.log_weights, evidence)
+        if not np.any(np.isfinite(logw)):
+            self.recoveries += 1
+            log.warning("t=%.3f: every particle has zero weight; re-seeding detected objects from perception", p.t)
+            regularisation.reseed(self, settled.poses, settled.velocities, p.detected, rng)
+            logw = np.zeros(self.K)
+        self.weighed |= p.detected | np.any(evidence.visible >= self.config.visibility_threshold, axis=0)
+        return Weighed(settled, evidence, logw)
+
+    def commit(self, state: ParticleState, p: Proposal, w: Weighed, rng: np.random.Generator) -> ParticleState:
+        """The particles after the update (the largest finite log-weight made 0), their events recorded;
+        the perception memory closes the update."""
+        thr, settled = self.config.visibility_threshold, w.settled
+        hidden = places_after_update(state, w.evidence, settled, p.t, rng, thr)
+        new = state.after_update(p.move, settled, w.log_weights, held_unseen_in_view(w.evidence, thr), hidden,
+                                 settled.modes == FREE)
+        self.memory.end_tick(p.perceived, p.detected, settled.tick_vel)
+        record_event_times(new.event_t, settled.codes, p.t, settled.times, new.push_decided)
+        return new
+
+    def particles_needed(self, settled: Settled, weights: np.ndarray) -> int:
+        """How many particles the belief of ``settled`` under ``weights (K,)`` needs
+        (:func:`~estimator.adaptive.particles_needed`, over the known dynamic objects)."""
+        return particles_needed(settled.poses, settled.modes, weights, self.known & self.dynamic,
+                                self.config.adaptive)[0]
+
+    def before_resampling(self, state: ParticleState, settled: Settled, perceived: np.ndarray,
+                          weights: np.ndarray) -> tuple[np.ndarray, dict[int, np.ndarray]]:
+        """What resampling needs from the model: the objects ``(M,)`` each particle keeps its own
+        values of (hidden, known and dynamic, weighed by nothing since the last resampling,
+        :meth:`unweighable`: the weights are about other objects, and resampling them too would only
+        lose their spread; see :meth:`~estimator.state.ParticleState.take`), and the jitter kernels of
+        the other hidden objects (:meth:`regularisation_kernels`)."""
+        hidden = self.known & self.dynamic & ~perceived
+        own = hidden & ~self.weighed & regularisation.unweighable(self, settled)
+        return own, regularisation.regularisation_kernels(self, state.poses, weights, hidden & ~own)
+
+    def after_resampling(self, state: ParticleState, kernels: dict[int, np.ndarray],
+                         rng: np.random.Generator) -> None:
+        """In place on the resampled ``state`` (its K is the new count): regularisation
+        (:meth:`regularise`); nothing is weighed since."""
+        self.K = len(state.log_weights)
+        self.weighed = np.zeros(self.M, dtype=bool)
+        regularisation.regularise(self, state, kernels, rng)
+
+    # -- the prior ------------------------------------------------------------------------------------
+    def initial_state(self, rng: np.random.Generator) -> ParticleState:
+        """K particles at the scene's poses, with physical parameters drawn from their priors and the
+        positions of known dynamic objects perturbed horizontally by ``position_std``."""
+        K, M, nz = self.K, self.M, self.config.noise
+        poses = np.repeat(initial_poses(self.scene)[0][None], K, axis=0)
+        base = self.base_params
+        params = np.repeat(base[None], K, axis=0)
+        dyn = np.flatnonzero(self.dynamic)
+        ranges = [nz.friction_range, nz.rolling_friction_range, nz.spinning_friction_range,
+                  nz.restitution_range]
+        for col, r in enumerate(ranges):
+            if r is not None:
+                params[:, dyn, col] = rng.uniform(r[0], r[1], size=(K, len(dyn)))
+        if nz.rolling_friction_range is None and nz.rolling_friction_scale is not None:
+            rollers = np.flatnonzero(self.dynamic & self.round & (base[:, 1] > 0))
+            if len(rollers):
+                lo, hi = np.log(nz.rolling_friction_scale)
+                params[:, rollers, 1] = base[rollers, 1] * np.exp(rng.uniform(lo, hi, size=(K, len(rollers))))
+        if nz.mass_scale_range is not None:
+            lo, hi = nz.mass_scale_range
+            params[:, dyn, 4] = base[dyn, 4] * rng.uniform(lo, hi, size=(K, len(dyn)))
+        self.perturbed = np.any(params != params[:1], axis=0) | (np.ptp(params, axis=0) > 0)  # (M, 5)
+        if nz.position_std > 0:  # horizontally: pushed into its support or dropped onto it, an object
+            known_dyn = np.flatnonzero(self.dynamic & self.known)  # starts by bouncing (a duck tips over)
+            poses[:, known_dyn, :2] += rng.normal(0, nz.position_std, (K, len(known_dyn), 2))
+            self._just_initialised[known_dyn] = True
+        declared = dict(ARRAYS)
+        for mechanism in self.mechanisms:
+            declared.update(mechanism.arrays)
+        return ParticleState.initial(K, M, dict(poses=poses, velocities=np.zeros((K, M, 6)), params=params,
+                                                modes=np.zeros((K, M), dtype=np.int8), log_weights=np.zeros(K)),
+                                     declared)
+
+    # -- the move -------------------------------------------------------------------------------------
+    def move(self, state: ParticleState, frame: Frame, detected: np.ndarray, perceived: np.ndarray,
+             dt: float, rng: np.random.Generator, cameras: tuple | None = None) -> Move:
+        """Everything before physics, for ``dt`` seconds since the last update: ``detected (M,)`` since
+        the last update, ``perceived (M,)`` now; ``cameras``: the cameras (:class:`CameraSpec`) that
+        took the frames since the last update (None: the scene's camera only). The mechanisms' hooks
+        (:mod:`estimator.model.mechanisms`) run phase by phase on a :class:`~estimator.model.mechanisms.Draft`;
+        then what physics checks and reports. Updates :attr:`known` and the memory's velocities."""
+        cfg, mem, K, M = self.config, self.memory, self.K, self.M
+        poses, vel = state.poses.copy(), state.velocities.copy()
+        newly_known = perceived & ~self.known
+        no = np.zeros(M, dtype=bool)
+        fresh = detected if cfg.fresh_checks else perceived
+        u = Draft(state=state, frame=frame, detected=detected, perceived=perceived, dt=dt, rng=rng, cameras=cameras,
+                  # a finite difference across a jump or a gap is no velocity; one across a reasoning
+                  # period of continuous tracking is (moving_teleports: an object tracked in motion keeps moving)
+                  tick_vel=mem.tick_velocity(), following=mem.following_hand(frame),
+                  far=self._out_of_reach(frame, detected), poses=poses, vel=vel, prev_modes=state.modes.copy(),
+                  predicted=poses.copy(),  # before teleports: what each particle expected
+                  jitter=np.zeros((K, M, 3)), newly_known=newly_known,
+                  tele=perceived & (~mem.perceived_prev | mem.jumped() | newly_known),  # teleports, first sightings
+                  moving=no, falling=no, spinning=no, cover_t=np.full((K, M), np.nan), proposal=np.zeros(K),
+                  # at rest in the particle (on a support, slower than rest_speed) before this update
+                  resting=state.supported & (np.linalg.norm(state.velocities[..., :3], axis=-1) < cfg.noise.rest_speed),
+                  check=np.broadcast_to(perceived & fresh, (K, M)).copy(),
+                  jolted=np.zeros((K, M), dtype=bool), let_go=state.let_go_unseen.copy(),
+                  target=poses.copy(), target_vel=np.zeros((K, M, 6)), hold_error=state.hold_error)
+        for phase in PHASES:
+            for hook in self._hooks[phase]:
+                hook(u)
+        if u.modes is None:  # no mechanism releases anything
+            u.modes, u.release_codes = u.prev_modes.copy(), np.zeros((K, M), dtype=np.int8)
+        # what physics checks and reports
+        vis_query = self.known & self.dynamic & ~detected
+        has_camera = self.scene.camera is not None if cameras is None else len(cameras) > 0
+        if not (cfg.negative_evidence and has_camera):
+            vis_query = np.zeros(M, dtype=bool)
+        placed = u.tele | self._just_initialised
+        self._just_initialised = np.zeros(M, dtype=bool)
+        depen = (np.broadcast_to(placed & (cfg.noise.position_std > 0), (K, M)) | u.jolted
+                 | state.jolted | u.cover) & (u.modes == FREE)
+        set_moving = u.set_moving if u.set_moving is not None and u.set_moving.any() else None
+        return Move(u.poses, u.vel, u.predicted, u.prev_modes, u.modes, u.release_codes, u.tele, u.target, u.target_vel,
+                    u.check, depen, vis_query, u.hold_error, u.let_go, cameras, u.cover_t, u.proposal, u.nudged,
+                    u.jitter, u.far, u.fall, u.detections, set_moving, u.speed_check, u.grip)
+
+    def roll_released(self, vel: np.ndarray, released: np.ndarray, supported: np.ndarray) -> None:
+        """In place on ``vel (K, M, 6)``: balls let go now (``released (K, M)``) on a support
+        (``supported (K, M)``) or just after they were seen rolling along one (off an edge) roll at
+        their velocity (:func:`~estimator.model.motion.roll_released`)."""
+        rolled = released & (supported | rolled_along(self.memory.previous_tick_velocity())[None, :])
+        if np.any(rolled):
+            roll_released(vel, rolled, self.ball_radius)
+
+    def batch(self, move: Move, state: ParticleState) -> BatchInput:
+        """The pool's input for ``move`` (which entries to load, and which a world produced at rest,
+        the pool's cache decides: :meth:`~estimator.worlds.pool.WorldPool.advance`)."""
+        return BatchInput(poses=move.poses, velocities=move.velocities, params=state.params, modes=move.modes,
+                          check=move.check, target=move.target, target_vel=move.target_vel, contents=state.is_in,
+                          depenetrate=move.depenetrate, vis_query=move.vis_query)
+
+    # -- after physics --------------------------------------------------------------------------------
+    # -- the weights ----------------------------------------------------------------------------------
+    def _out_of_reach(self, frame: Frame, detected: np.ndarray) -> np.ndarray | None:
+        """Dynamic objects ``(M,)`` detected since the last update whose latest detection lies farther
+        than :data:`~estimator.model.perception_memory.HAND_RADIUS` from every hand tracked in ``frame``;
+        None when no hand is tracked in it or hands are not followed."""
+        if not self.config.follow_hands:
+            return None
+        return out_of_reach(self.memory.last_pose[:, :3], frame.hands, detected & self.dynamic, HAND_RADIUS)
+
+    # -- after resampling -----------------------------------------------------------------------------
+
+    # -- after physics --------------------------------------------------------------------------------
+    def settle(self, state: ParticleState, move: Move, out: BatchOutput, t: float, dt: float,
+               detected: np.ndarray, perceived: np.ndarray) -> Settled:
+        """The particles after physics (``out``) and the Place / Release rules, with the update's events
+        (:func:`~estimator.model.settle.settle`)."""
+        return settling.settle(self, state, move, out, t, dt, detected, perceived)
+
+    def evidence(self, move: Move, settled: Settled, out: BatchOutput, frame: Frame, detected: np.ndarray,
+                 perceived: np.ndarray, unseen_in_view: np.ndarray) -> Evidence:
+        """What the log-weight terms read for this update (:func:`~estimator.model.weighing.evidence`)."""
+        return weighing.evidence(self, move, settled, out, frame, detected, perceived, unseen_in_view)
+
+    def log_weight(self, previous: np.ndarray, ev: Evidence) -> np.ndarray:
+        """New log-weights ``(K,)``: ``previous (K,)`` plus every term of :attr:`terms`
+        (:func:`~estimator.model.weighing.log_weight`)."""
+        return weighing.log_weight(self, previous, ev)

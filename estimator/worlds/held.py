@@ -1,0 +1,139 @@
+"""What an update does to objects besides stepping: held objects moved at every step, and objects
+pushed out of what they interpenetrate. Hot path: plain lists and direct pybullet calls, every pose
+in the world's scene frame and shifted by its ``origin`` only where pybullet is called.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pybullet as pb
+
+from physics.sleep import near, touching, wake
+from physics.transforms import carry_pose, quat_conjugate, quat_from_rotvec, quat_multiply, quat_to_rotvec
+from physics.world import World
+
+
+def hand_offset_walk(error: np.ndarray, dt: float, std: float, time_constant: float,
+                     rng: np.random.Generator) -> np.ndarray:
+    """One step of the error of a hand-held object's offset to its hand, per particle: ``error (n,
+    3)`` m, an Ornstein-Uhlenbeck process that starts at zero when the object is last detected and
+    tends to a stationary standard deviation ``std`` (m per axis) with ``time_constant`` (s): the
+    grasp slips and the hand turns, which the tracked hand position does not show. Returns the new
+    error ``(n, 3)``; ``std = 0`` keeps it at zero."""
+    if std <= 0 or len(error) == 0:
+        return np.zeros_like(error)
+    a = float(np.exp(-dt / time_constant))
+    return a * error + np.sqrt(1.0 - a * a) * std * rng.normal(0.0, 1.0, error.shape)
+
+
+def depenetrate(w: World, indices: list[int], rounds: int = 2) -> None:
+    """Push objects ``indices`` out of whatever they interpenetrate, along the deepest contact's
+    normal (Bullet would otherwise shoot them out with a spurious velocity). Their velocities are
+    kept (pybullet's ``resetBasePositionAndOrientation`` sets them to zero)."""
+    c = w.client
+    floor = [w.floor_uid] if w.floor_uid >= 0 else []
+    for _ in range(rounds):
+        moved = False
+        for i in indices:
+            uid = w.uids[i]
+            worst, normal = 0.0, None
+            # the floor and the bodies of this world whose boxes overlap its box (the broadphase's answer)
+            for o in floor + [w.uids[j] for j in near(w, [i], 0.0)]:
+                for pt in pb.getClosestPoints(uid, o, 0.0, physicsClientId=c):
+                    if pt[8] < worst:  # contact distance, negative when penetrating
+                        worst, normal = pt[8], pt[7]  # normal on B, pointing from B to A
+            if normal is not None and worst < -1e-4:
+                pos, orn = pb.getBasePositionAndOrientation(uid, physicsClientId=c)
+                lin, ang = pb.getBaseVelocity(uid, physicsClientId=c)
+                shift = -worst + 1e-4
+                pb.resetBasePositionAndOrientation(uid, [pos[k] + normal[k] * shift for k in range(3)], orn,
+                                                   physicsClientId=c)
+                pb.resetBaseVelocity(uid, lin, ang, physicsClientId=c)  # the reset zeroes it: a rolling can rolls on
+                moved = True
+        if not moved:
+            break
+
+
+def glide_paths(world: World, start: np.ndarray, end: np.ndarray, indices: np.ndarray,
+                n_steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Paths of held objects gliding from link-frame poses ``start`` to ``end`` ``(H, 7)`` (objects
+    ``indices (H,)`` of ``world``'s scene) over ``n_steps`` steps: linearly in position, along the
+    shortest arc in orientation. Returns centre-of-mass positions ``(H, n + 1, 3)`` (m, scene frame)
+    and orientations ``(H, n + 1, 4)`` before each step (the last entry: after the last step), and
+    the constant linear ``(H, 3)`` (m/s) and angular ``(H, 3)`` (rad/s) velocities."""
+    n = max(1, int(n_steps))
+    frac = (np.arange(n + 1) / n)[None, :, None]  # pose before step s is at frac[s - 1]; after the last, at 1
+    rv = quat_to_rotvec(quat_multiply(end[:, 3:], quat_conjugate(start[:, 3:])))  # (H, 3) shortest rotation
+    pos = start[:, None, :3] + frac * (end[:, None, :3] - start[:, None, :3])
+    orn = quat_multiply(quat_from_rotvec(frac * rv[:, None, :]), np.broadcast_to(start[:, None, 3:], pos.shape[:2] + (4,)))
+    off = world.com_frame(np.concatenate([pos, orn], axis=-1).swapaxes(0, 1), None, indices)[0]
+    dt = n * world.settings.time_step
+    return off.swapaxes(0, 1)[..., :3], orn, (end[:, :3] - start[:, :3]) / dt, rv / dt
+
+
+class HeldObjects:
+    """Moves held objects at every step (hot path: plain lists, direct pybullet calls).
+
+    Objects held since the start of the update glide from where they were to their target, linearly
+    in position and along the shortest arc in orientation, with the matching velocity, so that the
+    contact solver moves what they carry or push (a tilted box pours its contents out). Objects that
+    become held during the update (a divergence) jump to their target at once and take their contents
+    with them rigidly, rotation included, as Algorithm 1 does.
+    """
+
+    def __init__(self, w: World, target: np.ndarray, target_vel: np.ndarray, contents: np.ndarray,
+                 n_steps: int, moving: bool = False):
+        self.w = w
+        self.target = target
+        self.tvel = target_vel
+        self.contents = contents
+        self.n = max(1, int(n_steps))
+        self.moving = bool(moving)
+        self.items: list[tuple] = []  # (body id, per-step com positions, per-step orientations, lin, ang)
+
+    def glide(self, uid: int, com: list, orn: list, lin: list, ang: list) -> None:
+        """Add an object held from the start of the update, along the path of :func:`glide_paths`:
+        centre-of-mass positions ``com`` and orientations ``orn`` before each step (``n + 1``
+        entries, client frame) and the matching velocity ``lin``, ``ang``."""
+        self.items.append((uid, com, orn, lin, ang))
+
+    def jump(self, indices: list[int], step: int | None = None) -> None:
+        """Add objects that became held after step ``step`` (default: the last): move them (and their
+        contents) to the target at once, waking them and what they touched (see
+        :attr:`PhysicsSettings.sleeping`). With ``moving``, a target moves at its velocity and
+        reaches ``target`` at the update's end: the objects follow it from where it is now."""
+        w = self.w
+        if w.settings.sleeping:
+            wake(w, sorted(set(indices) | set(touching(w, indices)) | set(
+                int(j) for i in indices for j in np.flatnonzero(self.contents[:, i]))))
+        s = self.n if step is None else min(int(step), self.n)
+        dt = w.settings.time_step
+        # the target's position before each step (n + 1 entries) relative to its end: -v (n - k) dt
+        lag = (np.arange(self.n + 1) - self.n)[None, :, None] * dt * (
+            self.tvel[indices, None, :3] if self.moving else np.zeros((len(indices), 1, 3)))
+        before = w.get_poses(indices)
+        now = self.target[indices].copy()
+        now[:, :3] += lag[:, s]
+        w.set_poses(now, indices)
+        w.set_velocities(self.tvel[indices], indices)
+        for k, i in enumerate(indices):
+            ch = [int(j) for j in np.flatnonzero(self.contents[:, i]) if j not in indices]
+            if ch:
+                w.set_poses(carry_pose(w.get_poses(ch), before[k], now[k]), ch)
+                cv = w.get_velocities(ch)
+                cv[:, :3] = self.tvel[i, :3]
+                w.set_velocities(cv, ch)
+        com = w.com_positions(self.target[indices], indices) + w.origin
+        for k, i in enumerate(indices):
+            v = self.tvel[i].tolist()
+            pos = (com[k][None, :] + lag[k]).tolist()
+            orn = [self.target[i, 3:].tolist()] * (self.n + 1)
+            self.items.append((w.uids[i], pos, orn, v[:3], v[3:]))
+
+    def apply(self, s: int) -> None:
+        """Place the held objects where they are before step ``s`` (1-based; ``n + 1``: the end)."""
+        c = self.w.client
+        reset, reset_vel = pb.resetBasePositionAndOrientation, pb.resetBaseVelocity
+        k = min(s - 1, self.n)
+        for uid, pos, orn, lin, ang in self.items:
+            reset(uid, pos[k], orn[k], physicsClientId=c)
+            reset_vel(uid, lin, ang, physicsClientId=c)

@@ -1,0 +1,413 @@
+"""Advance one particle's world through one update: Algorithm 1 of the physics reasoner.
+
+This is the hot path, run in the worker that owns the world. It takes and returns plain arrays so that
+worker processes exchange only numpy data. One call simulates ``n_steps`` fixed steps and, at every
+step:
+
+* HELD objects move to their target pose (the perception, a tracked hand, or where they were last
+  seen): smoothly over the update for objects held from its start (physics moves what they carry),
+  at once, with their contents carried rigidly, for objects that become held during it;
+* FREE objects that are checked (perceived, dynamic) and whose simulated position diverges from the
+  perceived one by more than ``d_sim_perc`` switch to HELD (they are not physically plausible: an agent
+  must be moving them) and are overridden from that step on.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pybullet as pb
+
+from actions.modes import FREE, HELD
+from physics.sleep import asleep, near, touching, wake
+from physics.world import World
+
+from .held import HeldObjects, depenetrate, glide_paths
+from .resting import SETTLED_REACH, restart_after_wake, sleep_resting
+
+PARAM_NAMES = ("lateral_friction", "rolling_friction", "spinning_friction", "restitution", "mass")
+"""Columns of the per-object physical parameter arrays ``(..., M, 5)`` (mass in kg)."""
+
+
+@dataclass
+class StepInput:
+    """Inputs of one particle's update; M objects.
+
+    poses ``(M, 7)``, velocities ``(M, 6)``: state to start from. params ``(M, 5)`` (see
+    :data:`PARAM_NAMES`). modes ``(M,)`` int8. check ``(M,)`` bool: FREE objects to test against
+    ``target``. target ``(M, 7)`` / target_vel ``(M, 6)``: perceived (or held) pose and velocity.
+    contents ``(M, M)`` bool: ``contents[a, b]`` = a is in b (a moves with b when b is overridden).
+    reset ``(M,)`` bool or None: objects whose pose and velocity must be loaded into the world (the
+    others already hold the state the world left them in); None loads all.
+    settled ``(M,)`` bool or None: objects whose loaded state is one a world produced at rest (zero
+    velocity) and nothing changed since (a resampled particle's), or that were only moved along
+    their support by the fusion of detections: with sleeping on, they are loaded asleep, not woken
+    (what the particle's other objects do may still wake them).
+    depenetrate ``(M,)`` bool: objects just placed with perturbed poses, to be pushed out of anything
+    they interpenetrate before stepping (a perturbation must not start a box inside the table).
+    """
+
+    poses: np.ndarray
+    velocities: np.ndarray
+    params: np.ndarray
+    modes: np.ndarray
+    check: np.ndarray
+    target: np.ndarray
+    target_vel: np.ndarray
+    contents: np.ndarray
+    depenetrate: np.ndarray
+    reset: np.ndarray | None = None
+    settled: np.ndarray | None = None
+
+
+@dataclass
+class StepOutput:
+    """Result of one particle's update: poses ``(M, 7)``, velocities ``(M, 6)``, modes ``(M,)``,
+    max_divergence ``(M,)`` (m, over the steps, for checked objects; 0 otherwise), aabbs ``(M, 2, 3)``,
+    finite: False if the simulation produced NaN or a runaway velocity (bool; ``(K,)`` in a batch)."""
+
+    poses: np.ndarray
+    velocities: np.ndarray
+    modes: np.ndarray
+    max_divergence: np.ndarray
+    aabbs: np.ndarray
+    finite: bool | np.ndarray
+
+
+@dataclass
+class BatchInput(StepInput):
+    """Inputs for K particles: the fields of :class:`StepInput` with a leading K axis, plus
+    ``vis_query (M,)`` bool: objects whose visibility to the camera is wanted after the update
+    (None: none)."""
+
+    vis_query: np.ndarray | None = None
+
+
+PER_PARTICLE = ("poses", "velocities", "params", "modes", "check", "target", "target_vel", "contents",
+                "depenetrate", "reset", "settled")
+"""The fields of :class:`BatchInput` with a leading particle axis."""
+
+
+@dataclass
+class BatchOutput(StepOutput):
+    """Outputs for K particles: the fields of :class:`StepOutput` with a leading K axis (``finite
+    (K,)``), plus ``visible (K, M)``: fraction of each object's sample points seen by the camera (0
+    where not queried)."""
+
+    visible: np.ndarray | None = None
+
+
+class ParticleWorld:
+    """A persistent world for one particle slot, remembering the parameters last applied."""
+
+    def __init__(self, world: World):
+        self.world = world
+        self.dynamic = [int(i) for i in world.dynamic_indices]
+        self._params: np.ndarray | None = None
+        self._params_key: bytes = b""
+
+    def apply_params(self, params: np.ndarray) -> None:
+        key = params.tobytes()
+        if key == self._params_key:
+            return
+        w = self.world
+        for i in w.dynamic_indices:
+            row = params[i]
+            if self._params is not None and np.array_equal(row, self._params[i]):
+                continue
+            w.set_dynamics(int(i), lateral_friction=row[0], rolling_friction=row[1],
+                           spinning_friction=row[2], restitution=row[3], mass=row[4])
+        self._params = params.copy()
+        self._params_key = key
+
+
+MAX_SPEED = 50.0  # m/s: anything faster is a simulation that exploded
+
+
+A_MAX = 9.81
+"""Bound on an object's acceleration (m/s^2) between two divergence tests when checks are lazy:
+gravity's, the only force that acts without a contact (an object in flight, sliding or rolling
+down a slope accelerates at most this much; one pushed or hit may exceed it and is then tested a
+few steps late, at the latest after the last step)."""
+
+
+def propagate(pw: ParticleWorld, inp: StepInput, n_steps: int, d_sim_perc: float,
+              lazy: bool = False, moving: bool = False) -> StepOutput:
+    """Run Algorithm 1 for ``n_steps`` steps in one particle's world (see :func:`propagate_batch`)."""
+    batch = BatchInput(*(None if getattr(inp, f) is None else np.asarray(getattr(inp, f))[None]
+                         for f in PER_PARTICLE))
+    out = propagate_batch([pw], batch, n_steps, d_sim_perc, lazy, moving)
+    return StepOutput(out.poses[0], out.velocities[0], out.modes[0], out.max_divergence[0], out.aabbs[0],
+                      bool(out.finite[0]))
+
+
+LAST_STEPS = 2
+"""With lazy tests, a test that falls due in the last this many steps of an update is left to the
+test after the last step (at most this many steps late)."""
+
+
+def _due_steps(d: np.ndarray, v: np.ndarray, d_sim_perc: float, dt: float) -> np.ndarray:
+    """First step (>= 1) at which an object at divergence ``d`` (m) moving at ``v`` (m/s) and
+    accelerating at most at :data:`A_MAX` could have crossed ``d_sim_perc``."""
+    room = np.maximum(d_sim_perc - d, 0.0)
+    tau = (-v + np.sqrt(v * v + 2.0 * A_MAX * room)) / A_MAX
+    return np.maximum(1, (tau / dt).astype(np.int64))
+
+
+def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d_sim_perc: float,
+                    lazy: bool = False, moving: bool = False) -> BatchOutput:
+    """Run Algorithm 1 for ``n_steps`` steps in each of the K worlds ``pws`` (all built from the same
+    scene), particle ``k`` from the state in row ``k`` of ``batch``.
+
+    Worlds that share a pybullet client (copies of a :class:`~physics.group.WorldGroup`) are stepped
+    together, one ``stepSimulation`` per step for all of them; ``pws`` must then hold every copy of
+    their client (the others would be stepped too).
+
+    With ``lazy=False`` the divergence of every free perceived object is tested after every step, as
+    the paper does. With ``lazy=True`` an object is tested again only at the first step at which,
+    starting from its present divergence ``d`` and speed ``v`` and accelerating at most at
+    :data:`A_MAX`, it could have crossed ``d_sim_perc``, and after the last step: exact for objects
+    moving freely or resting, late by a few steps only when something hits an object hard.
+
+    With ``moving=True`` a tested object's target moves at its ``target_vel`` (linear part) through
+    the update and reaches ``target`` at its end: an object started where its detection was at the
+    update's start, with its perceived velocity, is compared with that detection carried along, not
+    with a fixed point (objects whose target velocity is zero are tested against their fixed target,
+    as always); one that diverges and becomes held follows the moving target.
+
+    With :attr:`PhysicsSettings.sleeping`, what an update moves (loads, held objects, pushes out of
+    penetration) is woken together with everything that touched it, and free objects at rest at both
+    ends of the update are put to sleep (:data:`~estimator.worlds.resting.REST_SPEED`).
+
+    Array work is done once for the K worlds (frame conversions, first test steps, the finiteness
+    test); each client's loop is plain Python around direct pybullet calls. A world's result depends
+    only on its own row of ``batch`` and its own history, so that sharding whole clients over
+    processes does not change any output. Returns a :class:`BatchOutput` whose ``visible`` is all
+    zeros.
+    """
+    K = len(pws)
+    if K == 0:
+        raise ValueError("propagate_batch needs at least one world")
+    w0 = pws[0].world
+    M = w0.num_objects
+    if batch.poses.shape != (K, M, 7):
+        raise ValueError(f"batch.poses must have shape ({K}, {M}, 7), got {batch.poses.shape}")
+    dyn = pws[0].dynamic
+    dt = w0.settings.time_step
+    sleeping = w0.settings.sleeping
+    n_steps = int(n_steps)
+    dyn_mask = np.zeros(M, dtype=bool)
+    dyn_mask[dyn] = True
+    modes_out = batch.modes.copy()
+    origins = np.array([pw.world.origin for pw in pws])[:, None, :]  # (K, 1, 3): scene -> client frame
+    # loads: centre-of-mass poses and velocities of the entries to reset, in the client frame
+    reset = np.broadcast_to(dyn_mask, (K, M)) if batch.reset is None else batch.reset & dyn_mask
+    com_p, com_v = w0.com_frame(batch.poses, batch.velocities)
+    com_p = np.array(com_p)
+    com_p[..., :3] += origins
+    held_mask = (batch.modes == HELD) & dyn_mask
+    depen_mask = batch.depenetrate & dyn_mask
+    moved = reset | held_mask | depen_mask
+    settled = np.zeros((K, M), dtype=bool)
+    if batch.settled is not None:  # a settled state loaded asleep stays asleep...
+        settled = batch.settled & moved & ~held_mask & ~depen_mask
+        moved &= ~settled
+    reset_l, depen_l, moved_l = reset.tolist(), depen_mask.tolist(), moved.tolist()
+    settled_l = settled.tolist()
+    # watched objects and the first step at which each one needs testing
+    checked = batch.check & (batch.modes == FREE) & dyn_mask
+    tvel = np.where(checked[..., None], batch.target_vel[..., :3], 0.0) if moving else np.zeros((K, M, 3))
+    # where each target is at the update's start: a moving target reaches its pose at the end
+    target_com = w0.com_frame(batch.target)[0][..., :3] + origins - tvel * (n_steps * dt)
+    due = np.ones((K, M), dtype=np.int64)
+    if lazy:
+        d0 = np.linalg.norm(com_p[..., :3] - target_com, axis=-1)
+        due = _due_steps(d0, np.linalg.norm(com_v[..., :3] - tvel, axis=-1), d_sim_perc, dt)
+    checked_l, target_l, due_l, tvel_l = checked.tolist(), target_com.tolist(), due.tolist(), tvel.tolist()
+    glides = _glides(pws, batch, held_mask, n_steps)
+    clients: dict[int, list[int]] = {}
+    for k, pw in enumerate(pws):
+        clients.setdefault(pw.world.client, []).append(k)
+    tested: list[tuple[int, int, float]] = []  # (particle, object, largest divergence) of in-loop tests
+    switched_at: list[tuple[int, int, float]] = []
+    read: list[tuple[list, list, list]] = [([], [], [])] * K
+    speed_l = np.any(com_v != 0.0, axis=-1).tolist()
+    for client, ks in clients.items():
+        helds, watches, restart = [], [], []
+        for k in ks:
+            pw = pws[k]
+            w = pw.world
+            pw.apply_params(batch.params[k])
+            rows = [i for i in dyn if moved_l[k][i]] if True in moved_l[k] else []
+            woken = rows + touching(w, rows) if sleeping and rows else []  # contacts before the reset
+            if True in reset_l[k]:
+                loads = [i for i in dyn if reset_l[k][i]]
+                if sleeping and n_steps > 0:
+                    restart += restart_after_wake(w, asleep(w, [i for i in loads if speed_l[k][i]]), com_p[k],
+                                                  com_v[k], dt, w0.settings.gravity)
+                w.load_com_state(loads, com_p[k, loads].tolist(), com_v[k, loads].tolist())
+            if woken:
+                wake(w, woken)
+            if True in depen_l[k]:
+                depenetrate(w, [i for i in dyn if depen_l[k][i]])
+            if rows and True in settled_l[k]:  # ...unless something moved is (or was) near it
+                wake(w, [i for i in near(w, rows, SETTLED_REACH) if settled_l[k][i]])
+            held = HeldObjects(w, batch.target[k], batch.target_vel[k], batch.contents[k], n_steps, moving)
+            for h in glides.get(k, ()):
+                held.glide(*h)
+            helds.append(held)
+            # [index, body id, x, y, z of the perceived centre of mass, next step to test, largest
+            # divergence, position of the world in ks, velocity of the target x, y, z]
+            watches += [[i, w.uids[i], *target_l[k][i], due_l[k][i], 0.0, len(helds) - 1, *tvel_l[k][i]]
+                        for i in dyn if checked_l[k][i]]
+        switched = _simulate(client, dt, helds, watches, n_steps, d_sim_perc, lazy, restart)
+        switched_at += [(ks[j], i, d) for j, i, d in switched]
+        tested += [(ks[item[7]], item[0], item[6]) for item in watches if item[6]]
+        for k in ks:
+            read[k] = pws[k].world.read_raw(dyn)
+    poses, vel, aabbs = _assemble(w0, dyn, read, origins)
+    # largest divergences: from the tests in the loop and, lazily, the test after the last step on
+    # the state read back (an object that diverged during the last steps is held, at the
+    # perception, as in the loop)
+    max_d = np.zeros((K, M))
+    if tested:
+        kk, ii, dd = zip(*tested)
+        max_d[list(kk), list(ii)] = dd
+    still = checked.copy()
+    for k, i, _ in switched_at:
+        still[k, i] = False
+        modes_out[k, i] = HELD
+    if lazy and n_steps > 0 and still.any():
+        d_end = np.where(still, np.linalg.norm(poses[..., :3] - target_com - tvel * (n_steps * dt), axis=-1), 0.0)
+        np.maximum(max_d, d_end, out=max_d)
+        for k in np.flatnonzero((d_end > d_sim_perc).any(axis=1)).tolist():
+            late = np.flatnonzero(d_end[k] > d_sim_perc).tolist()
+            modes_out[k, late] = HELD
+            w = pws[k].world
+            HeldObjects(w, batch.target[k], batch.target_vel[k], batch.contents[k], n_steps, moving).jump(late)
+            p, v, b = _assemble(w0, dyn, [w.read_raw(dyn)], origins[k:k + 1])
+            poses[k], vel[k], aabbs[k] = p[0], v[0], b[0]
+    for k, i, d in switched_at:
+        max_d[k, i] = d
+    if sleeping:
+        sleep_resting(pws, dyn_mask & (modes_out == FREE) & ~moved, com_v, vel)
+    finite = (np.isfinite(poses).all(axis=(1, 2)) & np.isfinite(vel).all(axis=(1, 2))
+              & (np.abs(vel[..., :3]) < MAX_SPEED).all(axis=(1, 2)))
+    aabbs[~finite] = np.nan
+    poses[..., :3] -= origins
+    aabbs -= origins[:, None]
+    poses, vel = w0.link_frame(poses, vel)
+    return BatchOutput(poses, vel, modes_out, max_d, aabbs, finite, np.zeros((K, M)))
+
+
+def _glides(pws: list[ParticleWorld], batch: BatchInput, held: np.ndarray,
+            n_steps: int) -> dict[int, list[tuple]]:
+    """The glide paths (:func:`~estimator.worlds.held.glide_paths`) of all objects ``held (K, M)`` from the
+    start of the update, computed in one pass: ``{k: [(body id, com, orn, lin, ang), ...]}`` as
+    lists in the client frame. They start from the batch's poses, which the worlds hold (held
+    objects are never pushed out of penetration)."""
+    kk, ii = np.nonzero(held)
+    if len(kk) == 0:
+        return {}
+    w0 = pws[0].world
+    com, orn, lin, ang = glide_paths(w0, batch.poses[kk, ii], batch.target[kk, ii], ii, n_steps)
+    com = com + np.array([pws[k].world.origin for k in kk.tolist()])[:, None, :]
+    out: dict[int, list[tuple]] = {}
+    for h, (k, i) in enumerate(zip(kk.tolist(), ii.tolist())):
+        out.setdefault(k, []).append((pws[k].world.uids[i], com[h].tolist(), orn[h].tolist(),
+                                      lin[h].tolist(), ang[h].tolist()))
+    return out
+
+
+def _assemble(w0: World, dyn: list[int], read: list[tuple[list, list, list]],
+              origins: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Centre-of-mass poses ``(K, M, 7)``, velocities ``(K, M, 6)`` and AABBs ``(K, M, 2, 3)``, in
+    the client frame, from each world's flat read-back of its dynamic objects (static ones from the
+    scene, shifted to each world's ``origins (K, 1, 3)``)."""
+    K, M, D = len(read), w0.num_objects, len(dyn)
+    poses = np.empty((K, M, 7))
+    vel = np.zeros((K, M, 6))
+    aabbs = np.empty((K, M, 2, 3))
+    st = np.ones(M, dtype=bool)
+    st[dyn] = False
+    if st.any():  # static objects never move: their centre-of-mass poses and boxes from the scene
+        sp, sb = w0.static_raw()
+        poses[:, st] = sp[st]
+        poses[:, st, :3] += origins
+        aabbs[:, st] = sb[st] + origins[:, None]
+    poses[:, dyn] = np.array([r[0] for r in read]).reshape(K, D, 7)
+    vel[:, dyn] = np.array([r[1] for r in read]).reshape(K, D, 6)
+    aabbs[:, dyn] = np.array([r[2] for r in read]).reshape(K, D, 2, 3)
+    return poses, vel, aabbs
+
+
+def _simulate(client: int, dt: float, helds: list["HeldObjects"], watch: list[list], n_steps: int,
+              d_sim_perc: float, lazy: bool, restart: list[tuple] = ()) -> list[tuple[int, int, float]]:
+    """The step loop of one client (the hot path, plain Python), for its worlds' held objects
+    ``helds`` (one per world) and divergence tests ``watch`` (items updated in place); ``restart``
+    (see :func:`~estimator.worlds.resting.restart_after_wake`) is applied after the first step. Returns the objects that switched to
+    HELD during the loop as ``(world position, object, largest divergence)`` (lazily, the test
+    after the last step is left to the caller, on the state read back)."""
+    c = client
+    get = pb.getBasePositionAndOrientation
+    get_vel = pb.getBaseVelocity
+    step = pb.stepSimulation
+    out: list[tuple[int, int, float]] = []
+    moving = [h for h in helds if h.items]
+    s = 0
+    while s < n_steps:
+        # step, with no test, up to the next step at which one is due
+        stop = min(min(item[5] for item in watch), n_steps) if watch else n_steps
+        if lazy and stop > n_steps - LAST_STEPS:
+            stop = n_steps  # a test due in the last steps is the test after the last step
+        if restart:
+            stop = 1
+        if moving:
+            for t in range(s + 1, stop + 1):
+                for h in moving:
+                    h.apply(t)
+                step(physicsClientId=c)
+        else:
+            for _ in range(stop - s):
+                step(physicsClientId=c)
+        s = stop
+        if restart:
+            for uid, pos, orn, lin, ang in restart:
+                pb.resetBasePositionAndOrientation(uid, pos, orn, physicsClientId=c)
+                pb.resetBaseVelocity(uid, lin, ang, physicsClientId=c)
+            restart = ()
+        if lazy and s == n_steps:
+            break  # the caller tests after the last step, on the state it reads back
+        switched = None
+        for item in watch:
+            if item[5] > s:
+                continue
+            p = get(item[1], physicsClientId=c)[0]
+            ts = s * dt  # the target moves on at its velocity (zero but with moving targets)
+            d = math.sqrt((p[0] - item[2] - item[8] * ts) ** 2 + (p[1] - item[3] - item[9] * ts) ** 2
+                          + (p[2] - item[4] - item[10] * ts) ** 2)
+            if d > item[6]:
+                item[6] = d
+            if d > d_sim_perc:
+                switched = switched or []
+                switched.append(item)
+            elif lazy:
+                v = get_vel(item[1], physicsClientId=c)[0]
+                vx, vy, vz = v[0] - item[8], v[1] - item[9], v[2] - item[10]  # relative to the target
+                speed = math.sqrt(vx * vx + vy * vy + vz * vz)
+                # steps k with d + speed * k dt + A_MAX (k dt)^2 / 2 <= d_sim_perc are safe
+                tau = (-speed + math.sqrt(speed * speed + 2.0 * A_MAX * (d_sim_perc - d))) / A_MAX
+                item[5] = s + max(1, int(tau / dt))
+            else:
+                item[5] = s + 1
+        if switched:
+            for j in sorted({item[7] for item in switched}):
+                helds[j].jump([item[0] for item in switched if item[7] == j], s)
+                if helds[j] not in moving:
+                    moving.append(helds[j])
+            out += [(item[7], item[0], item[6]) for item in switched]
+            watch[:] = [item for item in watch if item not in switched]
+    for h in helds:
+        h.apply(n_steps + 1)  # held objects end the update exactly at their target
+    return out

@@ -1,0 +1,59 @@
+"""Resting objects in the particle worlds: when they sleep, and how a sleeping one is restarted.
+
+With :attr:`~physics.world.PhysicsSettings.sleeping`, a free object at rest at both ends of an
+update is put to sleep (stepping skips it until something touches it, it is woken or reset; see
+:mod:`physics.sleep`), and one loaded with a velocity while asleep is given that velocity again
+after the first step (Bullet clears a woken body's velocity in it). Used by
+:func:`~estimator.worlds.propagate.propagate_batch`; the thresholds also by the scene model (an object the
+fusion of detections nudges while slower than them is set at rest and loaded asleep).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from physics.sleep import sleep
+from physics.transforms import quat_from_rotvec, quat_multiply
+from physics.world import World
+
+REST_SPEED = 0.005
+"""m/s: with sleeping enabled, a free object moving slower than this (and turning slower than
+:data:`REST_SPIN`) at the start and at the end of an update, and not moved by the update's loads, is
+put to sleep: stepping skips it until something touches it or it is reset."""
+REST_SPIN = 0.05
+"""rad/s: see :data:`REST_SPEED`."""
+SETTLED_REACH = 0.03
+"""m: a settled object loaded asleep (:class:`~estimator.worlds.propagate.StepInput` ``settled``) is woken when an object of its
+particle that the update moves ends within this distance of it (boxes): three times the largest
+regularisation jitter, so that an object whose support was jittered away does not float."""
+
+
+def slow(vel: np.ndarray) -> np.ndarray:
+    """``(...)`` bool: velocities ``(..., 6)`` slower than :data:`REST_SPEED` and turning slower than
+    :data:`REST_SPIN`: at rest, for sleeping."""
+    return (np.linalg.norm(vel[..., :3], axis=-1) < REST_SPEED) & (np.linalg.norm(vel[..., 3:], axis=-1) < REST_SPIN)
+
+
+def sleep_resting(pws: list, candidates: np.ndarray, vel_in: np.ndarray,
+                  vel_out: np.ndarray) -> None:
+    """Put to sleep the ``candidates (K, M)`` at rest at both ends of the update (velocities
+    ``(K, M, 6)``, :func:`slow`) that are still awake (a sleeping body reads back exactly zero
+    velocity)."""
+    rest = candidates & slow(vel_in) & slow(vel_out) & np.any(vel_out != 0.0, axis=-1)
+    for k in np.flatnonzero(rest.any(axis=1)).tolist():
+        sleep(pws[k].world, np.flatnonzero(rest[k]).tolist())
+
+
+def restart_after_wake(w: World, rows: list[int], com_p: np.ndarray, com_v: np.ndarray, dt: float,
+                       gravity: float) -> list[tuple]:
+    """For objects ``rows`` loaded with a velocity while asleep (Bullet clears a woken body's velocity
+    in its first step): the state to give them after that step, that of one free step from the
+    loaded centre-of-mass state ``com_p (M, 7)`` (client frame), ``com_v (M, 6)`` (semi-implicit
+    Euler, as Bullet integrates), as ``[(body id, position, orientation, linear, angular)]``."""
+    if not rows:
+        return []
+    v = com_v[rows].copy()
+    v[:, 2] += gravity * dt
+    pos = com_p[rows, :3] + v[:, :3] * dt
+    orn = quat_multiply(quat_from_rotvec(v[:, 3:] * dt), com_p[rows, 3:])
+    return [(w.uids[i], pos[j].tolist(), orn[j].tolist(), v[j, :3].tolist(), v[j, 3:].tolist())
+            for j, i in enumerate(rows)]

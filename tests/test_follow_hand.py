@@ -1,0 +1,99 @@
+"""Following a hand: estimator.model.mechanisms.follow_hand (held objects' targets)."""
+import math
+
+import numpy as np
+import pytest
+
+from actions.modes import HELD
+from estimator.config import EstimatorConfig, NoiseConfig
+from estimator.model.mechanisms.follow_hand import FollowHands
+from estimator.observations import Detection, Frame
+from model_helpers import CUP, make
+
+
+def test_held_targets_follow_the_tracked_hand_or_drift():
+    frame = Frame(1.0, {}, {"human/right": np.array([1.0, 0.0, 1.0])})
+    for follow in (True, False):
+        model = make(EstimatorConfig(particles=3, noise=NoiseConfig(held_drift_std=0.05, held_offset_std=0.0),
+                                     follow_hands=follow))
+        st = model.initial_state(np.random.default_rng(0))
+        model.memory.record(frame)  # the hand's first position: the filter's
+        model.memory.hold_hand[CUP] = "human/right"
+        model.memory.hold_offset[CUP] = [0.0, 0.0, -0.05]
+        modes = st.modes.copy()
+        modes[:2, CUP] = HELD  # held in particles 0 and 1, free in 2
+        none = np.zeros(5, bool)
+        target, target_vel, err = model.mechanism(FollowHands).held_targets(frame, st.poses, modes, none, none, 0.25,
+                                                     np.random.default_rng(7), st.hold_error)
+        assert np.all(err == 0)
+        if follow:
+            assert np.allclose(target[:2, CUP, :3], [1.0, 0.0, 0.95])
+        else:  # no hand to follow: a drift of held_drift_std * sqrt(dt), the same draws as here
+            drift = np.random.default_rng(7).normal(0.0, 0.05 * math.sqrt(0.25), (2, 3))
+            assert np.allclose(target[:2, CUP, :3], st.poses[:2, CUP, :3] + drift)
+        assert np.all(target[2, CUP] == st.poses[2, CUP]) and np.all(target_vel == 0)
+
+
+@pytest.mark.parametrize("moving, detected, teleported, z, velocity",
+                         [(False, False, False, 0.4, 1.0), (True, True, True, 0.4, 1.0), (True, True, False, 0.4, 0.0),
+                          (True, False, False, 0.7, 1.0)])
+def test_held_target_of_a_perceived_object_is_its_perception_without_drift(moving, detected, teleported, z, velocity):
+    model = make(EstimatorConfig(particles=2, noise=NoiseConfig(held_drift_std=0.05), follow_hands=False,
+                                 moving_teleports=moving))
+    st = model.initial_state(np.random.default_rng(0))
+    model.memory.record(Frame(0.0, {"cup": Detection(np.array([0.3, 0.3, 0.3]))}))
+    model.memory.record(Frame(0.1, {"cup": Detection(np.array([0.3, 0.3, 0.4]))}))
+    modes = st.modes.copy()
+    modes[:, CUP] = HELD
+    perceived = model.memory.perceived(0.4)
+    tele, det = np.zeros(5, bool), np.zeros(5, bool)
+    tele[CUP], det[CUP] = teleported, detected
+    target, target_vel, _ = model.mechanism(FollowHands).held_targets(Frame(0.4), st.poses, modes, det, perceived, 0.3,
+                                               np.random.default_rng(0), st.hold_error, tele)
+    # at the detection; with moving teleports, one not detected in this update (last seen 0.3 s ago
+    # moving up at 1 m/s) is where that detection carried on puts it now, and goes on
+    assert np.allclose(target[:, CUP, :3], [0.3, 0.3, z])
+    # the finite difference (m/s); with moving teleports only an object placed at its detection now
+    # has one (the divergence test carries its target on at it), or one carried on
+    assert np.allclose(target_vel[:, CUP, :3], [0.0, 0.0, velocity])
+
+
+def test_held_target_adds_each_particles_offset_error_to_the_tracked_hand():
+    """With held_offset_std, each particle's held object is at the hand + offset + its own error,
+    which starts at zero and walks (hand_offset_walk, the same draws); detected objects reset it."""
+    frame = Frame(1.0, {}, {"human/right": np.array([1.0, 0.0, 1.0])})
+    model = make(EstimatorConfig(particles=3, noise=NoiseConfig(held_offset_std=0.02, held_offset_time=0.5)))
+    st = model.initial_state(np.random.default_rng(0))
+    model.memory.record(frame)
+    model.memory.hold_hand[CUP] = "human/right"
+    model.memory.hold_offset[CUP] = [0.0, 0.0, -0.05]
+    modes = st.modes.copy()
+    modes[:, CUP] = HELD
+    before = np.zeros((3, 5, 3))
+    before[:, CUP] = [[0.01, 0.0, 0.0], [0.0, -0.01, 0.0], [0.0, 0.0, 0.0]]
+    none = np.zeros(5, bool)
+    target, _, err = model.mechanism(FollowHands).held_targets(frame, st.poses, modes, none, none, 0.1, np.random.default_rng(3), before)
+    from estimator.worlds.held import hand_offset_walk
+    expect = hand_offset_walk(before[:, CUP], 0.1, 0.02, 0.5, np.random.default_rng(3))
+    np.testing.assert_allclose(err[:, CUP], expect)
+    np.testing.assert_allclose(target[:, CUP, :3], np.array([1.0, 0.0, 0.95]) + expect)
+    assert np.all(err[:, [i for i in range(5) if i != CUP]] == 0)
+    detected = none.copy()
+    detected[CUP] = True
+    model.memory.last_seen[CUP] = frame.t  # detected in this update's last frame
+    _, _, err = model.mechanism(FollowHands).held_targets(frame, st.poses, modes, detected, detected, 0.1, np.random.default_rng(3), before)
+    assert np.all(err == 0)
+    # detected in an earlier frame of the update only: the hand has moved on since (its filtered
+    # position, over the frames recorded since), and the object with it, plus each particle's error
+    from estimator.observations import Detection
+    mem = model.memory
+    mem.record(Frame(1.1, {"cup": Detection(np.array([1.0, 0.0, 0.95]))}, {"human/right": [1.0, 0.0, 1.0]}))
+    later = Frame(1.2, {}, {"human/right": [1.06, 0.0, 1.0]})
+    mem.record(later)
+    moved = mem.hand_position("human/right") - mem.hold_hand_position[CUP]
+    assert 0.0 < moved[0] <= 0.06 and np.allclose(moved[1:], 0.0)
+    stale = mem.stale_in_hand(later) & detected  # as the model's move computes them
+    target, _, err = model.mechanism(FollowHands).held_targets(later, st.poses, modes, detected, detected, 0.1, np.random.default_rng(3),
+                                        before, None, None, mem.detections_now(stale, later.t), stale)
+    np.testing.assert_allclose(err[:, CUP], expect)
+    np.testing.assert_allclose(target[:, CUP, :3], np.array([1.0, 0.0, 0.95]) + moved + expect)

@@ -1,0 +1,44 @@
+"""Fusion at rest: estimator.model.mechanisms.rest_fusion."""
+import numpy as np
+
+from estimator.config import EstimatorConfig, NoiseConfig
+from estimator.model.mechanisms.rest_fusion import FusionAtRest
+from estimator.observations import Detection, Frame
+from model_helpers import CRATE, CUP, make
+
+
+def test_a_still_resting_object_takes_a_kalman_step_to_its_detection_and_a_moving_one_does_not():
+    model = make(EstimatorConfig(particles=400, noise=NoiseConfig(process_position_std=0.0)))
+    st = model.initial_state(np.random.default_rng(0))
+    st.supported[:] = True
+    mem = model.memory
+    cup_at = np.array([0.3, 0.3, 0.14])
+    for i in range(4):  # the cup, still, seen 1 cm off its particles' mean; the crate dragged away
+        mem.record(Frame(0.1 * i, {"cup": Detection(cup_at + [0.01, 0.0, 0.0]),
+                                    "crate": Detection(np.array([0.03 * i, 0.0, 0.16]))}))
+    mem.end_tick(mem.perceived(0.3), np.ones(5, bool), mem.tick_velocity())
+    mem.record(Frame(0.4, {"cup": Detection(cup_at + [0.01, 0.0, 0.0]),
+                            "crate": Detection(np.array([0.12, 0.0, 0.16]))}))
+    detected = np.zeros(5, bool)
+    detected[[CRATE, CUP]] = True
+    before = st.poses.copy()
+    mv = model.move(st, Frame(0.4), detected, mem.perceived(0.4), 0.1, np.random.default_rng(1))
+    # (a particle whose step would be under half a millimetre keeps its place: a few)
+    assert mv.fused[:, CUP].mean() > 0.9 and not mv.fused[:, CRATE].any()  # the crate started moving
+    assert np.array_equal(mv.poses[:, CRATE], before[:, CRATE]) and np.array_equal(mv.predicted, before)
+    # the Kalman step's mean: prior mean + P / (P + R) (detection - prior mean), R = (1 cm)^2
+    x0 = before[:, CUP, 0]
+    p = x0.var() + 0.001 ** 2
+    expect = x0.mean() + p / (p + 0.01 ** 2) * (cup_at[0] + 0.01 - x0.mean())
+    sd = np.sqrt(p * 0.01 ** 2 / (p + 0.01 ** 2) / 400)
+    assert abs(mv.poses[:, CUP, 0].mean() - expect) < 4 * sd
+    assert np.array_equal(mv.poses[:, CUP, 2], before[:, CUP, 2])  # the height is physics's
+    resting = np.ones((400, 5), bool)  # supported, at rest (zero velocities)
+    # converged (the cloud's mean at the average still detection): no step, the object sleeps on
+    st.poses[:, CUP, :2] = mem.still_position[CUP, :2] + np.random.default_rng(2).normal(0, 0.002, (400, 2))
+    st.poses[:, CUP, :2] -= st.poses[:, CUP, :2].mean(axis=0) - mem.still_position[CUP, :2]
+    fusion = model.mechanism(FusionAtRest)
+    assert not fusion.fuse_resting(st.poses.copy(), st.log_weights, st.modes, resting, detected,
+                                   np.random.default_rng(1))[:, CUP].any()
+    off = make(EstimatorConfig(particles=400, noise=NoiseConfig(fuse_resting=False)))
+    assert not any(isinstance(m, FusionAtRest) for m in off.mechanisms)  # off: not among the mechanisms
