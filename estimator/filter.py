@@ -177,7 +177,7 @@ class SceneEstimator:
         The step: the model proposes (its moves and the worlds' input), the worlds run, the model
         weighs (settles, and sums its terms) and commits the particles, the collectors make the
         belief; then resampling, when the effective sample size is low or the count must change."""
-        t = self.t_frame
+        t = self.model.inputs.t_frame
         if t is None or (self.t_tick is not None and not t > self.t_tick):
             raise ValueError("step() needs a frame observed since the last reasoning step")
         cfg, model, K = self.config, self.model, self.K
@@ -198,8 +198,8 @@ class SceneEstimator:
         self.n_updates += 1
         n = model.particles_needed(weighed.settled, weights) if cfg.adaptive.enabled else K
         self.k_range = [min(self.k_range[0], K), max(self.k_range[1], K), self.k_range[2] + K]
-        belief = self.collect(t, self.state, weighed.settled, weights, ess, self.known, proposal.perceived,
-                              proposal.detected, dt, self.last_hands, K if cfg.adaptive.enabled else None)
+        belief = self.collect(t, self.state, weighed.settled, weights, ess, model.known, proposal.perceived,
+                              proposal.detected, dt, model.inputs.last_hands, K if cfg.adaptive.enabled else None)
         self.last_belief = belief
         if K > 1 and (ess < cfg.resample_threshold * K or n > K or n < cfg.adaptive.shrink_below * K):
             self._resample(weights, weighed.settled, proposal.perceived, n)

@@ -1052,3 +1052,34 @@ def test_the_adaptive_count_gives_the_same_output_whatever_the_number_of_workers
     assert outs[0] == outs[1] == outs[2]
     ks = {json.loads(line)["particles"] for line in outs[0][0]}
     assert min(ks) == 16 and max(ks) == 160  # it shrank and grew in the run compared
+
+
+def _filter_entries(est, frame):
+    """The functions of estimator/filter.py entered while ``est`` processes ``frame``, in order."""
+    import sys
+
+    import estimator.filter as module
+    entered = []
+
+    def profile(f, event, arg):
+        if event == "call" and f.f_code.co_filename == module.__file__:
+            entered.append(f.f_code.co_name)
+
+    sys.setprofile(profile)
+    try:
+        est.update(frame)
+    finally:
+        sys.setprofile(None)
+    return entered
+
+
+def test_a_frame_enters_the_filter_at_most_four_times_through_an_update_that_resamples():
+    """The loop is the filter's, the decisions the model's: one update that steps and resamples enters
+    filter.py in update, observe, step and the resampling, nothing more."""
+    box = {"id": "box", "box": {"size": [0.06, 0.06, 0.06]}, "pose": {"position": [0, 0, TABLE_TOP + 0.03]}}
+    cfg = EstimatorConfig(particles=8, workers=0, noise=NoiseConfig(), resample_threshold=1.0)  # resample
+    with SceneEstimator(table_scene(box), cfg, np.random.default_rng(0)) as est:
+        est.update(Frame(0.0, {"box": det([0.0, 0.0, TABLE_TOP + 0.03])}))
+        entered = _filter_entries(est, Frame(0.1, {"box": det([0.01, 0.0, TABLE_TOP + 0.03])}))
+    assert entered[:3] == ["update", "observe", "step"] and "_resample" in entered
+    assert len(entered) <= 4, entered
