@@ -82,16 +82,16 @@ class ModePriors:
       the fraction of such losses where the object had in truth been let go.
     * ``release_hidden``: probability that an object its tracked hand carried out of view, and did
       not let go when it was lost, was let go while the hand hid it: weighed when the hand shows in
-      view again without it (:func:`estimator.model.holding.release_behind_cover`). Fitted the same way.
+      view again without it (:func:`estimator.model.hidden.release_behind_cover`). Fitted the same way.
     * ``put_down_hidden``: probability that an object let go while its hand hid it was put down (it
       came to rest where it was let go), not dropped: the particle then lets it go where it was
       lowest while hidden (a person puts a thing down by lowering it;
-      :func:`estimator.model.holding.lowest_hidden_place`), at that time, and the event is a Place;
+      :func:`estimator.model.hidden.lowest_hidden_place`), at that time, and the event is a Place;
       otherwise at a uniform sample of its hidden places, a Release. Fitted the same way.
     * ``put_down_touched``: probability that an object its tracked hand carried out of view, and that
       rested on a support where it was lowest there, was let go there when the hand lifts away
       (carries it more than ``carry_distance`` above that place): the particle then puts it down
-      there, at that time, a Place (:func:`estimator.model.holding.set_down_behind_cover`), without waiting
+      there, at that time, a Place (:func:`estimator.model.hidden.set_down_behind_cover`), without waiting
       for the hand to show in view without it. Fitted the same way.
     * ``held_out_of_reach``: probability that an object held by an agent is detected farther than
       :data:`~estimator.model.perception_memory.HAND_RADIUS` from every hand tracked in that frame (a hand

@@ -66,11 +66,11 @@ class ParticleState:
       the hand plus its offset at the last detection (:func:`estimator.worlds.held.hand_offset_walk`).
     * ``hidden_at (K, M, 3)`` m, ``hidden_t (K, M)`` s, ``hidden_n (K, M)`` int32: a uniform sample of
       where (and when) a held object was while its tracked hand kept it out of the camera's view, over
-      the ``hidden_n`` updates it was (:func:`estimator.model.holding.hidden_places`); ``down_at (K, M, 3)``,
+      the ``hidden_n`` updates it was (:func:`estimator.model.hidden.hidden_places`); ``down_at (K, M, 3)``,
       ``down_t (K, M)``: where and when it was lowest over those updates (where it would have been
-      put down: :func:`estimator.model.holding.lowest_hidden_place`); ``rest_at (K, M, 3)`` m, ``rest_t
+      put down: :func:`estimator.model.hidden.lowest_hidden_place`); ``rest_at (K, M, 3)`` m, ``rest_t
       (K, M)`` s (-inf: none): where and when it last rested on a support out of view, undetected
-      (where a hand that sets it down leaves it: :func:`estimator.model.holding.resting_place`).
+      (where a hand that sets it down leaves it: :func:`estimator.model.hidden.resting_place`).
     * ``jitter (K, M, 3)`` m: the horizontal perception noise the last update's teleport added to
       each free object's position (zero for objects it did not teleport, held ones, and vertically:
       a support undoes it): what the particle's next prediction of a detection leaves out, so that it
@@ -111,7 +111,7 @@ class ParticleState:
         """The particles after an update from this state: ``move`` (:class:`~estimator.model.step.Move`)
         and ``settled`` (:class:`~estimator.model.step.Settled`) of the update, ``log_weights (K,)`` (the
         largest finite one made 0), ``unseen_in_view (K, M)``, ``hidden``: the seven arrays of
-        :func:`~estimator.model.holding.places_after_update`; ``free (K, M)`` bool: the entries free
+        :func:`~estimator.model.hidden.places_after_update`; ``free (K, M)`` bool: the entries free
         after it (the others keep no teleport jitter: they are at their target)."""
         K, M = free.shape
         return self.replace(

@@ -39,7 +39,6 @@ from estimator.belief import Belief
 from estimator.config import reasoning_due
 from estimator.observations import Frame
 
-
 TIMELINE_WINDOW = 3600.0
 """s: how much of the timeline a live run keeps by default (an hour of facts and events)."""
 MIN_TIMELINE_WINDOW = 10.0

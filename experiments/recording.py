@@ -44,10 +44,9 @@ from rerun.components import FillMode
 
 from estimator.belief import Belief
 from estimator.observations import Frame
+from experiments.recording_geometry import boxes_at, covariance_ellipsoids, local_boxes, static_geometry
 from physics.scene import Scene
 from physics.world import World
-
-from experiments.recording_geometry import boxes_at, covariance_ellipsoids, local_boxes, static_geometry
 
 APPLICATION_ID = "scene-estimator"
 TIMELINE = "t"

@@ -4,8 +4,14 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from actions.modes import FREE, HELD
-from estimator.belief import (compute_belief, headline_positions, pose_stats, region_radius_sq, support_labels,
-                              with_added_variance)
+from estimator.belief import (
+    compute_belief,
+    headline_positions,
+    pose_stats,
+    region_radius_sq,
+    support_labels,
+    with_added_variance,
+)
 
 
 def test_pose_stats_match_direct_formulas():

@@ -9,12 +9,11 @@ from pathlib import Path
 import pytest
 
 from experiments.bench import scenarios as bench_scenario
-from experiments.scenarios import resolve_scenarios
 from experiments.bench.synthetic import bench_one, bench_scene
 from experiments.bench.timing import StreamTiming
 from experiments.cli import main
 from experiments.cli.demo import demo_files
-from experiments.scenarios import list_scenarios
+from experiments.scenarios import list_scenarios, resolve_scenarios
 
 ROOT = Path(__file__).resolve().parents[1]
 BANNER = "pybullet build time"

@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 from experiments.cli import main
-
 from helpers import TABLE_TOP, write_jsonl
 
 SCENE = f"""\

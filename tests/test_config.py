@@ -3,8 +3,7 @@ import dataclasses
 import pytest
 import yaml
 
-from estimator.config import (EstimatorConfig, NoiseConfig, ReasonerConfig, config_to_dict, default_config,
-                              load_config)
+from estimator.config import EstimatorConfig, NoiseConfig, ReasonerConfig, config_to_dict, default_config, load_config
 from physics.errors import ConfigError
 
 
@@ -85,7 +84,6 @@ def test_missing_or_unparsable_configuration_file(tmp_path):
 from hypothesis import given  # noqa: E402
 
 from estimator.config import config_from_dict  # noqa: E402
-
 from helpers import fuzz_settings, json_values  # noqa: E402
 
 

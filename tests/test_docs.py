@@ -14,6 +14,7 @@ import threading
 from pathlib import Path
 
 import pytest
+
 from helpers import headless_chromium
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 
 from experiments.cli import evaluate as evaluate_cli
+from experiments.evaluation.methods import MethodRun, StepEstimate
+from experiments.evaluation.metrics import truth_supports
 from experiments.evaluation.report import markdown_event_section, paired_tests, pooled_event_counts, summarize
 from experiments.evaluation.scoring import score_run
 from experiments.evaluation.sweep import SweepConfig, read_rows, run_sweep
 from experiments.evaluation.trials import TrialSpec, deterministic_part, run_trial, trial_rng
-from experiments.evaluation.methods import MethodRun, StepEstimate
-from experiments.evaluation.metrics import truth_supports
 from experiments.simulation.simulator import simulate
 
 ROOT = Path(__file__).resolve().parents[1]

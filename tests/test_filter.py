@@ -10,7 +10,6 @@ from actions.modes import FREE
 from estimator.config import EstimatorConfig
 from estimator.filter import SceneEstimator
 from estimator.observations import Detection, Frame
-
 from helpers import TABLE_TOP, det, frames, table_scene
 
 HZ = 30.0

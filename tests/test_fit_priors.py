@@ -1,15 +1,24 @@
 """Fitting the held-object priors: counts of losses (carried / still) and of hand occlusions, by
 Laplace's rule, on hand-built streams (the simulator's line format)."""
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
 from actions.modes import ModePriors
 from estimator.config import EstimatorConfig, HandConfig, ReasonerConfig
 from experiments.cli.fit import seed_range as _seed_range
-from types import SimpleNamespace
-
-from experiments.evaluation.fit_priors import (Counts, Spread, best_threshold, count_accelerations, count_descents,
-                                               count_losses, count_offsets, count_out_of_reach, count_set_downs)
+from experiments.evaluation.fit_priors import (
+    Counts,
+    Spread,
+    best_threshold,
+    count_accelerations,
+    count_descents,
+    count_losses,
+    count_offsets,
+    count_out_of_reach,
+    count_set_downs,
+)
 from physics.scene import scene_from_dict
 
 

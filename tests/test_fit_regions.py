@@ -8,9 +8,15 @@ import pytest
 
 from estimator.config import config_from_dict
 from experiments.cli.fit import run_fit
+from experiments.evaluation.fit_regions import (
+    LEVELS,
+    RegionSamples,
+    collect_region_samples,
+    fit_regions,
+    region_config,
+    region_coverage,
+)
 from physics.errors import InputError
-from experiments.evaluation.fit_regions import (LEVELS, RegionSamples, collect_region_samples, fit_regions,
-                                                region_config, region_coverage)
 
 
 def _samples(rng, n, floor, speed_time, dof, scenarios=2):

@@ -1,10 +1,9 @@
 import numpy as np
 import pytest
 
+from helpers import TABLE_TOP, table_scene
 from physics.group import SPACING, WorldGroup
 from physics.world import PhysicsSettings, World
-
-from helpers import TABLE_TOP, table_scene
 
 SCENE = table_scene({"id": "box", "box": {"size": [0.1, 0.1, 0.1]}, "pose": {"position": [0, 0, TABLE_TOP + 0.3]}},
                     {"id": "ball", "sphere": {"radius": 0.03}, "pose": {"position": [0.2, 0, TABLE_TOP + 0.5]}},

@@ -2,10 +2,9 @@ import numpy as np
 import pytest
 
 from estimator.worlds.held import depenetrate, glide_paths
+from helpers import TABLE_TOP, table_scene
 from physics.transforms import quat_angle, quat_from_rotvec
 from physics.world import World
-
-from helpers import TABLE_TOP, table_scene
 
 SCENE = table_scene({"id": "box", "box": {"size": [0.1, 0.1, 0.1]}, "pose": {"position": [0, 0, TABLE_TOP + 0.05]}})
 

@@ -6,10 +6,23 @@ import numpy as np
 import pytest
 
 from actions.modes import FREE, HELD, ModePriors
-from estimator.model.likelihood import (DetectionTerm, HandReachTerm, hand_reach_log_likelihood, held_unseen_in_view, hidden_by_person, Evidence, ModeSwitchTerm, NegativeEvidenceTerm, add_terms,
-                                  detection_log_likelihood, exploded_log_likelihood, mode_switch_log_prior,
-                                  negative_evidence_log_likelihood, orientation_log_likelihood,
-                                  position_log_likelihood)
+from estimator.model.likelihood import (
+    DetectionTerm,
+    Evidence,
+    HandReachTerm,
+    ModeSwitchTerm,
+    NegativeEvidenceTerm,
+    add_terms,
+    detection_log_likelihood,
+    exploded_log_likelihood,
+    hand_reach_log_likelihood,
+    held_unseen_in_view,
+    hidden_by_person,
+    mode_switch_log_prior,
+    negative_evidence_log_likelihood,
+    orientation_log_likelihood,
+    position_log_likelihood,
+)
 
 
 def gauss3(d, s):

@@ -13,7 +13,6 @@ from estimator.filter import SceneEstimator
 from estimator.observations import Frame
 from experiments.live import FrameQueue, LiveLoop
 from experiments.streams import paced
-
 from helpers import TABLE_TOP, det, table_scene
 
 BOX = {"id": "box", "box": {"size": [0.06, 0.06, 0.06]}, "mass": 0.2,

@@ -5,9 +5,15 @@ import numpy as np
 import pytest
 
 from estimator.config import EstimatorConfig, NoiseConfig
-from experiments.evaluation.methods import (METHODS, LastSeenBaseline, effective_particles, get_method, method_config,
-                                 run_method, top_from_relations)
-
+from experiments.evaluation.methods import (
+    METHODS,
+    LastSeenBaseline,
+    effective_particles,
+    get_method,
+    method_config,
+    run_method,
+    top_from_relations,
+)
 from helpers import TABLE_TOP, frames, table_scene
 
 CUP = {"id": "cup", "cylinder": {"radius": 0.04, "height": 0.1}, "mass": 0.2,

@@ -1,8 +1,19 @@
 import numpy as np
 import pytest
 
-from actions.modes import (EVENT_NAMES, FREE, HELD, NO_EVENT, PICK, PLACE, PUSH, RELEASE, ModePriors, merge_events,
-                           switch_events)
+from actions.modes import (
+    EVENT_NAMES,
+    FREE,
+    HELD,
+    NO_EVENT,
+    PICK,
+    PLACE,
+    PUSH,
+    RELEASE,
+    ModePriors,
+    merge_events,
+    switch_events,
+)
 
 
 def test_switch_events_labels():

@@ -7,7 +7,15 @@ import pytest
 from actions.modes import FREE, HELD, ModePriors
 from estimator.config import NoiseConfig
 from estimator.model.likelihood import mode_switch_log_prior
-from estimator.model.motion import let_go_moving, out_of_reach, place, roll_released, rolled_along, rolling_spin, teleport_kinds
+from estimator.model.motion import (
+    let_go_moving,
+    out_of_reach,
+    place,
+    roll_released,
+    rolled_along,
+    rolling_spin,
+    teleport_kinds,
+)
 
 
 def test_rolled_along_means_faster_than_the_threshold_horizontally_and_slower_vertically():

@@ -7,14 +7,20 @@ import numpy as np
 import pybullet_data
 import pytest
 
-from physics.errors import InputError
 from experiments.cli import main
+from experiments.scenarios import load_scenario
 from experiments.simulation.files import read_jsonl, write_outputs
-from experiments.simulation.mujoco_truth import (MAX_RESTITUTION, MujocoGroundTruth, obj_parts,
-                                                 restitution_damping, urdf_centre_of_mass, urdf_geoms)
+from experiments.simulation.mujoco_truth import (
+    MAX_RESTITUTION,
+    MujocoGroundTruth,
+    obj_parts,
+    restitution_damping,
+    urdf_centre_of_mass,
+    urdf_geoms,
+)
 from experiments.simulation.simulator import ENGINES, scale_parameters, simulate
 from experiments.simulation.variants import sample_variant
-from experiments.scenarios import load_scenario
+from physics.errors import InputError
 
 DATA = pybullet_data.getDataPath()
 TABLE_TOP = 0.625

@@ -4,9 +4,8 @@ import numpy as np
 import pytest
 
 from estimator.observations import ObservationReader, parse_frame, read_observations, write_observations
-from physics.errors import ObservationError
-
 from helpers import write_jsonl
+from physics.errors import ObservationError
 
 IDS = ["cup", "box"]
 GOOD = {"t": 0.0, "objects": {"cup": {"position": [0.1, 0.2, 0.7], "orientation": [0, 0, 0, 2]}},
@@ -69,7 +68,8 @@ def test_missing_file_and_non_object():
 
 # -- property-based: any content gives frames of finite numbers or an ObservationError with its line ------
 
-from hypothesis import given, strategies as st  # noqa: E402
+from hypothesis import given  # noqa: E402
+from hypothesis import strategies as st
 
 from helpers import fuzz_settings, json_values  # noqa: E402
 

@@ -2,9 +2,8 @@
 import numpy as np
 import pytest
 
-from physics.penetration import INVARIANT_DEPTH, StaticGeometry
-
 from helpers import table_scene
+from physics.penetration import INVARIANT_DEPTH, StaticGeometry
 
 TABLE_TOP = 0.625  # the top of the table's collision box (helpers.TABLE_TOP is where objects rest on it)
 

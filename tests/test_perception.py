@@ -11,8 +11,8 @@ import math
 import numpy as np
 import pytest
 
-from experiments.simulation.perception import PerceptionConfig, PerceptionModel
 from experiments.scenarios import load_scenario
+from experiments.simulation.perception import PerceptionConfig, PerceptionModel
 from experiments.simulation.simulator import simulate
 from physics.transforms import quat_angle, quat_conjugate, quat_multiply, quat_to_rotvec
 

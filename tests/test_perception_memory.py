@@ -6,9 +6,9 @@ import pytest
 
 from estimator.config import HandConfig, ReasonerConfig
 from estimator.model import initial_poses
-from estimator.observations import Detection, Frame
 from estimator.model.detection_noise import ONSET_FALSE_ALARM, ONSET_SIGMAS
 from estimator.model.perception_memory import MOTION_ONSET, VELOCITY_WINDOW, PerceptionMemory
+from estimator.observations import Detection, Frame
 from physics.scene import scene_from_dict
 
 TABLE, CUP, BALL = range(3)

@@ -2,9 +2,8 @@ import numpy as np
 import pytest
 
 from estimator.worlds.pool import BatchInput, WorldPool, shard_bounds
-from physics.visibility import first_copies, visible_fractions
-
 from helpers import TABLE_TOP, table_scene
+from physics.visibility import first_copies, visible_fractions
 
 SCENE = table_scene({"id": "box", "box": {"size": [0.1, 0.1, 0.1]}, "pose": {"position": [0, 0, TABLE_TOP + 0.2]}})
 

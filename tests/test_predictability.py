@@ -6,8 +6,17 @@ import numpy as np
 import pytest
 
 from experiments.cli import main
-from experiments.evaluation.predictability import (TWINS_FILE, TwinConfig, agreement, last_sightings, read_rows,
-                                                   report, run_twins, summarise, twin_row)
+from experiments.evaluation.predictability import (
+    TWINS_FILE,
+    TwinConfig,
+    agreement,
+    last_sightings,
+    read_rows,
+    report,
+    run_twins,
+    summarise,
+    twin_row,
+)
 
 
 def test_last_sightings_are_the_last_visible_frames_or_the_start():

@@ -4,11 +4,17 @@ import numpy as np
 import pytest
 
 from actions.modes import FREE, HELD
-from estimator.worlds.propagate import (PER_PARTICLE, BatchInput, ParticleWorld, StepInput, depenetrate, propagate,
-                                 propagate_batch)
-from physics.world import PhysicsSettings, World
-
+from estimator.worlds.propagate import (
+    PER_PARTICLE,
+    BatchInput,
+    ParticleWorld,
+    StepInput,
+    depenetrate,
+    propagate,
+    propagate_batch,
+)
 from helpers import TABLE_TOP, table_scene
+from physics.world import PhysicsSettings, World
 
 SCENE = table_scene({"id": "box", "box": {"size": [0.1, 0.1, 0.1]}, "mass": 0.5,
                      "pose": {"position": [0, 0, TABLE_TOP + 0.05]}},

@@ -3,8 +3,22 @@ import numpy as np
 import pytest
 
 from actions.modes import NO_EVENT, PICK, PLACE, PUSH, RELEASE
-from actions.push import (AIRBORNE, HOLD_FIELDS, PICK_T, REF_Z, SMOOTH_Z, TOP_Z, empty_holds, end_codes, late_picks,
-                          end_holds, lifted, track_holds, unrested_picks, withdraw_picks)
+from actions.push import (
+    AIRBORNE,
+    HOLD_FIELDS,
+    PICK_T,
+    REF_Z,
+    SMOOTH_Z,
+    TOP_Z,
+    empty_holds,
+    end_codes,
+    end_holds,
+    late_picks,
+    lifted,
+    track_holds,
+    unrested_picks,
+    withdraw_picks,
+)
 
 
 def test_empty_holds_know_nothing():

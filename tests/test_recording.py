@@ -20,11 +20,10 @@ from scipy.stats import f as f_dist
 from estimator.config import EstimatorConfig, NoiseConfig
 from estimator.filter import SceneEstimator
 from estimator.observations import Frame
+from experiments.cli.simulate import add_simulate_arguments, run_simulate
 from experiments.recording import APPLICATION_ID, Recorder, RecorderOptions
 from experiments.recording_geometry import covariance_ellipsoids
-from experiments.cli.simulate import add_simulate_arguments, run_simulate
-
-from helpers import TABLE_TOP, frames, table_scene, headless_chromium
+from helpers import TABLE_TOP, frames, headless_chromium, table_scene
 
 pytestmark = pytest.mark.filterwarnings("error::rerun.error_utils.RerunWarning")
 
@@ -339,10 +338,10 @@ def _entity_paths(path):
 
 def _live_files(tmp_path, n):
     """A scene and an ``n``-frame stream at 30 Hz: the box lifted every 6 s, a tracked hand on it."""
+    import yaml
+
     from estimator.observations import write_observations
     from physics.scene import scene_to_dict
-
-    import yaml
     scene = tmp_path / "scene.yaml"
     scene.write_text(yaml.safe_dump(scene_to_dict(table_scene(BOX))))
 
@@ -414,6 +413,7 @@ def _pink_pixels(png: bytes) -> int:
     import io
 
     from PIL import Image
+
     from experiments.recording import PINK
 
     img = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=int)

@@ -1,12 +1,10 @@
 import numpy as np
 import pytest
 
-from estimator.relations import (RelationConfig, relation_list, relation_masks, relations_and_support,
-                                 supported_mask)
+from estimator.relations import RelationConfig, relation_list, relation_masks, relations_and_support, supported_mask
+from helpers import TABLE_TOP, table_scene
 from physics.errors import SceneError
 from physics.world import World
-
-from helpers import TABLE_TOP, table_scene
 
 
 def box(lo, hi):

@@ -3,11 +3,14 @@ import math
 
 import numpy as np
 
-from actions.modes import FREE, HELD, PLACE, RELEASE
-from estimator.config import EstimatorConfig, NoiseConfig
-from estimator.model.mechanisms.release import ReleaseOnLoss
+from actions.modes import FREE, HELD, PLACE, RELEASE, ModePriors
+from estimator.config import EstimatorConfig, NoiseConfig, ReasonerConfig
+from estimator.model import initial_poses
+from estimator.model.mechanisms.release import ReleaseOnLoss, release_on_loss
+from estimator.model.perception_memory import PerceptionMemory
 from estimator.observations import Detection, Frame
 from model_helpers import BALL, CRATE, CUP, make
+from physics.scene import scene_from_dict
 
 
 def test_release_on_loss_depends_on_whether_the_tracked_hand_carried_the_object():
@@ -87,3 +90,48 @@ def test_a_held_object_that_leaves_view_rolling_is_let_go_at_its_fitted_velocity
     lo, hi = (K - 1 - 3 * math.sqrt(2 * (K - 1))) / (K - 1), (K - 1 + 3 * math.sqrt(2 * (K - 1))) / (K - 1)
     assert lo < vx.var(ddof=1) / se ** 2 < hi
     assert np.allclose(mv.velocities[:, BALL, 4], vx / 0.03)  # w_y = v_x / r: rolling
+
+
+def _memory(hand_end):
+    sc = scene_from_dict({"objects": [{"id": "cup", "cylinder": {"radius": 0.03, "height": 0.08},
+                                       "pose": {"position": [0.1, 0.0, 0.04]}}]})
+    mem = PerceptionMemory(sc, initial_poses(sc)[0], ReasonerConfig(), True)
+    mem.record(Frame(0.0, {"cup": Detection(np.array([0.1, 0.0, 0.7]))}, {"h": np.array([0.1, 0.0, 0.78])}))
+    for k in range(1, 4):
+        mem.record(Frame(0.1 * k, {}, {"h": np.array(hand_end)}))
+    mem.perceived_prev = np.array([True])
+    return mem
+
+
+def test_the_share_released_at_loss_follows_the_hand_state():
+    """4000 particles: the released share is within 4 binomial standard errors of the prior of the
+    hand's state (carried 0.1, still 0.6); nothing is released while the object is perceived."""
+    priors = ModePriors(release_on_loss_carried=0.1, release_on_loss_still=0.6, carry_distance=0.05)
+    K = 4000
+    modes = np.full((K, 1), HELD, np.int8)
+    for hand_end, p in (([0.4, 0.0, 0.78], 0.1), ([0.11, 0.0, 0.78], 0.6)):
+        new, codes = release_on_loss(modes, np.array([False]), np.zeros((K, 1), bool), np.random.default_rng(3),
+                                     _memory(hand_end), priors, np.array([True]))
+        share = np.mean(new[:, 0] == FREE)
+        assert abs(share - p) < 4 * np.sqrt(p * (1 - p) / K), (hand_end, share)
+        assert np.all((codes != 0) == (new == FREE))
+    new, _ = release_on_loss(modes, np.array([True]), np.zeros((K, 1), bool), np.random.default_rng(3),
+                             _memory([0.4, 0.0, 0.78]), priors, np.array([True]))
+    assert np.all(new == HELD)
+
+
+def test_a_held_object_that_leaves_view_in_motion_is_let_go_in_every_particle():
+    """Seen moving along its support at the last update, undetected now, no tracked hand (``left_view``):
+    every particle that holds it lets it go, though it still counts as perceived; the switch is a
+    Place (on a support); without ``left_view`` nothing is let go while perceived."""
+    K = 100
+    modes = np.full((K, 1), HELD, np.int8)
+    modes[:10] = FREE
+    mem = _memory([0.1, 0.0, 0.78])
+    supported = np.ones((K, 1), bool)
+    new, codes = release_on_loss(modes, np.array([True]), supported, np.random.default_rng(5), mem, ModePriors(),
+                                 None, np.array([True]))
+    assert np.all(new == FREE) and np.all(codes[10:] == PLACE) and np.all(codes[:10] == 0)
+    kept, _ = release_on_loss(modes, np.array([True]), supported, np.random.default_rng(5), mem, ModePriors(), None,
+                              np.array([False]))
+    assert np.array_equal(kept, modes)

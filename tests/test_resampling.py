@@ -1,8 +1,13 @@
 import numpy as np
 import pytest
 
-from estimator.resampling import (effective_sample_size, keep_survivors_in_place, multinomial_resample, normalise_log_weights,
-                                  systematic_resample)
+from estimator.resampling import (
+    effective_sample_size,
+    keep_survivors_in_place,
+    multinomial_resample,
+    normalise_log_weights,
+    systematic_resample,
+)
 
 
 def test_normalise_handles_infinities_and_collapse():

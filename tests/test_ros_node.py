@@ -59,11 +59,10 @@ def session(tmp_path_factory):
     """Everything the node published while the stream (and the bad messages) was played."""
     if not OK:
         pytest.skip(REASON)
+    from estimator.observations import ObservationReader
     from experiments.ros.node import BAD_KINDS
     from experiments.ros.play import Player, Roscore, pose_stamped, topics_for
     from experiments.ros.rospy_env import import_ros
-
-    from estimator.observations import ObservationReader
     from experiments.simulation.simulator import simulate, write_outputs
     from physics.scene import load_scene
 

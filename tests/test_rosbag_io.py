@@ -12,12 +12,11 @@ from estimator.filter import SceneEstimator
 from estimator.observations import Frame, ObservationReader, write_observations
 from experiments.cli import main
 from experiments.ros.reader import BagFrameReader, read_bag_frames
-from experiments.ros.writer import ESTIMATE_TOPIC
 from experiments.ros.topics import default_topics, load_topics
+from experiments.ros.writer import ESTIMATE_TOPIC
+from helpers import TABLE_TOP, det, table_scene
 from physics.errors import ObservationError
 from physics.transforms import pose_compose, quat_from_axis_angle
-
-from helpers import TABLE_TOP, det, table_scene
 
 rosbags = pytest.importorskip("rosbags")
 from rosbags.highlevel import AnyReader  # noqa: E402
@@ -271,6 +270,7 @@ def test_particles_same_estimates_from_bag_and_jsonl(tmp_path):
 
 def write_scene(tmp_path):
     import yaml
+
     from physics.scene import scene_to_dict
     path = tmp_path / "scene.yaml"
     path.write_text(yaml.safe_dump(scene_to_dict(table_scene(*SCENE_OBJECTS[1:]))))
@@ -388,7 +388,8 @@ def test_pose_in_a_moving_frame_uses_the_transform_at_its_own_time(tmp_path):
 
 # -- property-based: damaged bags and arbitrary topics files give frames or a located input error ----------
 
-from hypothesis import given, strategies as st  # noqa: E402
+from hypothesis import given  # noqa: E402
+from hypothesis import strategies as st
 
 from helpers import fuzz_settings, json_values  # noqa: E402
 from physics.errors import InputError  # noqa: E402

@@ -5,7 +5,6 @@ import pytest
 from physics.errors import SceneError
 from physics.scene import load_scene, scene_from_dict, scene_to_dict
 
-
 GOOD = """\
 name: cup_behind_box
 camera:
@@ -91,7 +90,8 @@ def test_relative_urdf_and_other_errors(tmp_path):
 
 # -- property-based: any scene data gives a scene or a SceneError -----------------------------------------
 
-from hypothesis import given, strategies as st  # noqa: E402
+from hypothesis import given  # noqa: E402
+from hypothesis import strategies as st
 
 from helpers import fuzz_settings, json_values  # noqa: E402
 

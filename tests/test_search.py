@@ -5,19 +5,32 @@ import numpy as np
 import pytest
 
 from actions.modes import HELD
+from estimator.applications.search import (
+    ClosedLoopSearch,
+    ParticleSet,
+    Region,
+    SearchConfig,
+    Viewpoint,
+    ViewpointError,
+    plan_search,
+    read_viewpoints,
+)
+from estimator.applications.search.looks import static_boxes, travel_costs
+from estimator.applications.search.plan import (
+    bayes_after_miss,
+    brute_force_order,
+    exact_order,
+    expected_cost,
+    greedy_order,
+    plan_order,
+)
+from estimator.applications.search.regions import assign, derive_regions, region_probabilities, table_of
 from estimator.config import EstimatorConfig, NoiseConfig
 from estimator.filter import SceneEstimator
 from estimator.observations import Frame
-from estimator.applications.search import (ClosedLoopSearch, ParticleSet, Region, SearchConfig, Viewpoint, ViewpointError,
-                              plan_search, read_viewpoints)
-from estimator.applications.search.looks import static_boxes, travel_costs
-from estimator.applications.search.plan import (bayes_after_miss, brute_force_order, exact_order, expected_cost, greedy_order,
-                                   plan_order)
-from estimator.applications.search.regions import assign, derive_regions, region_probabilities, table_of
 from experiments.cli import main
-from physics.scene import CameraSpec
-
 from helpers import TABLE_TOP, table_scene, write_jsonl
+from physics.scene import CameraSpec
 
 CUP = {"id": "cup", "cylinder": {"radius": 0.04, "height": 0.1}, "pose": {"position": [0.0, 0.0, TABLE_TOP + 0.05]}}
 BIN = {"id": "bin", "container": {"size": [0.3, 0.2, 0.12], "wall": 0.01},

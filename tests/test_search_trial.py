@@ -5,16 +5,22 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from estimator.applications.search import PlannedLook, SearchConfig, Viewpoint
+from estimator.applications.search.looks import static_boxes
 from estimator.config import EstimatorConfig
 from estimator.filter import SceneEstimator
 from estimator.observations import Frame
-from estimator.applications.search import PlannedLook, SearchConfig, Viewpoint
-from estimator.applications.search.looks import static_boxes
-from experiments.search.trial import (FLOOR_MARGIN, MAX_LOOKS, SearchTrialSpec, choose_target, region_points,
-                                      run_search_trial, search_with)
-from physics.scene import CameraSpec
-
+from experiments.search.trial import (
+    FLOOR_MARGIN,
+    MAX_LOOKS,
+    SearchTrialSpec,
+    choose_target,
+    region_points,
+    run_search_trial,
+    search_with,
+)
 from helpers import TABLE_TOP, table_scene
+from physics.scene import CameraSpec
 
 BIN = {"id": "bin", "container": {"size": [0.3, 0.2, 0.12], "wall": 0.01},
        "pose": {"position": [0.2, -0.3, TABLE_TOP + 0.06]}}

@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from experiments.simulation.perception import PerceptionConfig
-from experiments.scenarios import load_scenario
 from experiments.cli.simulate import add_simulate_arguments, run_simulate
+from experiments.scenarios import load_scenario
 from experiments.simulation.ground_truth import GroundTruth
+from experiments.simulation.perception import PerceptionConfig
 from experiments.simulation.simulator import HAND_ID, sample_variant, simulate
 from experiments.simulation.variants import TWIN_PARAMETERS, draw_parameters, twin_variant
 

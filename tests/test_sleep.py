@@ -1,11 +1,10 @@
 import numpy as np
 import pytest
 
+from helpers import TABLE_TOP, table_scene
 from physics.settings import PhysicsSettings
 from physics.sleep import asleep, near, sleep, touching, wake
 from physics.world import World
-
-from helpers import TABLE_TOP, table_scene
 
 SCENE = table_scene({"id": "a", "box": {"size": [0.05, 0.05, 0.05]}, "pose": {"position": [0, 0, TABLE_TOP + 0.025]}},
                     {"id": "b", "box": {"size": [0.05, 0.05, 0.05]}, "pose": {"position": [0, 0, TABLE_TOP + 0.075]}},

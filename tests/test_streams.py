@@ -9,8 +9,19 @@ import threading
 import pytest
 
 from estimator.observations import ObservationReader
-from experiments.streams import (STDIN_NAME, LineOutput, PathOption, StagedFile, StopSignals, Terminated,
-                                 check_paths, open_observations, paced, parse_tcp, write_text)
+from experiments.streams import (
+    STDIN_NAME,
+    LineOutput,
+    PathOption,
+    StagedFile,
+    StopSignals,
+    Terminated,
+    check_paths,
+    open_observations,
+    paced,
+    parse_tcp,
+    write_text,
+)
 from physics.errors import InputError
 
 

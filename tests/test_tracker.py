@@ -8,10 +8,10 @@ import pytest
 from filterpy.kalman import KalmanFilter
 from scipy.stats import chi2
 
-from estimator.belief import Belief, ObjectBelief, region_radius_sq
-from estimator.observations import Detection, Frame
-from estimator.model.hands import process_noise, transition
 from estimator.applications.tracker import H_POS, PhysicsAwareTracker, TrackerConfig
+from estimator.belief import Belief, ObjectBelief, region_radius_sq
+from estimator.model.hands import process_noise, transition
+from estimator.observations import Detection, Frame
 
 DT = 1 / 30
 

@@ -5,7 +5,12 @@ import math
 import pytest
 from scipy.stats import binomtest
 
-from experiments.evaluation.tracker_report import TRACKER_METHODS, clopper_pearson, markdown_tracker_section, method_stats
+from experiments.evaluation.tracker_report import (
+    TRACKER_METHODS,
+    clopper_pearson,
+    markdown_tracker_section,
+    method_stats,
+)
 from experiments.evaluation.tracking_metrics import nees_band
 
 

@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 
 from estimator.observations import parse_frame
-from experiments.evaluation.scoring import score_run
 from experiments.evaluation.methods import METHODS, run_method
-from experiments.simulation.simulator import simulate
+from experiments.evaluation.scoring import score_run
 from experiments.evaluation.tracking_metrics import nees_scores, reappearance_scores, reappearances
+from experiments.simulation.simulator import simulate
 
 
 def test_reappearances_need_a_gap():

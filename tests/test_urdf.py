@@ -5,10 +5,9 @@ import numpy as np
 import pybullet_data
 import pytest
 
+from helpers import table_scene
 from physics.urdf import collision_only_urdf
 from physics.world import PhysicsSettings, World
-
-from helpers import table_scene
 
 DATA = pybullet_data.getDataPath()
 

@@ -3,14 +3,23 @@ import math
 import numpy as np
 import pytest
 
-from physics.scene import CameraSpec
-from physics.group import WorldGroup
-from physics import sightlines, visibility
-from physics.visibility import (Camera, first_copies, local_box, local_sample_points, rays_clear_of, solid_box,
-                                sphere_occlusion, visible_enough, visible_fraction, visible_fractions)
-from physics.world import World
-
 from helpers import TABLE_TOP, table_scene
+from physics import sightlines, visibility
+from physics.group import WorldGroup
+from physics.scene import CameraSpec
+from physics.visibility import (
+    Camera,
+    first_copies,
+    local_box,
+    local_sample_points,
+    rays_clear_of,
+    solid_box,
+    sphere_occlusion,
+    visible_enough,
+    visible_fraction,
+    visible_fractions,
+)
+from physics.world import World
 
 CAM = {"position": [1.5, 0.0, 1.0], "target": [0.0, 0.0, 0.7], "fov_deg": 60, "far": 4.0}
 

@@ -1,11 +1,10 @@
 import numpy as np
 import pytest
 
+from helpers import TABLE_TOP, table_scene
 from physics.errors import SceneError
 from physics.scene import scene_from_dict
 from physics.world import FLOOR, World
-
-from helpers import TABLE_TOP, table_scene
 
 
 def test_static_table_and_falling_primitives():

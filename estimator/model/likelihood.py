@@ -254,7 +254,7 @@ class Evidence:
       when they stopped being perceived: in truth they fell in the ``t_perceived`` before, unseen,
       and the particle's late fall in view is no evidence against it (None: none).
     * ``proposal_log_weight (K,)``: the weight factor of this update's importance moves (objects
-      let go behind cover, :func:`~estimator.model.holding.release_behind_cover`; None: none).
+      let go behind cover, :func:`~estimator.model.hidden.release_behind_cover`; None: none).
     * ``fused (K, M)`` bool: resting objects moved towards their detection before physics
       (:func:`~estimator.model.fusion.ensemble_kalman_step`), scored, as teleported ones, where the
       particle expected them (None: none).

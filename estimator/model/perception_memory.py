@@ -17,7 +17,7 @@ import numpy as np
 
 from physics.scene import Scene
 
-from ..config import RELEASE_DOWN_SPEED, HandConfig, ReasonerConfig
+from ..config_sections import RELEASE_DOWN_SPEED, HandConfig, ReasonerConfig
 from ..observations import Frame
 from .detection_noise import DetectionNoise, onset_distance
 from .hands import HandFilter, average_offset

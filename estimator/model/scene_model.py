@@ -37,7 +37,7 @@ from ..state import ARRAYS, ParticleState
 from ..worlds.pool import BatchInput, BatchOutput
 from . import regularisation, weighing
 from . import settle as settling
-from .holding import places_after_update
+from .hidden import places_after_update
 from .inputs import StepInputs
 from .likelihood import Evidence, LogWeightTerm, held_unseen_in_view
 from .mechanisms import PHASES, Draft, Mechanism, mechanisms_for

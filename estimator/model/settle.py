@@ -12,11 +12,11 @@ from actions.episodes import carried, update_events
 from actions.modes import FREE, HELD, PUSH
 from actions.push import REF_Z, late_picks
 
-from ..config import RELEASE_DOWN_SPEED
+from ..config_sections import RELEASE_DOWN_SPEED
 from ..relations import relations_and_support, supported_mask
 from ..state import ParticleState
 from ..worlds.pool import BatchOutput
-from .holding import dropped_behind_cover
+from .hidden import dropped_behind_cover
 from .mechanisms.teleport import moving_beyond_noise
 from .motion import rolled_along
 from .step import Move, Settled

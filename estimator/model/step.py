@@ -37,7 +37,7 @@ class Move:
     ``hold_error (K, M, 3)``, ``let_go_unseen (K, M)``: see :class:`~estimator.state.ParticleState`;
     ``cameras``: the cameras that took the frames of the update (None: the scene's camera);
     ``cover_t (K, M)``: when the objects let go now where their hand hid them earlier were let go
-    (s, NaN elsewhere; :attr:`behind_cover` is the mask; :func:`~estimator.model.holding.let_go_behind_cover`:
+    (s, NaN elsewhere; :attr:`behind_cover` is the mask; :func:`~estimator.model.hidden.let_go_behind_cover`:
     put down where it was lowest, a Place, or dropped at a sampled hidden place), and
     ``proposal_log_weight (K,)`` the weight factor of that move and of the let-goes in motion
     (:func:`~estimator.model.motion.let_go_moving`); ``fused (K, M)`` bool: objects at rest moved towards

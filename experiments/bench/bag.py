@@ -20,10 +20,9 @@ import numpy as np
 
 from estimator.filter import SceneEstimator
 from estimator.observations import Frame, ObservationReader, write_observations
-
 from experiments.ros.reader import BagFrameReader
-from experiments.ros.writer import pose_stamped, transform_stamped
 from experiments.ros.topics import load_topics
+from experiments.ros.writer import pose_stamped, transform_stamped
 
 NS = 1_000_000_000
 

@@ -36,11 +36,10 @@ import numpy as np
 from estimator.config import EstimatorConfig
 from estimator.filter import SceneEstimator
 from estimator.observations import Frame, ObservationReader
-from physics.scene import Scene
-
 from experiments.bench.timing import _rss_mb
 from experiments.live import FrameQueue, LiveLoop
 from experiments.streams import paced
+from physics.scene import Scene
 
 LIVE_COLUMNS = [("scenario", "scenario", "{}"), ("particles", "K", "{}"), ("frames", "frames", "{}"),
                 ("steps", "steps", "{}"), ("merged", "merged", "{}"), ("realtime_factor", "real-time factor", "{:.2f}"),

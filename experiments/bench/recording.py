@@ -9,7 +9,6 @@ import numpy as np
 
 from estimator.config import EstimatorConfig, NoiseConfig
 from estimator.filter import SceneEstimator
-
 from experiments.bench.synthetic import bench_frames, bench_scene
 from experiments.recording import Recorder
 

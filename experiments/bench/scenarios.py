@@ -19,12 +19,10 @@ from typing import Iterator
 
 import numpy as np
 
-from estimator.observations import Frame, ObservationReader
-from physics.scene import Scene, load_scene
-
 from estimator.config import EstimatorConfig
-
+from estimator.observations import Frame, ObservationReader
 from experiments.bench.timing import RESOURCE_COLUMNS, TIMING_COLUMNS, time_stream, timing_row
+from physics.scene import Scene, load_scene
 
 SEED = 0
 

@@ -6,9 +6,8 @@ import numpy as np
 
 from estimator.config import EstimatorConfig
 from estimator.observations import Detection, Frame
-from physics.scene import Scene, scene_from_dict
-
 from experiments.bench.timing import bench_config, time_stream, timing_row
+from physics.scene import Scene, scene_from_dict
 
 TABLE_TOP = 0.626
 

@@ -24,12 +24,15 @@ import sys
 from typing import Iterable
 
 from estimator.config import EstimatorConfig, config_from_dict, read_config_file
-
-from experiments.cli.common import particle_count
-
 from experiments.bench.synthetic import bench_one
-from experiments.bench.timing import (BREAKDOWN_COLUMNS, RESOURCE_COLUMNS, SYNTHETIC_COLUMNS, TIMING_COLUMNS,
-                                      bench_config)
+from experiments.bench.timing import (
+    BREAKDOWN_COLUMNS,
+    RESOURCE_COLUMNS,
+    SYNTHETIC_COLUMNS,
+    TIMING_COLUMNS,
+    bench_config,
+)
+from experiments.cli.common import particle_count
 
 
 def report(args, columns: list[tuple[str, str, str]], rows: Iterable[dict], meta: dict) -> int:

@@ -7,9 +7,15 @@ import dataclasses
 import os
 import sys
 
-from estimator.config import (AdaptiveConfig, EstimatorConfig, ReasonerConfig, config_from_dict, default_config,
-                              read_config_file, with_adaptive_count)
-
+from estimator.config import (
+    AdaptiveConfig,
+    EstimatorConfig,
+    ReasonerConfig,
+    config_from_dict,
+    default_config,
+    read_config_file,
+    with_adaptive_count,
+)
 
 DEFAULT_PARTICLES = 64
 """Particle worlds K of ``run``, ``config``, ``track --feedback`` and ``demo`` when neither the

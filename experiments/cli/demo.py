@@ -19,7 +19,6 @@ from importlib import resources
 import numpy as np
 
 from estimator.config import EstimatorConfig, NoiseConfig
-
 from experiments.cli.common import DEFAULT_PARTICLES, print_summary
 from experiments.cli.run import run_stream
 

@@ -23,8 +23,8 @@ import json
 import sys
 import time
 
-from physics.errors import InputError
 from experiments.evaluation.methods import AUTO
+from physics.errors import InputError
 
 
 def _positive_int_list(text: str) -> tuple[int, ...]:
@@ -100,8 +100,8 @@ def add_evaluate_arguments(parser: argparse.ArgumentParser) -> None:
 def run_evaluate(args: argparse.Namespace) -> int:
     """Run the ``evaluate`` subcommand; returns the exit code (0 ok, 1 some trials failed, 2 bad input,
     130 interrupted)."""
-    from experiments.evaluation.sweep import SweepConfig, TrialFailures, run_sweep
     from experiments.evaluation.methods import METHODS
+    from experiments.evaluation.sweep import SweepConfig, TrialFailures, run_sweep
     from experiments.scenarios import resolve_scenarios
 
     def fail(msg: str) -> int:

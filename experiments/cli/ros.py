@@ -8,7 +8,6 @@ import argparse
 import sys
 
 from experiments.cli.common import add_estimator_arguments
-
 from experiments.ros.parameters import PARAMETERS  # noqa: F401  (the options ~name may set)
 
 

@@ -19,8 +19,18 @@ from estimator.filter import SceneEstimator
 from estimator.observations import ObservationReader
 from experiments.cli.common import add_estimator_arguments, build_config, print_summary
 from experiments.live import MIN_TIMELINE_WINDOW, TIMELINE_WINDOW, FrameQueue, LiveLoop
-from experiments.streams import (STDIO, LineOutput, PathOption, StagedFile, StopSignals, check_paths,
-                                 open_observations, paced, silence_stdout, write_text)
+from experiments.streams import (
+    STDIO,
+    LineOutput,
+    PathOption,
+    StagedFile,
+    StopSignals,
+    check_paths,
+    open_observations,
+    paced,
+    silence_stdout,
+    write_text,
+)
 from physics.errors import InputError
 from physics.scene import load_scene
 

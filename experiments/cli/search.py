@@ -19,9 +19,9 @@ import time
 
 import numpy as np
 
+from estimator.applications.search import SearchConfig, plan_search, read_viewpoints
 from estimator.filter import SceneEstimator
 from estimator.observations import ObservationReader
-from estimator.applications.search import SearchConfig, plan_search, read_viewpoints
 from physics.errors import InputError
 from physics.scene import load_scene
 

@@ -24,8 +24,8 @@ import time
 
 import numpy as np
 
-from estimator.observations import ObservationReader
 from estimator.applications.tracker import PhysicsAwareTracker, TrackerConfig
+from estimator.observations import ObservationReader
 from physics.scene import load_scene
 
 

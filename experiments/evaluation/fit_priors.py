@@ -62,17 +62,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from actions.modes import ModePriors
-from estimator.config import RELEASE_DOWN_SPEED, EstimatorConfig, HandConfig, ReasonerConfig, reasoning_due
+from estimator.applications.tracker import PhysicsAwareTracker, TrackerConfig
+from estimator.config import EstimatorConfig, HandConfig, ReasonerConfig, reasoning_due
+from estimator.config_sections import RELEASE_DOWN_SPEED
 from estimator.model import initial_poses
-from estimator.observations import parse_frame
 from estimator.model.hands import filtered_track
 from estimator.model.perception_memory import HAND_RADIUS, PerceptionMemory
-from estimator.applications.tracker import PhysicsAwareTracker, TrackerConfig
-from physics.visibility import Camera, local_sample_points, visible_fraction
-from physics.world import PhysicsSettings, World
-
+from estimator.observations import parse_frame
 from experiments.scenarios import list_scenarios, load_scenario
 from experiments.simulation.simulator import simulate
+from physics.visibility import Camera, local_sample_points, visible_fraction
+from physics.world import PhysicsSettings, World
 
 FIT_SEEDS = range(100, 120)
 """Default seeds of the fit: the evaluation uses 0 .. 19."""

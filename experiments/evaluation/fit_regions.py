@@ -186,7 +186,6 @@ def _read_part(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def _trial_samples(job: tuple[str, int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The hidden samples of one trial (a scenario, a seed, a particle count)."""
     from estimator.observations import parse_frame
-
     from experiments.evaluation.methods import run_method
     from experiments.evaluation.scoring import position_arrays
     from experiments.evaluation.trials import _simulation, trial_rng

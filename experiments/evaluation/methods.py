@@ -37,16 +37,22 @@ from typing import Callable
 import numpy as np
 
 from actions.modes import ModePriors
+from estimator.applications.tracker import PhysicsAwareTracker, TrackerConfig
 from estimator.belief import Belief
-from estimator.config import (AdaptiveConfig, EstimatorConfig, NoiseConfig, ReasonerConfig, config_from_dict, reasoning_due,
-                              with_adaptive_count)
+from estimator.config import (
+    AdaptiveConfig,
+    EstimatorConfig,
+    NoiseConfig,
+    ReasonerConfig,
+    config_from_dict,
+    reasoning_due,
+    with_adaptive_count,
+)
 from estimator.filter import SceneEstimator
 from estimator.observations import Frame
 from estimator.relations import relation_list, relation_masks
-from estimator.applications.tracker import PhysicsAwareTracker, TrackerConfig
 from physics.scene import Scene
 from physics.world import World
-
 
 # --------------------------------------------------------------------------------------------------
 # the registry

@@ -17,7 +17,6 @@ from experiments.evaluation.methods import AUTO, METHODS, get_method, method_lab
 from experiments.evaluation.metrics import ACTIONS, precision_recall_f1
 from experiments.evaluation.stats import bootstrap_ci, group_rng, paired_wilcoxon
 
-
 # --------------------------------------------------------------------------------------------------
 # the summary
 

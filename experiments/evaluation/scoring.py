@@ -9,7 +9,6 @@ import numpy as np
 from experiments.evaluation import metrics as M
 from experiments.evaluation.methods import MethodRun
 
-
 LOOSE_EVENT_WINDOW = 1.5
 """A second, looser event-matching window (s): the paper's reasoner only notices that a vanished
 object was released after its 0.7 s perception timeout, later than the 0.5 s window."""

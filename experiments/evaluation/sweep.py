@@ -22,13 +22,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable
 
-
 from tqdm import tqdm
 
 from experiments.evaluation.methods import effective_particles, get_method
-
-from experiments.evaluation.trials import TrialSpec, run_trial_safe
 from experiments.evaluation.report import write_report
+from experiments.evaluation.trials import TrialSpec, run_trial_safe
 
 TRIALS_FILE = "trials.jsonl"
 

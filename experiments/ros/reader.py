@@ -36,10 +36,9 @@ from typing import Callable, Iterator
 import numpy as np
 
 from estimator.observations import Detection, Frame
+from experiments.ros.topics import SOURCE_TYPES, TF_STATIC_TOPIC, TF_TOPIC, SourceSpec, TopicsSpec
 from physics.errors import ObservationError
 from physics.transforms import pose_compose, pose_inverse
-
-from experiments.ros.topics import SOURCE_TYPES, TF_STATIC_TOPIC, TF_TOPIC, SourceSpec, TopicsSpec
 
 TF_TYPE = SOURCE_TYPES["tf"]
 POSE_TYPE = SOURCE_TYPES["pose"]

@@ -48,11 +48,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from experiments.simulation.perception import PerceptionConfig
 from physics.errors import InputError, SceneError
 from physics.fields import _Fields, read_yaml_with_lines
 from physics.scene import Scene, scene_from_dict
-
-from experiments.simulation.perception import PerceptionConfig
 
 SCENARIO_DIR = Path(__file__).resolve().parent
 

@@ -39,12 +39,11 @@ from typing import Callable, Iterator
 
 import numpy as np
 
+from estimator.applications.search import ClosedLoopSearch, PlannedLook, SearchConfig, look_at_point, plan_search
+from estimator.applications.search.regions import derive_regions, table_of
 from estimator.config import EstimatorConfig
 from estimator.filter import SceneEstimator
 from estimator.observations import Detection, parse_frame
-from estimator.applications.search import ClosedLoopSearch, PlannedLook, SearchConfig, look_at_point, plan_search
-from estimator.applications.search.regions import derive_regions, table_of
-
 from experiments.evaluation.methods import method_config
 from experiments.simulation.simulator import open_simulation
 

@@ -11,18 +11,17 @@ import numpy as np
 import pybullet as pb
 
 from estimator.relations import relation_list, relation_masks
-from physics.errors import InputError
-from physics.scene import CameraSpec
-from physics.transforms import pose_compose, pose_inverse
-from physics.world import PhysicsSettings, World
-
+from experiments.scenarios import HandTarget
 from experiments.simulation.camera import SyntheticCamera
 from experiments.simulation.files import SimulationResult, _r, _rl
 from experiments.simulation.hand_path import _quat_from_rpy, _Segment
 from experiments.simulation.perception import PerceptionModel
 from experiments.simulation.pushes import PUSH_GAP, PushTracker
 from experiments.simulation.variants import Variant
-from experiments.scenarios import HandTarget
+from physics.errors import InputError
+from physics.scene import CameraSpec
+from physics.transforms import pose_compose, pose_inverse
+from physics.world import PhysicsSettings, World
 
 HAND_ID = "human/right"
 GRASP_REACH = 0.04

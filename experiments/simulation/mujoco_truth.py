@@ -51,12 +51,11 @@ import numpy as np
 import pybullet as pb
 from scipy.spatial.transform import Rotation
 
+from experiments.simulation.ground_truth import GroundTruth
+from experiments.simulation.variants import Variant
 from physics.bodies import DEFAULT_PRIMITIVE_MASS, DEFAULT_URDF_MASS
 from physics.errors import InputError, SceneError
 from physics.scene import ObjectSpec, Scene
-
-from experiments.simulation.ground_truth import GroundTruth
-from experiments.simulation.variants import Variant
 
 TIME_STEP = 1.0 / 480.0
 """s: MuJoCo's integration step (a divisor of the 30 Hz and 240 Hz clocks of the scenarios)."""

@@ -44,14 +44,13 @@ from typing import Iterator
 
 import numpy as np
 
-from physics.errors import InputError
-from physics.scene import Scene
-from physics.world import PhysicsSettings
-
+from experiments.scenarios import Scenario, load_scenario
 from experiments.simulation.files import FORMAT_VERSION, SimulationResult, _r, _round_tree, write_outputs
 from experiments.simulation.ground_truth import HAND_ID, GroundTruth  # noqa: F401  (HAND_ID re-exported)
 from experiments.simulation.variants import Variant, sample_variant
-from experiments.scenarios import Scenario, load_scenario
+from physics.errors import InputError
+from physics.scene import Scene
+from physics.world import PhysicsSettings
 
 ENGINES = ("bullet", "mujoco")
 """Physics engines a ground truth can be simulated with: ``bullet`` (pybullet, the estimator's own

@@ -7,12 +7,11 @@ from typing import Any
 
 import numpy as np
 
+from experiments.scenarios import Scenario, Waypoint
+from experiments.simulation.files import DECIMALS, _r
 from physics.bodies import DEFAULT_PRIMITIVE_MASS
 from physics.scene import Scene
 from physics.transforms import quat_from_axis_angle, quat_multiply, quat_normalize
-
-from experiments.scenarios import Scenario, Waypoint
-from experiments.simulation.files import DECIMALS, _r
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,7 @@ model's relations and events.
 """
 from __future__ import annotations
 
-from .base import PHASES, ArraySpec, Draft, Mechanism
+from .base import PHASES, Draft, Mechanism
 from .cover import LetGoBehindCover
 from .flick import LetGoMoving
 from .follow_hand import FollowHands

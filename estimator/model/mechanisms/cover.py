@@ -1,13 +1,13 @@
 """Let go behind cover: a held object whose tracked hand hid it from the camera, and that is not
 perceived when the hand is seen again without it (or the hand leaves), was let go out of view: put
-down where it was lowest, or dropped at a place it was hidden (:func:`~estimator.model.holding.let_go_out_of_view`);
+down where it was lowest, or dropped at a place it was hidden (:func:`~estimator.model.hidden.let_go_out_of_view`);
 an object pushed out of view slides around the hand that pushes it (the push grip). Not in the
 paper's mode."""
 from __future__ import annotations
 
 import numpy as np
 
-from ..holding import let_go_out_of_view
+from ..hidden import let_go_out_of_view
 from .base import ArraySpec, Draft, Mechanism
 
 
