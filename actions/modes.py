@@ -94,7 +94,7 @@ class ModePriors:
       there, at that time, a Place (:func:`estimator.model.hidden.set_down_behind_cover`), without waiting
       for the hand to show in view without it. Fitted the same way.
     * ``held_out_of_reach``: probability that an object held by an agent is detected farther than
-      :data:`~estimator.model.perception_memory.HAND_RADIUS` from every hand tracked in that frame (a hand
+      :data:`~estimator.model.hand_memory.HAND_RADIUS` from every hand tracked in that frame (a hand
       nobody tracks moves it); a particle that holds such an object pays its log at every update
       (:func:`estimator.model.likelihood.hand_reach_log_likelihood`), so an object flicked or pushed and
       then left to roll is not followed as if carried. Fitted the same way, over the frames where an

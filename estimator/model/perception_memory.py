@@ -20,10 +20,10 @@ from physics.scene import Scene
 from ..config_sections import RELEASE_DOWN_SPEED, HandConfig, ReasonerConfig
 from ..observations import Frame
 from .detection_noise import DetectionNoise, onset_distance
-from .hands import HandFilter, average_offset
+from .hand_memory import HandsInMemory
+from .hands import HandFilter
+from .tracks import dwell_back, fit_line, free_fall, rested
 
-HAND_RADIUS = 0.3
-"""A tracked hand within this distance (m) of a detected object is taken to be the one holding it."""
 MOTION_ONSET = 0.015
 """m: an object still until now starts moving when a detection lies this far from where it was still
 (the average of its still detections), or farther where the tracker's noise asks for it
@@ -38,7 +38,7 @@ weighing most (an exponential average of weight ``max(1 / n, 1 / STILL_FRAMES)``
 a slow slide."""
 
 
-class PerceptionMemory:
+class PerceptionMemory(HandsInMemory):
     """Latest perception of each object of ``scene`` (see the module docstring).
 
     Args:
@@ -85,12 +85,7 @@ class PerceptionMemory:
         self._segment_start = np.full(M, -np.inf)
         self.pose_at_tick = poses.copy()
         self.perceived_prev = np.zeros(M, dtype=bool)
-        self.hold_hand: list[str | None] = [None] * M
-        self.hold_offset = np.zeros((M, 3))
-        self._offset_n = np.zeros(M, dtype=int)
-        self._offset_t = np.full(M, -np.inf)
-        self.hold_hand_position = np.full((M, 3), np.nan)
-        self._hands: dict[str, HandFilter] = {}
+        self._init_hands(M)
         self._prev_tick_vel = np.zeros((M, 3))
         self._t_seen_at_tick = np.full(M, -np.inf)
         self._history: list[deque] = [deque() for _ in range(M)]
@@ -207,22 +202,7 @@ class PerceptionMemory:
         since = max(t - VELOCITY_WINDOW, self._segment_start[m])
         if self.from_onset and np.isfinite(self.moving_since[m]):
             since = max(since, self.moving_since[m])
-        since -= 1e-9
-        pts = [(h[0], h[1]) for h in self._history[m] if h[0] >= since]
-        latest = np.asarray(self._history[m][-1][1][:2], dtype=float)
-        if len(pts) < 2:
-            return np.zeros(3), 0.0, latest, math.nan, 0
-        ts = np.array([p[0] for p in pts])
-        xs = np.array([p[1] for p in pts])
-        dt = ts - ts.mean()
-        sxx = float(dt @ dt)
-        if sxx <= 1e-12:
-            return np.zeros(3), 0.0, latest, math.nan, 0
-        slope = dt @ (xs - xs.mean(axis=0)) / sxx
-        resid = xs[:, :2] - xs.mean(axis=0)[:2] - dt[:, None] * slope[None, :2]
-        dof = 2 * (len(pts) - 2)
-        scatter = math.sqrt(float(np.sum(resid ** 2)) / dof) if dof > 0 else math.nan
-        return slope, sxx, xs.mean(axis=0)[:2] + slope[:2] * (t - ts.mean()), scatter, max(dof, 0)
+        return fit_line(self._history[m], since - 1e-9, t)
 
     def _track_motion(self, m: int, t: float, position: np.ndarray, gap: float) -> None:
         """Motion onset of object m from its detection at ``position`` (m) at ``t`` (s), ``gap`` (s)
@@ -245,42 +225,6 @@ class PerceptionMemory:
             else:
                 self._still_n[m] += 1
                 self.still_position[m] = still + max(1.0 / self._still_n[m], 1.0 / STILL_FRAMES) * (position - still)
-
-    def _nearest_hand(self, frame: Frame, m: int) -> None:
-        """Remember the tracked hand nearest to object m (within :data:`HAND_RADIUS`) and the
-        offset, averaged while the same hand stays nearest (:func:`~estimator.model.hands.average_offset`)."""
-        before = self.hold_hand[m]
-        self.hold_hand[m] = None
-        if not frame.hands:
-            return
-        names = list(frame.hands)
-        hp = np.array([frame.hands[n] for n in names])
-        d = np.linalg.norm(hp - self.last_pose[m, :3], axis=1)
-        best = int(np.argmin(d))
-        if d[best] < HAND_RADIUS:
-            name = names[best]
-            n = self._offset_n[m] if name == before else 0
-            self.hold_offset[m], self._offset_n[m] = average_offset(
-                self.hold_offset[m], n, frame.t - self._offset_t[m], self.last_pose[m, :3] - hp[best],
-                self.hand_config)
-            self._offset_t[m] = frame.t
-            self.hold_hand[m] = name
-            self.hold_hand_position[m] = self.hand_position(name)
-
-    def hand_position(self, name: str) -> np.ndarray:
-        """Position ``(3,)`` m of tracked hand ``name``, filtered (:class:`~estimator.model.hands.HandFilter`;
-        NaN if never tracked)."""
-        hand = self._hands.get(name)
-        return hand.position if hand is not None else np.full(3, np.nan)
-
-    def hand_travel(self) -> np.ndarray:
-        """Distance ``(M,)`` (m) the hand that held each object when it was last detected has moved
-        since then (filtered positions, :meth:`hand_position`); NaN for objects without one."""
-        out = np.full(self.M, np.nan)
-        for m, name in enumerate(self.hold_hand):
-            if name is not None:
-                out[m] = float(np.linalg.norm(self.hand_position(name) - self.hold_hand_position[m]))
-        return out
 
     # -- queries at a reasoning step ------------------------------------------------------------------
     def perceived(self, t: float) -> np.ndarray:
@@ -306,13 +250,11 @@ class PerceptionMemory:
         """Heights ``(T, M)`` (m) and vertical velocities ``(T, M)`` (m/s) at ``times (T,)`` (s) of a
         free fall through each object's last two detections of its segment, for ``gravity`` (m/s^2,
         negative), and that velocity's standard error ``(M,)`` (m/s): ``sqrt(2)`` times the detection
-        noise (the detector's ``position_std``, else ``position_std`` m) over their interval.
-        Their difference is the velocity half-way between them; the velocity at the last one, ``v``,
-        adds gravity over half their interval. At a time the fall descends: that height and velocity;
-        carried back to a time before it began (the object was still on its support, or had just
-        left it): at rest at the fall's top, ``z + v^2 / 2|g|``, from where physics takes it off its
-        edge. NaN for objects with fewer than two detections in their segment or not moving down at
-        the last one."""
+        noise (the detector's ``position_std``, else ``position_std`` m) over their interval
+        (:func:`~estimator.model.tracks.free_fall`; carried back to before it began, the object
+        was still on its support or had just left it, at rest at the fall's top, from where physics
+        takes it off its edge). NaN for objects with fewer than two detections in their segment or
+        not moving down at the last one."""
         times = np.atleast_1d(np.asarray(times, dtype=float))
         z = np.full((len(times), self.M), np.nan)
         vz = np.full((len(times), self.M), np.nan)
@@ -320,43 +262,15 @@ class PerceptionMemory:
         g = -float(gravity)
         sigma = np.where(np.isfinite(self.last_std), self.last_std, position_std)
         for m in range(self.M):
-            hist = self._history[m]
-            if len(hist) < 2 or hist[-2][0] < self._segment_start[m] - 1e-9:
-                continue
-            (t1, p1, _), (t2, p2, _) = hist[-2], hist[-1]
-            if not t2 > t1:
-                continue
-            v = (p2[2] - p1[2]) / (t2 - t1) - 0.5 * g * (t2 - t1)
-            if v >= 0.0:
-                continue
-            err[m] = math.sqrt(2.0) * sigma[m] / (t2 - t1)
-            tau = times - t2
-            at = v - g * tau
-            descending = at < 0.0
-            z[:, m] = np.where(descending, p2[2] + v * tau - 0.5 * g * tau * tau, p2[2] + v * v / (2.0 * g))
-            vz[:, m] = np.where(descending, at, 0.0)
+            fall = free_fall(self._history[m], self._segment_start[m], times, g, sigma[m])
+            if fall is not None:
+                z[:, m], vz[:, m], err[m] = fall
         return z, vz, err
 
     def jumped(self) -> np.ndarray:
         """Objects ``(M,)`` whose perceived position moved by more than ``d_perc_prev`` since the
         previous reasoning step."""
         return np.linalg.norm(self.last_pose[:, :3] - self.pose_at_tick[:, :3], axis=1) > self.reasoner.d_perc_prev
-
-    def following_hand(self, frame: Frame) -> np.ndarray:
-        """Objects ``(M,)`` whose hand (when last detected) is tracked in ``frame`` (none when hands
-        are not followed)."""
-        if not self.follow_hands:
-            return np.zeros(self.M, dtype=bool)
-        return np.array([h is not None and h in frame.hands for h in self.hold_hand])
-
-    def hand_target(self, frame: Frame, m: int) -> np.ndarray | None:
-        """Where object m is, ``(3,)`` m, if it follows its tracked hand in ``frame``: the hand's
-        filtered position (:meth:`hand_position`; ``frame`` recorded) plus the object's offset to it;
-        else None."""
-        hand = self.hold_hand[m]
-        if hand is not None and hand in frame.hands and self.follow_hands:
-            return self.hand_position(hand) + self.hold_offset[m]
-        return None
 
     def stale_in_hand(self, frame: Frame) -> np.ndarray:
         """Objects ``(M,)`` last detected before ``frame.t`` (within the update, the frames after it
@@ -381,16 +295,6 @@ class PerceptionMemory:
             carry = aged & ~stale & np.isfinite(self.moving_since) & (self.last_seen < t - 1e-9)
             if np.any(carry):
                 out[carry, :3] = self.position_at(t)[carry]
-        return out
-
-    def hand_heights(self, frame: Frame, objects: np.ndarray) -> np.ndarray:
-        """Height ``(M,)`` (m) at which each of ``objects (M,)`` follows its tracked hand in ``frame``
-        (:meth:`hand_target`); NaN for the others and where the hand is not in the frame."""
-        out = np.full(self.M, np.nan)
-        for m in np.flatnonzero(objects):
-            at = self.hand_target(frame, m)
-            if at is not None:
-                out[m] = at[2]
         return out
 
     def tick_velocity(self) -> np.ndarray:
@@ -455,31 +359,15 @@ class PerceptionMemory:
 
     def _dwell_back(self, m: int, t: float) -> tuple | None:
         """Object m's latest stored detection ``(t, position, orientation)`` at least ``place_dwell``
-        before ``t`` (s); None when there is none."""
-        horizon = t - self.reasoner.place_dwell + 1e-9
-        return next((h for h in reversed(self._history[m]) if h[0] <= horizon), None)
+        before ``t`` (s); None when there is none (:func:`~estimator.model.tracks.dwell_back`)."""
+        return dwell_back(self._history[m], t, self.reasoner.place_dwell)
 
     def _rested(self, m: int, t: float, distance: float | None = None) -> bool:
         """:meth:`at_rest` for object m at time ``t`` (s), on the detections stored so far; with
-        ``distance`` (m), the detections must also have moved less than that."""
+        ``distance`` (m), the detections must also have moved less than that
+        (:func:`~estimator.model.tracks.rested`)."""
         hr = self.reasoner
-        hist = self._history[m]
-        if not hist or t - hist[-1][0] > hr.place_dwell:
-            return False
-        # the latest one place_dwell before the latest detection: detections that stopped coming (the
-        # object left view) say how it moved while seen, not that it came to rest since
-        old = self._dwell_back(m, hist[-1][0])
-        if old is None:
-            return False
-        t0, p0, q0 = old
-        t1, p1, q1 = hist[-1]
-        span = max(t1 - t0, hr.place_dwell)
-        moved = math.dist(p0, p1) < min(hr.place_speed * span, math.inf if distance is None else distance)
-        turned = True
-        if q0 is not None and q1 is not None:
-            dot = min(1.0, abs(sum(a * b for a, b in zip(q0, q1))))
-            turned = 2.0 * math.acos(dot) < hr.place_spin * span
-        return moved and turned
+        return rested(self._history[m], t, hr.place_dwell, hr.place_speed, hr.place_spin, distance)
 
     # -- end of a reasoning step ----------------------------------------------------------------------
     def end_tick(self, perceived: np.ndarray, detected: np.ndarray, tick_vel: np.ndarray) -> None:

@@ -37,13 +37,14 @@ from ..state import ARRAYS, ParticleState
 from ..worlds.pool import BatchInput, BatchOutput
 from . import regularisation, weighing
 from . import settle as settling
+from .hand_memory import HAND_RADIUS
 from .hidden import places_after_update
 from .inputs import StepInputs
 from .likelihood import Evidence, LogWeightTerm, held_unseen_in_view
 from .mechanisms import PHASES, Draft, Mechanism, mechanisms_for
 from .motion import out_of_reach, roll_released, rolled_along
 from .params import param_bounds
-from .perception_memory import HAND_RADIUS, PerceptionMemory
+from .perception_memory import PerceptionMemory
 from .step import Move, Proposal, Settled, Weighed
 
 log = logging.getLogger(__name__)
@@ -297,7 +298,7 @@ class SceneModel:
     # -- the weights ----------------------------------------------------------------------------------
     def _out_of_reach(self, frame: Frame, detected: np.ndarray) -> np.ndarray | None:
         """Dynamic objects ``(M,)`` detected since the last update whose latest detection lies farther
-        than :data:`~estimator.model.perception_memory.HAND_RADIUS` from every hand tracked in ``frame``;
+        than :data:`~estimator.model.hand_memory.HAND_RADIUS` from every hand tracked in ``frame``;
         None when no hand is tracked in it or hands are not followed."""
         if not self.config.follow_hands:
             return None

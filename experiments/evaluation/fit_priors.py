@@ -4,7 +4,7 @@ What is fitted (see :class:`actions.modes.ModePriors` and :class:`estimator.conf
 
 * ``release_on_loss_carried`` / ``release_on_loss_still``: an object stops counting as perceived
   (``t_perceived`` after its last detection) while the tracked hand that was within
-  :data:`~estimator.model.perception_memory.HAND_RADIUS` of it at that detection held it in truth. The
+  :data:`~estimator.model.hand_memory.HAND_RADIUS` of it at that detection held it in truth. The
   hand has *carried* it when it moved more than ``carry_distance`` (smoothed as the estimator does)
   in between, else it is *still*. The prior is the fraction of such losses where the object was in
   truth no longer held at the loss, with Laplace's rule ``(released + 1) / (losses + 2)`` (no data
@@ -27,7 +27,7 @@ What is fitted (see :class:`actions.modes.ModePriors` and :class:`estimator.conf
   tracked hand, the root-mean-square per axis of the tracked minus the true hand.
 * ``held_out_of_reach``: over the frames with a tracked hand where an object is held in truth and
   detected, the fraction where its detection lies farther than
-  :data:`~estimator.model.perception_memory.HAND_RADIUS` from every tracked hand; Laplace's rule.
+  :data:`~estimator.model.hand_memory.HAND_RADIUS` from every tracked hand; Laplace's rule.
 * ``hand_occlusion``: over the frames where an object is held in truth and the scene alone (the
   estimator's worlds: no hand, no person) would show it to the camera, the fraction where the truth
   (with the hand and the person) does not; again with Laplace's rule. Every held frame counts:
@@ -66,8 +66,9 @@ from estimator.applications.tracker import PhysicsAwareTracker, TrackerConfig
 from estimator.config import EstimatorConfig, HandConfig, ReasonerConfig, reasoning_due
 from estimator.config_sections import RELEASE_DOWN_SPEED
 from estimator.model import initial_poses
+from estimator.model.hand_memory import HAND_RADIUS
 from estimator.model.hands import filtered_track
-from estimator.model.perception_memory import HAND_RADIUS, PerceptionMemory
+from estimator.model.perception_memory import PerceptionMemory
 from estimator.observations import parse_frame
 from experiments.scenarios import list_scenarios, load_scenario
 from experiments.simulation.simulator import simulate
@@ -236,7 +237,7 @@ def count_set_downs(obs: list[dict], truth: list[dict], priors: ModePriors, touc
 def count_out_of_reach(obs: list[dict], truth: list[dict], out_of_reach: Counts) -> None:
     """Add the frames of one run (``obs``, ``truth``: the simulator's lines) with a tracked hand in
     which an object held in truth is detected: a hit when no tracked hand is within
-    :data:`~estimator.model.perception_memory.HAND_RADIUS` of the detection."""
+    :data:`~estimator.model.hand_memory.HAND_RADIUS` of the detection."""
     t_true = np.array([r["t"] for r in truth])
     for o in obs:
         if not o.get("hands") or not o["objects"]:
