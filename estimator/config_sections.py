@@ -147,7 +147,7 @@ class NoiseConfig:
       keep theirs. None: not perturbed.
     * ``velocity_slack`` (m/s): an object seen moving along its support at two updates running is
       weighed on its perceived velocity against the velocity the particle's physics had given it
-      (:class:`~estimator.model.likelihood.VelocityTerm`: how fast a rolled ball slows down tells its
+      (:class:`~estimator.model.terms.VelocityTerm`: how fast a rolled ball slows down tells its
       rolling friction, which a teleport at every update hides from the position); this is added in
       quadrature to the perceived velocity's standard error. 0: not weighed.
     * ``param_jitter``: after resampling, parameters are shrunk toward their weighted mean by

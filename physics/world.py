@@ -118,7 +118,7 @@ class World:
             # proportion to its speed (0.35 m/s^2 at 1 m/s for a 3 cm ball): where the scene states
             # a rolling friction that is what resists rolling, and the damping is taken off so that
             # it is not counted twice (and the friction can be learnt from a seen roll,
-            # :class:`~estimator.model.likelihood.VelocityTerm`); elsewhere it stays, the only rolling
+            # :class:`~estimator.model.terms.VelocityTerm`); elsewhere it stays, the only rolling
             # resistance of an object whose scene is silent about it
             pb.changeDynamics(uid, -1, activationState=self._activation, linearDamping=0.0, physicsClientId=c)
             if spec.rolling_friction is not None:

@@ -6,7 +6,7 @@ import pytest
 
 from actions.modes import FREE, HELD
 from estimator.config import EstimatorConfig, NoiseConfig
-from estimator.model.likelihood import Evidence
+from estimator.model.terms import Evidence
 from estimator.observations import Frame
 from estimator.worlds.pool import BatchOutput
 from model_helpers import CUP, TABLE, cup_held_seen_still, make

@@ -242,7 +242,7 @@ def places_after_update(state, ev, settled, t: float, rng: np.random.Generator,
     ``(hidden_at, hidden_t, hidden_n, down_at, down_t)``; and where they last rested on a support out
     of view, undetected (:func:`resting_place`): ``(rest_at, rest_t)``. ``state``: the
     :class:`~estimator.state.ParticleState` before the update; ``ev``: its
-    :class:`~estimator.model.likelihood.Evidence`; ``settled``: its :class:`~estimator.model.step.Settled`;
+    :class:`~estimator.model.terms.Evidence`; ``settled``: its :class:`~estimator.model.step.Settled`;
     ``threshold``: the visible fraction that counts as in view."""
     s = state
     in_hand = (settled.modes == HELD) & np.asarray(ev.in_tracked_hand, bool)[None, :]

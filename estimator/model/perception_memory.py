@@ -178,6 +178,18 @@ class PerceptionMemory(HandsInMemory):
         self._fit_pending()
         return self._scatter
 
+    def teleported(self, at_rest: np.ndarray, falling: np.ndarray) -> None:
+        """The perceived velocities of the objects teleported now: none for those put at rest
+        (``at_rest (M,)`` bool), no vertical part for those ``falling (M,)`` bool off an edge (their
+        fall gives it: :meth:`set_vertical_velocity`)."""
+        vel = self.perc_vel
+        vel[at_rest] = 0.0
+        vel[falling, 2] = 0.0
+
+    def set_vertical_velocity(self, objects: np.ndarray, vz: np.ndarray) -> None:
+        """The perceived vertical velocity of ``objects (M,)`` bool is ``vz (M,)`` m/s (a fall's)."""
+        self.perc_vel[objects, 2] = vz[objects]
+
     def velocity_std(self, position_std: float) -> np.ndarray:
         """Standard error ``(M,)`` (m/s) of each perceived velocity per axis: the detection noise over
         the square root of :attr:`perc_vel_sxx`; 0 where there is no slope. The noise is the detector's

@@ -40,12 +40,12 @@ from . import settle as settling
 from .hand_memory import HAND_RADIUS
 from .hidden import places_after_update
 from .inputs import StepInputs
-from .likelihood import Evidence, LogWeightTerm, held_unseen_in_view
 from .mechanisms import PHASES, Draft, Mechanism, mechanisms_for
 from .motion import out_of_reach, roll_released, rolled_along
 from .params import param_bounds
 from .perception_memory import PerceptionMemory
 from .step import Move, Proposal, Settled, Weighed
+from .terms import Evidence, LogWeightTerm, held_unseen_in_view
 
 log = logging.getLogger(__name__)
 

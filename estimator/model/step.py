@@ -44,14 +44,14 @@ class Move:
     their detection (:meth:`~estimator.model.mechanisms.rest_fusion.FusionAtRest.fuse_resting`; scored where the particle expected them);
     ``jitter (K, M, 3)``: the teleports' position noise (see :class:`~estimator.state.ParticleState`);
     ``out_of_reach (M,)``: objects detected out of reach of every tracked hand (None: no hand
-    tracked; :class:`~estimator.model.likelihood.Evidence`); ``fall``: the objects perceived falling off
+    tracked; :class:`~estimator.model.terms.Evidence`); ``fall``: the objects perceived falling off
     an edge (:class:`Fall`; None: none); ``detections (M, 7)``: the latest detections, those made in
     an earlier frame of the update carried on to its end by their tracked hand, or, seen moving, at
     their velocity (:meth:`~estimator.model.perception_memory.PerceptionMemory.detections_now`; None: as
     detected); ``set_moving (K, M)`` bool: objects at rest in their particle, seen starting to move
     along their support with no tracked hand within reach, that go on at their perceived velocity
     (a Push by an agent nobody tracks, not a Pick; None: none); ``speed_check``: ``(mask (K, M),
-    velocities (K, M, 2), seen (M, 2), std (M,))`` for :class:`~estimator.model.likelihood.VelocityTerm`:
+    velocities (K, M, 2), seen (M, 2), std (M,))`` for :class:`~estimator.model.terms.VelocityTerm`:
     objects seen moving along their support, free in the particle before the update, with their
     velocity in it then and the perceived velocity (None: none); ``push_grip (K, M)``: see
     :class:`~estimator.state.ParticleState` (None: all NaN).
@@ -131,7 +131,7 @@ class Proposal:
 @dataclass(frozen=True)
 class Weighed:
     """One update after physics (:meth:`~estimator.model.SceneModel.weigh`): the particles ``settled``
-    (:class:`Settled`), the ``evidence`` the terms read (:class:`~estimator.model.likelihood.Evidence`) and
+    (:class:`Settled`), the ``evidence`` the terms read (:class:`~estimator.model.terms.Evidence`) and
     the new unnormalised ``log_weights (K,)`` (all zero after a recovery)."""
 
     settled: Settled

@@ -14,7 +14,9 @@ from physics.visibility import sphere_occlusion
 from ..observations import Frame
 from ..resampling import normalise_log_weights
 from ..worlds.pool import BatchOutput
-from .likelihood import (
+from .likelihood import exploded_log_likelihood
+from .step import Move, Settled
+from .terms import (
     DetectionTerm,
     Evidence,
     HandReachTerm,
@@ -24,9 +26,7 @@ from .likelihood import (
     ProposalTerm,
     VelocityTerm,
     add_terms,
-    exploded_log_likelihood,
 )
-from .step import Move, Settled
 
 SURPRISE = 4.0
 """An object whose perceived velocity has been, on average (:func:`note_surprise`), more

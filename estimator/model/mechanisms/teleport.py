@@ -59,8 +59,7 @@ class Teleports(Mechanism):
         u.spinning = spinning = u.moving | falling
         # teleported in motion, an object keeps the detections' fitted velocity (falling, its
         # horizontal part, and the vertical one of a free fall, below); at rest, none
-        mem.perc_vel[tele & ~spinning] = 0.0
-        mem.perc_vel[falling, 2] = 0.0
+        mem.teleported(tele & ~spinning, falling)
         # an object teleported in motion starts where it was at this update's start, so that physics
         # brings it to its detection at frame.t (placed at the detection, the belief would be dt ahead)
         u.start = start = mem.position_at(u.t - dt) if self.moving else None
@@ -68,7 +67,8 @@ class Teleports(Mechanism):
         if self.moving and np.any(falling):  # ... falling, on the free fall through its last detections
             (z0, z1), (vz0, _), vz_std = mem.free_fall((u.t - dt, u.t), cfg.physics.gravity, cfg.noise.position_std)
             fall = falling & np.isfinite(z0) & ~u.following
-            start[fall, 2], mem.perc_vel[fall, 2] = z0[fall], vz0[fall]
+            start[fall, 2] = z0[fall]
+            mem.set_vertical_velocity(fall, vz0)
             u.fall = Fall(fall, z1, (z1 - z0) / dt)
         if np.any(tele):
             u.jitter[:, tele] = self.teleport(u.poses, u.vel, np.flatnonzero(tele), u.newly_known, state.is_in,

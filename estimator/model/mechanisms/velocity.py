@@ -1,6 +1,6 @@
 """Velocity evidence: an object seen moving along its support is weighed on how fast each particle's
 physics had it moving (its friction included) against the velocity now perceived
-(:class:`~estimator.model.likelihood.VelocityTerm`). Part of the full model (``moving_teleports``, with a
+(:class:`~estimator.model.terms.VelocityTerm`). Part of the full model (``moving_teleports``, with a
 ``velocity_slack`` above 0)."""
 from __future__ import annotations
 
