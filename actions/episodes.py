@@ -79,35 +79,59 @@ def carried(is_in: np.ndarray, on_top: np.ndarray, modes: np.ndarray) -> np.ndar
     return ((np.asarray(is_in, dtype=bool) | np.asarray(on_top, dtype=bool)[..., :m]) & held).any(axis=-1)
 
 
-def update_events(holds: np.ndarray, acted_on: np.ndarray, carried: np.ndarray, modes_before: np.ndarray,
-                  modes_physics: np.ndarray,
-                  modes_after: np.ndarray, release_codes: np.ndarray, supported: np.ndarray, resting: np.ndarray,
-                  start_z: np.ndarray, z: np.ndarray, seen_z: np.ndarray, pick_t: np.ndarray, t: float,
-                  rule: EpisodeRule = EpisodeRule(), let_go_t: float | None = None,
-                  release_t: np.ndarray | None = None, rolled_off: np.ndarray | None = None) -> UpdateEvents:
+@dataclass(frozen=True)
+class Switches:
+    """What one update did to the objects of each particle (arrays ``(..., M)``), as
+    :func:`update_events` reads it:
+
+    * ``modes_before``, ``modes_physics``, ``modes_after`` int8: the modes handed to physics (after
+      the releases of unperceived objects), after physics, and after the Place / Release rules;
+    * ``release_codes``: codes of the releases before physics (final: their objects were not
+      perceived; the record still judges them);
+    * ``supported`` / ``resting`` bool, after physics: something under it / and slower than
+      ``EpisodeRule.rest_speed``;
+    * ``start_z``, ``z``: heights (m) before and after physics; ``seen_z``: where the object is seen in
+      this update (NaN: not detected);
+    * ``pick_t``: when a Pick now began (s; the object started moving);
+    * ``let_go_t``: when a let-go on a support now happened (s; None: at the update's time; the Place
+      rule fires once the object has been at rest a while), not before the episode's Pick; the wait
+      counts from it;
+    * ``release_t``: when the Releases (and Places) of ``release_codes`` happened (s; NaN, or None
+      for all: at the update's time; an object let go out of view earlier);
+    * ``rolled_off`` bool: objects seen rolling along their support at the last update and falling
+      off it in this one with no hand near (None: none).
+    """
+
+    modes_before: np.ndarray
+    modes_physics: np.ndarray
+    modes_after: np.ndarray
+    release_codes: np.ndarray
+    supported: np.ndarray
+    resting: np.ndarray
+    start_z: np.ndarray
+    z: np.ndarray
+    seen_z: np.ndarray
+    pick_t: np.ndarray
+    let_go_t: float | None = None
+    release_t: np.ndarray | None = None
+    rolled_off: np.ndarray | None = None
+
+
+def update_events(holds: np.ndarray, acted_on: np.ndarray, carried: np.ndarray, s: Switches, t: float,
+                  rule: EpisodeRule = EpisodeRule()) -> UpdateEvents:
     """The events of one update at time ``t`` (see the module docstring).
 
     Args:
         holds: ``(..., M, 6)`` the hold record before the update.
         acted_on: ``(..., M)`` bool, objects that had an event before the update.
         carried: ``(..., M)`` bool, objects in or on an object held through this update.
-        modes_before, modes_physics, modes_after: ``(..., M)`` int8, the modes handed to physics (after
-            the releases of unperceived objects), after physics, and after the Place / Release rules.
-        release_codes: ``(..., M)`` codes of the releases before physics (final: their objects were
-            not perceived; the record still judges them).
-        supported / resting: ``(..., M)`` bool, after physics: something under it / and slower than
-            ``rule.rest_speed``.
-        start_z, z: ``(..., M)`` heights before and after physics.
-        seen_z: ``(..., M)`` height where the object is seen in this update (NaN: not detected).
-        pick_t: ``(..., M)`` when a Pick now began (s; the object started moving).
-        let_go_t: when a let-go on a support now happened (s; default ``t``; the Place rule fires once
-            the object has been at rest a while), not before the episode's Pick; the wait counts
-            from it.
-        release_t: ``(..., M)`` when the Releases (and Places) of ``release_codes`` happened (s; NaN,
-            or None for all: at ``t``; an object let go out of view earlier).
-        rolled_off: ``(..., M)`` bool, objects seen rolling along their support at the last update
-            and falling off it in this one with no hand near (None: none).
+        s: what the update did (:class:`Switches`).
+        rule: the episode rule's thresholds.
     """
+    modes_before, modes_physics, modes_after, release_codes = s.modes_before, s.modes_physics, s.modes_after, \
+        s.release_codes
+    supported, resting, start_z, z, seen_z, pick_t = s.supported, s.resting, s.start_z, s.z, s.seen_z, s.pick_t
+    let_go_t, release_t, rolled_off = s.let_go_t, s.release_t, s.rolled_off
     held = np.asarray(modes_physics) == HELD
     record = holds  # before this update (its fall off an edge is no lift)
     let_go = holds[..., LET_GO_T]

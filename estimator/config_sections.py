@@ -193,7 +193,7 @@ class NoiseConfig:
     fuse_resting: bool = True
     fusion_floor_std: float = 0.001
     rest_speed: float = 0.01
-    covariance_floor_std: float = 0.007  # fitted: scene-estimator fit-priors --regions (seeds 100-119), cba693d
+    covariance_floor_std: float = 0.007  # fitted: scene-estimator fit-priors --regions (seeds 100-119)
     covariance_speed_time: float = 0.0  # fitted, as the floor
     position_dof: float | None = 3.0  # fitted, as the floor
     held_drift_std: float = 0.05

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from actions.episodes import EpisodeRule, carried, update_events
+from actions.episodes import EpisodeRule, Switches, carried, update_events
 from actions.modes import FREE, HELD, NO_EVENT, PICK, PLACE, PUSH, RELEASE
 from actions.push import LET_GO_T, PICK_T, REF_Z, empty_holds
 
@@ -15,13 +15,12 @@ def step(holds, before, physics, after, t, z, seen_z=None, resting=None, support
     """One update of M objects (lists), everything else defaulted: at rest on a support where free."""
     m = len(before)
     arr = lambda v, d: np.asarray(v if v is not None else d)  # noqa: E731
-    return update_events(holds, arr(acted, [False] * m), arr(carried, [False] * m), np.array(before, np.int8),
-                         np.array(physics, np.int8),
-                         np.array(after, np.int8), arr(release, [0] * m).astype(np.int8),
-                         arr(supported, [True] * m), arr(resting, [a == F for a in after]), np.array(z, float),
-                         np.array(z, float), arr(seen_z, [np.nan] * m).astype(float),
-                         arr(pick_t, [t] * m).astype(float), t, RULE,
-                         rolled_off=None if rolled_off is None else np.asarray(rolled_off, bool))
+    return update_events(holds, arr(acted, [False] * m), arr(carried, [False] * m), Switches(
+        np.array(before, np.int8), np.array(physics, np.int8), np.array(after, np.int8),
+        arr(release, [0] * m).astype(np.int8), arr(supported, [True] * m), arr(resting, [a == F for a in after]),
+        np.array(z, float), np.array(z, float), arr(seen_z, [np.nan] * m).astype(float),
+        arr(pick_t, [t] * m).astype(float), rolled_off=None if rolled_off is None else np.asarray(rolled_off, bool)),
+        t, RULE)
 
 
 def test_a_put_down_waits_for_physics_and_a_drag_is_a_push():
@@ -113,10 +112,10 @@ def test_a_let_go_is_dated_when_given_but_never_before_its_pick():
     h = step(h, [F, F], [F, F], [F, F], 0.1, [0.7, 0.7]).holds
     h = step(h, [F, F], [H, H], [H, H], 1.0, [0.7, 0.7], pick_t=[0.9, 0.9]).holds
     m = 2
-    ev = update_events(h, np.zeros(m, bool), np.zeros(m, bool), np.array([H, H], np.int8), np.array([H, H], np.int8),
-                       np.array([F, F], np.int8), np.zeros(m, np.int8), np.ones(m, bool), np.zeros(m, bool),
-                       np.full(m, 0.75), np.full(m, 0.75), np.full(m, np.nan), np.full(m, 1.5), 1.5, RULE,
-                       let_go_t=np.array([1.2, 0.5]))
+    ev = update_events(h, np.zeros(m, bool), np.zeros(m, bool), Switches(
+        np.array([H, H], np.int8), np.array([H, H], np.int8), np.array([F, F], np.int8), np.zeros(m, np.int8),
+        np.ones(m, bool), np.zeros(m, bool), np.full(m, 0.75), np.full(m, 0.75), np.full(m, np.nan), np.full(m, 1.5),
+        let_go_t=np.array([1.2, 0.5])), 1.5, RULE)
     assert ev.holds[:, LET_GO_T].tolist() == [1.2, 0.9]
 
 
@@ -128,18 +127,19 @@ def test_the_quick_path_of_a_scene_at_rest_matches_the_full_one():
     z = rng.uniform(0.6, 0.8, (3, 4))
     resting = rng.uniform(size=(3, 4)) > 0.5
     free = np.zeros((3, 4), np.int8)
-    args = (np.zeros((3, 4), bool), np.zeros((3, 4), bool), free, free, free, np.zeros((3, 4), np.int8), np.ones((3, 4), bool), resting,
-            z, z, np.full((3, 4), np.nan), np.full((3, 4), 1.0), 1.0, RULE)
-    quick = update_events(h, *args)
+    quick = update_events(h, np.zeros((3, 4), bool), np.zeros((3, 4), bool), Switches(
+        free, free, free, np.zeros((3, 4), np.int8), np.ones((3, 4), bool), resting, z, z, np.full((3, 4), np.nan),
+        np.full((3, 4), 1.0)), 1.0, RULE)
     assert np.all(quick.codes == 0) and np.all(np.isnan(quick.times))
     assert np.array_equal(quick.holds[..., REF_Z], np.where(resting, z, h[..., REF_Z]), equal_nan=True)
     # the same through the full path (a held object elsewhere forces it): identical for these objects
     h2 = np.concatenate([h, empty_holds((3, 1))], axis=1)
     held = np.zeros((3, 5), np.int8)
     held[:, 4] = HELD
-    full = update_events(h2, np.zeros((3, 5), bool), np.zeros((3, 5), bool), held, held, held, np.zeros((3, 5), np.int8), np.ones((3, 5), bool),
-                         np.append(resting, np.zeros((3, 1), bool), axis=1), np.append(z, np.ones((3, 1)), axis=1),
-                         np.append(z, np.ones((3, 1)), axis=1), np.full((3, 5), np.nan), np.full((3, 5), 1.0), 1.0, RULE)
+    full = update_events(h2, np.zeros((3, 5), bool), np.zeros((3, 5), bool), Switches(
+        held, held, held, np.zeros((3, 5), np.int8), np.ones((3, 5), bool),
+        np.append(resting, np.zeros((3, 1), bool), axis=1), np.append(z, np.ones((3, 1)), axis=1),
+        np.append(z, np.ones((3, 1)), axis=1), np.full((3, 5), np.nan), np.full((3, 5), 1.0)), 1.0, RULE)
     assert np.array_equal(full.holds[:, :4], quick.holds, equal_nan=True) and np.all(full.codes[:, :4] == 0)
 
 
@@ -170,10 +170,10 @@ def test_a_release_before_physics_takes_the_time_it_is_given():
     # object 0 let go out of view back at 1.4 s (behind cover), object 1 at this update
     h = step(empty_holds((2,)), [F, F], [F, F], [F, F], 0.1, [0.7, 0.7]).holds
     h = step(h, [F, F], [H, H], [H, H], 1.0, [0.7, 0.7]).holds
-    ev = update_events(h, np.zeros(2, bool), np.zeros(2, bool), np.array([F, F], np.int8), np.array([F, F], np.int8),
-                       np.array([F, F], np.int8), np.array([RELEASE, RELEASE], np.int8), np.zeros(2, bool),
-                       np.zeros(2, bool), np.full(2, 0.9), np.full(2, 0.9), np.full(2, np.nan), np.full(2, 2.0),
-                       2.0, RULE, release_t=np.array([1.4, np.nan]))
+    ev = update_events(h, np.zeros(2, bool), np.zeros(2, bool), Switches(
+        np.array([F, F], np.int8), np.array([F, F], np.int8), np.array([F, F], np.int8),
+        np.array([RELEASE, RELEASE], np.int8), np.zeros(2, bool), np.zeros(2, bool), np.full(2, 0.9), np.full(2, 0.9),
+        np.full(2, np.nan), np.full(2, 2.0), release_t=np.array([1.4, np.nan])), 2.0, RULE)
     assert ev.codes.tolist() == [RELEASE, RELEASE]
     assert ev.times[0] == 1.4 and np.isnan(ev.times[1])  # NaN: at the update
 

@@ -791,7 +791,7 @@ def test_a_resting_object_converges_to_the_mean_of_its_detections():
     detections (about 20 updates: 3 mm / sqrt(20) = 0.7 mm per axis, plus the cloud's Monte-Carlo
     error, 1 cm / sqrt(20) / sqrt(32) = 0.4 mm), and the cloud's spread is a posterior's, not the
     1 cm it was drawn with. (On this clean scene weighting alone comes close too; the Kalman step
-    itself is tested on the model, test_model.py, and in test_fusion.py.)"""
+    itself is tested on the model, test_rest_fusion.py, and in test_fusion.py.)"""
     from estimator.config import NoiseConfig
 
     at = np.array([0.1, 0.0, TABLE_TOP + 0.03])

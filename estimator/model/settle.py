@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from actions.episodes import carried, update_events
+from actions.episodes import Switches, carried, update_events
 from actions.modes import FREE, HELD, PUSH
 from actions.push import REF_Z, late_picks
 
@@ -80,13 +80,12 @@ def settle(model, state: ParticleState, move: Move, out: BatchOutput, t: float, 
     # objects let go behind cover were let go back then, out of view (release_t)
     release_codes = dropped_behind_cover(move.release_codes, move.behind_cover, move.poses, out.poses, out.aabbs,
                                          model.scene.floor)
-    ev = update_events(
-        state.holds, acted, silent,
+    ev = update_events(state.holds, acted, silent, Switches(
         move.modes, after_physics, new_modes, release_codes, supported,
         supported & (np.linalg.norm(out.velocities[..., :3], axis=-1) < rule.rest_speed), move.poses[..., 2],
         out.poses[..., 2], seen_z(model, t, detected),
-        np.where((onset >= t - cfg.event_window) & (onset <= t), onset, t), t, rule, let_go_t=t - hr.place_dwell,
-        release_t=move.cover_t, rolled_off=None if move.fall is None else move.fall.mask[None, :])
+        np.where((onset >= t - cfg.event_window) & (onset <= t), onset, t), let_go_t=t - hr.place_dwell,
+        release_t=move.cover_t, rolled_off=None if move.fall is None else move.fall.mask[None, :]), t, rule)
     # taken in hand while still seen at rest, then seen to start moving: the Pick is that start
     codes, times, holds = late_picks(ev.codes, ev.times, ev.holds, ev.modes == HELD, onset, quiet,
                                      t - cfg.event_window, t)

@@ -1,4 +1,4 @@
-"""The scene model's pieces alone, on hand-built particle arrays (no worlds)."""
+"""estimator.model.scene_model: the scene model's prior, its move and its contract, on hand-built particle arrays (no worlds)."""
 
 import numpy as np
 
