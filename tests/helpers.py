@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import math
 import shutil
 import tempfile
 
@@ -81,3 +82,8 @@ def headless_chromium():
         opts.add_argument(arg)
     opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})
     return webdriver.Chrome(service=Service(driver), options=opts)
+
+
+def gauss3(d, s):
+    """Isotropic 3-D Gaussian density at distance d (m) from its mean, std s (m), by hand."""
+    return (2 * math.pi * s * s) ** -1.5 * math.exp(-d * d / (2 * s * s))

@@ -14,11 +14,7 @@ from estimator.model.likelihood import (
     orientation_log_likelihood,
     position_log_likelihood,
 )
-
-
-def gauss3(d, s):
-    """Isotropic 3-D Gaussian density at distance d (m) from its mean, std s (m), by hand."""
-    return (2 * math.pi * s * s) ** -1.5 * math.exp(-d * d / (2 * s * s))
+from helpers import gauss3
 
 
 def yaw(angle):

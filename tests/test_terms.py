@@ -19,12 +19,7 @@ from estimator.model.terms import (
     add_terms,
     held_unseen_in_view,
 )
-
-
-def gauss3(d, s):
-    """Isotropic 3-D Gaussian density at distance d (m) from its mean, std s (m), by hand."""
-    return (2 * math.pi * s * s) ** -1.5 * math.exp(-d * d / (2 * s * s))
-
+from helpers import gauss3
 
 DET = np.array([[0.3, -0.2, 0.7]])
 
