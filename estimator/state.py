@@ -106,25 +106,21 @@ class ParticleState:
             raise KeyError(f"the particle state holds no array named {sorted(unknown)}")
         return ParticleState(**{**self.__dict__, **arrays})
 
-    def after_update(self, move, settled, log_weights: np.ndarray, unseen_in_view: np.ndarray,
-                     hidden: tuple[np.ndarray, ...], free: np.ndarray) -> "ParticleState":
+    def after_update(self, move, settled, log_weights: np.ndarray, unseen_in_view: np.ndarray, free: np.ndarray,
+                     **declared: np.ndarray) -> "ParticleState":
         """The particles after an update from this state: ``move`` (:class:`~estimator.model.step.Move`)
         and ``settled`` (:class:`~estimator.model.step.Settled`) of the update, ``log_weights (K,)`` (the
-        largest finite one made 0), ``unseen_in_view (K, M)``, ``hidden``: the seven arrays of
-        :func:`~estimator.model.hidden.places_after_update`; ``free (K, M)`` bool: the entries free
-        after it (the others keep no teleport jitter: they are at their target)."""
+        largest finite one made 0), ``unseen_in_view (K, M)``, ``free (K, M)`` bool: the entries free
+        after it (the others keep no teleport jitter: they are at their target); ``declared``: the
+        mechanisms' arrays after the update, by name (:meth:`~estimator.model.mechanisms.base.Mechanism.commit`)."""
         K, M = free.shape
         return self.replace(
             poses=settled.poses, velocities=settled.velocities, modes=settled.modes,
             log_weights=log_weights - np.max(log_weights[np.isfinite(log_weights)]), on_top=settled.on_top,
             is_in=settled.is_in, supported=settled.supported,
             last_motion=np.linalg.norm(settled.poses[..., :3] - move.poses[..., :3], axis=-1),
-            jolted=np.zeros((K, M), dtype=bool), unseen_in_view=unseen_in_view,
-            hold_error=move.hold_error, let_go_unseen=move.let_go_unseen, hidden_at=hidden[0],
-            hidden_t=hidden[1], hidden_n=hidden[2], down_at=hidden[3], down_t=hidden[4],
-            rest_at=hidden[5], rest_t=hidden[6], holds=settled.holds,
-            jitter=move.jitter * free[..., None], push_grip=(move.push_grip if move.push_grip is not None
-                                                         else np.full((K, M), np.nan)))
+            jolted=np.zeros((K, M), dtype=bool), unseen_in_view=unseen_in_view, holds=settled.holds,
+            jitter=move.jitter * free[..., None], **declared)
 
     def take(self, ancestors: np.ndarray, own: np.ndarray | None = None) -> "ParticleState":
         """The particles ``ancestors (K,)`` (indices, repeats allowed), copied, equally weighted.

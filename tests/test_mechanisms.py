@@ -54,3 +54,29 @@ def test_a_new_mechanism_is_one_entry_its_hooks_run_and_its_array_is_resampled_w
         for a in np.unique(was):
             rows = np.flatnonzero(was == a)
             assert np.allclose(est.state.poses[rows, 1, :3], est.state.poses[rows[0], 1, :3], atol=0.0)
+
+
+def _p_held_after_a_lift_out_of_view(monkeypatch, drop=None):
+    """A box lifted 25 cm off the table and then no longer seen (no hand tracked); P(held) a second
+    after it vanished, with the model's mechanisms less ``drop``."""
+    if drop is not None:
+        monkeypatch.setattr(scene_model, "mechanisms_for",
+                            lambda model: [m for m in mechanisms_for(model) if not isinstance(m, drop)])
+    box = {"id": "box", "box": {"size": [0.06, 0.06, 0.06]}, "pose": {"position": [0.1, 0, TABLE_TOP + 0.03]}}
+    cfg = EstimatorConfig(particles=32, workers=0, noise=NoiseConfig())
+    frames = [Frame(t, {"box": det([0.1, 0.0, TABLE_TOP + 0.03 + 0.25 * min(1.0, max(0.0, (t - 0.3) / 0.6))])})
+              for t in np.arange(0.0, 1.2, 1 / 30)]
+    frames += [Frame(t, {}) for t in np.arange(1.2, 2.2, 1 / 30)]  # gone
+    with SceneEstimator(table_scene(box), cfg, np.random.default_rng(2)) as est:
+        beliefs = est.run(frames)
+        return beliefs[-1].objects["box"].p_held
+
+
+def test_a_mechanism_taken_off_the_list_is_gone_and_nothing_else_breaks(monkeypatch):
+    """Release on loss is one module and one entry: without it a box lifted out of view is still held
+    in every particle a second later; with it, the particles let it go at its rate."""
+    from estimator.model.mechanisms.release import ReleaseOnLoss
+
+    assert _p_held_after_a_lift_out_of_view(monkeypatch, drop=ReleaseOnLoss) == 1.0
+    monkeypatch.undo()
+    assert _p_held_after_a_lift_out_of_view(monkeypatch) < 0.9

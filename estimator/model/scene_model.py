@@ -38,7 +38,6 @@ from ..worlds.pool import BatchInput, BatchOutput
 from . import regularisation, weighing
 from . import settle as settling
 from .hand_memory import HAND_RADIUS
-from .hidden import places_after_update
 from .inputs import StepInputs
 from .mechanisms import PHASES, Draft, Mechanism, mechanisms_for
 from .motion import out_of_reach, roll_released, rolled_along
@@ -167,9 +166,11 @@ class SceneModel:
         """The particles after the update (the largest finite log-weight made 0), their events recorded;
         the perception memory closes the update."""
         thr, settled = self.config.visibility_threshold, w.settled
-        hidden = places_after_update(state, w.evidence, settled, p.t, rng, thr)
-        new = state.after_update(p.move, settled, w.log_weights, held_unseen_in_view(w.evidence, thr), hidden,
-                                 settled.modes == FREE)
+        declared = {}
+        for mechanism in self.mechanisms:  # each one's arrays after the update
+            declared.update(mechanism.commit(state, p, w, rng))
+        new = state.after_update(p.move, settled, w.log_weights, held_unseen_in_view(w.evidence, thr),
+                                 settled.modes == FREE, **declared)
         self.memory.end_tick(p.perceived, p.detected, settled.tick_vel)
         record_event_times(new.event_t, settled.codes, p.t, settled.times, new.push_decided)
         return new
@@ -258,13 +259,11 @@ class SceneModel:
                   # at rest in the particle (on a support, slower than rest_speed) before this update
                   resting=state.supported & (np.linalg.norm(state.velocities[..., :3], axis=-1) < cfg.noise.rest_speed),
                   check=np.broadcast_to(perceived & fresh, (K, M)).copy(),
-                  jolted=np.zeros((K, M), dtype=bool), let_go=state.let_go_unseen.copy(),
-                  target=poses.copy(), target_vel=np.zeros((K, M, 6)), hold_error=state.hold_error)
+                  jolted=np.zeros((K, M), dtype=bool), target=poses.copy(), target_vel=np.zeros((K, M, 6)),
+                  modes=state.modes.copy(), release_codes=np.zeros((K, M), dtype=np.int8))  # nothing let go yet
         for phase in PHASES:
             for hook in self._hooks[phase]:
                 hook(u)
-        if u.modes is None:  # no mechanism releases anything
-            u.modes, u.release_codes = u.prev_modes.copy(), np.zeros((K, M), dtype=np.int8)
         # what physics checks and reports
         vis_query = self.known & self.dynamic & ~detected
         has_camera = self.scene.camera is not None if cameras is None else len(cameras) > 0

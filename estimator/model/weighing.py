@@ -69,7 +69,7 @@ def evidence(model, move: Move, settled: Settled, out: BatchOutput, frame: Frame
                     visible=visible, queried=move.vis_query,
                     in_tracked_hand=mem.following_hand(frame), finite=out.finite,
                     unseen_in_view=unseen_in_view,
-                    fell_unseen=(settled.modes == FREE)
+                    fell_unseen=None if move.let_go_unseen is None else (settled.modes == FREE)
                     & (frame.t - move.let_go_unseen < model.config.reasoner.t_perceived - 1e-9),
                     proposal_log_weight=move.proposal_log_weight, fused=move.fused,
                     out_of_reach=move.out_of_reach, diverged=diverged_by(move, out),

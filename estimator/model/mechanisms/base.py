@@ -100,6 +100,12 @@ class Mechanism:
     def __init__(self, model):
         self.model = model
 
+    def commit(self, state, p, w, rng: np.random.Generator) -> dict[str, np.ndarray]:
+        """The mechanism's arrays (:attr:`arrays`) after the update, by name: ``state`` before it,
+        ``p`` its :class:`~estimator.model.step.Proposal`, ``w`` its :class:`~estimator.model.step.Weighed`.
+        Those it leaves out keep their values (an array changed in place stays changed)."""
+        return {}
+
     def after_physics(self, poses: np.ndarray, aabbs: np.ndarray) -> np.ndarray:
         """The particles' poses ``(K, M, 7)`` after physics (``aabbs (K, M, 2, 3)``), corrected (the
         same array when nothing changes)."""

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..hidden import let_go_out_of_view
+from ..hidden import let_go_out_of_view, places_after_update
 from .base import ArraySpec, Draft, Mechanism
 
 
@@ -22,6 +22,16 @@ class LetGoBehindCover(Mechanism):
     """Where (and when) a held object was while its tracked hand kept it out of view, where it was
     lowest then, where it last rested out of view (see :class:`~estimator.state.ParticleState`), and
     the grip of the hand that pushes it out of view (NaN: none)."""
+
+    def commit(self, state, p, w, rng) -> dict:
+        """The places the held objects were hidden at, lowest and last at rest after the update
+        (:func:`~estimator.model.hidden.places_after_update`), and the push grips."""
+        K, M = state.modes.shape
+        names = ("hidden_at", "hidden_t", "hidden_n", "down_at", "down_t", "rest_at", "rest_t")
+        out = dict(zip(names, places_after_update(state, w.evidence, w.settled, p.t, rng,
+                                                  self.model.config.visibility_threshold)))
+        out["push_grip"] = p.move.push_grip if p.move.push_grip is not None else np.full((K, M), np.nan)
+        return out
 
     def release(self, u: Draft) -> None:
         model, cfg = self.model, self.model.config

@@ -20,6 +20,9 @@ class FollowHands(Mechanism):
     """``hold_error (K, M, 3)`` m: how far a held, undetected object following a tracked hand is from the
     hand plus its offset at the last detection (:func:`estimator.worlds.held.hand_offset_walk`)."""
 
+    def commit(self, state, p, w, rng) -> dict:
+        return {"hold_error": p.move.hold_error}
+
     def target(self, u: Draft) -> None:
         mem, cfg = self.model.memory, self.model.config
         # detected in an earlier frame of the update only: moved on with its tracked hand, or, seen

@@ -75,6 +75,9 @@ class ReleaseOnLoss(Mechanism):
         super().__init__(model)
         self.left_view = model.config.moving_teleports
 
+    def commit(self, state, p, w, rng) -> dict:
+        return {"let_go_unseen": p.move.let_go_unseen}
+
     def release(self, u: Draft) -> None:
         mem = self.model.memory
         if self.left_view:  # seen moving along at the last update (its last two detections, or the line
