@@ -1,6 +1,6 @@
 """The particles' physical parameters: their bounds, and Liu-West shrinkage after resampling.
 
-K particles, N objects, 5 parameters per object (:data:`~estimator.worlds.propagate.PARAM_NAMES`: lateral,
+K particles, N objects, 5 parameters per object (:data:`~estimator.worlds.batch.PARAM_NAMES`: lateral,
 rolling and spinning friction, restitution, mass in kg).
 
 Frictions and masses are positive and known to a factor, not to a difference: they are shrunk and

@@ -116,7 +116,7 @@ class Proposal:
     (s) after the previous update, from ``frame`` (the newest), with the objects ``detected (M,)``
     since the previous update and ``perceived (M,)`` now, the ``cameras`` that took the frames (None:
     the scene's), the particles' ``move`` and the worlds' input ``batch``
-    (:class:`~estimator.worlds.propagate.BatchInput`, without what the pool's cache decides)."""
+    (:class:`~estimator.worlds.batch.BatchInput`, without what the pool's cache decides)."""
 
     t: float
     dt: float

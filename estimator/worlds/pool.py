@@ -24,7 +24,7 @@ from physics.scene import CameraSpec, Scene
 from physics.visibility import first_copies
 from physics.world import PhysicsSettings
 
-from .propagate import PER_PARTICLE, BatchInput, BatchOutput
+from .batch import PER_PARTICLE, BatchInput, BatchOutput
 from .shard import _Shard, _worker_main
 from .shared_batch import SharedBatch
 from .world_cache import WorldCache

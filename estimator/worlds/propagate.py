@@ -14,7 +14,6 @@ step:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import pybullet as pb
@@ -23,104 +22,9 @@ from actions.modes import FREE, HELD
 from physics.sleep import asleep, near, touching, wake
 from physics.world import World
 
+from .batch import PER_PARTICLE, BatchInput, BatchOutput, ParticleWorld, StepInput, StepOutput
 from .held import HeldObjects, depenetrate, glide_paths
 from .resting import SETTLED_REACH, restart_after_wake, sleep_resting
-
-PARAM_NAMES = ("lateral_friction", "rolling_friction", "spinning_friction", "restitution", "mass")
-"""Columns of the per-object physical parameter arrays ``(..., M, 5)`` (mass in kg)."""
-
-
-@dataclass
-class StepInput:
-    """Inputs of one particle's update; M objects.
-
-    poses ``(M, 7)``, velocities ``(M, 6)``: state to start from. params ``(M, 5)`` (see
-    :data:`PARAM_NAMES`). modes ``(M,)`` int8. check ``(M,)`` bool: FREE objects to test against
-    ``target``. target ``(M, 7)`` / target_vel ``(M, 6)``: perceived (or held) pose and velocity.
-    contents ``(M, M)`` bool: ``contents[a, b]`` = a is in b (a moves with b when b is overridden).
-    reset ``(M,)`` bool or None: objects whose pose and velocity must be loaded into the world (the
-    others already hold the state the world left them in); None loads all.
-    settled ``(M,)`` bool or None: objects whose loaded state is one a world produced at rest (zero
-    velocity) and nothing changed since (a resampled particle's), or that were only moved along
-    their support by the fusion of detections: with sleeping on, they are loaded asleep, not woken
-    (what the particle's other objects do may still wake them).
-    depenetrate ``(M,)`` bool: objects just placed with perturbed poses, to be pushed out of anything
-    they interpenetrate before stepping (a perturbation must not start a box inside the table).
-    """
-
-    poses: np.ndarray
-    velocities: np.ndarray
-    params: np.ndarray
-    modes: np.ndarray
-    check: np.ndarray
-    target: np.ndarray
-    target_vel: np.ndarray
-    contents: np.ndarray
-    depenetrate: np.ndarray
-    reset: np.ndarray | None = None
-    settled: np.ndarray | None = None
-
-
-@dataclass
-class StepOutput:
-    """Result of one particle's update: poses ``(M, 7)``, velocities ``(M, 6)``, modes ``(M,)``,
-    max_divergence ``(M,)`` (m, over the steps, for checked objects; 0 otherwise), aabbs ``(M, 2, 3)``,
-    finite: False if the simulation produced NaN or a runaway velocity (bool; ``(K,)`` in a batch)."""
-
-    poses: np.ndarray
-    velocities: np.ndarray
-    modes: np.ndarray
-    max_divergence: np.ndarray
-    aabbs: np.ndarray
-    finite: bool | np.ndarray
-
-
-@dataclass
-class BatchInput(StepInput):
-    """Inputs for K particles: the fields of :class:`StepInput` with a leading K axis, plus
-    ``vis_query (M,)`` bool: objects whose visibility to the camera is wanted after the update
-    (None: none)."""
-
-    vis_query: np.ndarray | None = None
-
-
-PER_PARTICLE = ("poses", "velocities", "params", "modes", "check", "target", "target_vel", "contents",
-                "depenetrate", "reset", "settled")
-"""The fields of :class:`BatchInput` with a leading particle axis."""
-
-
-@dataclass
-class BatchOutput(StepOutput):
-    """Outputs for K particles: the fields of :class:`StepOutput` with a leading K axis (``finite
-    (K,)``), plus ``visible (K, M)``: fraction of each object's sample points seen by the camera (0
-    where not queried)."""
-
-    visible: np.ndarray | None = None
-
-
-class ParticleWorld:
-    """A persistent world for one particle slot, remembering the parameters last applied."""
-
-    def __init__(self, world: World):
-        self.world = world
-        self.dynamic = [int(i) for i in world.dynamic_indices]
-        self._params: np.ndarray | None = None
-        self._params_key: bytes = b""
-
-    def apply_params(self, params: np.ndarray) -> None:
-        key = params.tobytes()
-        if key == self._params_key:
-            return
-        w = self.world
-        for i in w.dynamic_indices:
-            row = params[i]
-            if self._params is not None and np.array_equal(row, self._params[i]):
-                continue
-            w.set_dynamics(int(i), lateral_friction=row[0], rolling_friction=row[1],
-                           spinning_friction=row[2], restitution=row[3], mass=row[4])
-        self._params = params.copy()
-        self._params_key = key
-
 
 MAX_SPEED = 50.0  # m/s: anything faster is a simulation that exploded
 

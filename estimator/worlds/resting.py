@@ -22,7 +22,7 @@ put to sleep: stepping skips it until something touches it or it is reset."""
 REST_SPIN = 0.05
 """rad/s: see :data:`REST_SPEED`."""
 SETTLED_REACH = 0.03
-"""m: a settled object loaded asleep (:class:`~estimator.worlds.propagate.StepInput` ``settled``) is woken when an object of its
+"""m: a settled object loaded asleep (:class:`~estimator.worlds.batch.StepInput` ``settled``) is woken when an object of its
 particle that the update moves ends within this distance of it (boxes): three times the largest
 regularisation jitter, so that an object whose support was jittered away does not float."""
 

@@ -26,7 +26,8 @@ from physics.visibility import (
 )
 from physics.world import PhysicsSettings, World
 
-from .propagate import PER_PARTICLE, BatchInput, BatchOutput, ParticleWorld, propagate_batch
+from .batch import PER_PARTICLE, BatchInput, BatchOutput, ParticleWorld
+from .propagate import propagate_batch
 from .shared_batch import SharedBatch
 
 log = logging.getLogger(__name__)

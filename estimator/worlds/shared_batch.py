@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .propagate import PER_PARTICLE, BatchInput, BatchOutput
+from .batch import PER_PARTICLE, BatchInput, BatchOutput
 
 
 class SharedBatch:

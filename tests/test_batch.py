@@ -1,0 +1,29 @@
+"""estimator.worlds.batch: what a run of the worlds takes and gives, and a slot's world."""
+import dataclasses
+
+import numpy as np
+
+from estimator.worlds.batch import PARAM_NAMES, PER_PARTICLE, BatchInput, ParticleWorld
+from helpers import TABLE_TOP, table_scene
+from physics.world import World
+
+
+def test_the_per_particle_fields_are_the_batch_inputs_but_the_visibility_query():
+    names = [f.name for f in dataclasses.fields(BatchInput)]
+    assert set(PER_PARTICLE) == set(names) - {"vis_query"} and len(PARAM_NAMES) == 5
+
+
+def test_a_particle_world_applies_only_the_parameters_that_changed():
+    box = {"id": "box", "box": {"size": [0.06, 0.06, 0.06]}, "pose": {"position": [0, 0, TABLE_TOP + 0.03]}}
+    with World(table_scene(box)) as w:
+        pw = ParticleWorld(w)
+        params = np.tile([0.5, 0.001, 0.0, 0.1, 0.2], (2, 1))
+        pw.apply_params(params)
+        assert np.isclose(w.get_dynamics(1)["lateral_friction"], 0.5) and np.isclose(w.get_dynamics(1)["mass"], 0.2)
+        calls = []
+        w.set_dynamics = lambda i, **kw: calls.append(i)  # what the next calls change
+        pw.apply_params(params.copy())
+        assert calls == []  # the same values: nothing set
+        params[1, 0] = 0.9
+        pw.apply_params(params)
+        assert calls == [1]  # only the object whose row changed
