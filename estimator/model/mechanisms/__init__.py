@@ -19,7 +19,10 @@ of the list. Each hook reads and writes the update's :class:`Draft`:
 * ``check``: the targets' last corrections before physics (static geometry).
 
 After physics, :meth:`Mechanism.after_physics` runs in list order on the worlds' output, before the
-model's relations and events.
+model's relations and events; once the update is weighed, :meth:`Mechanism.commit` hands the
+model the mechanism's arrays after the update (the loop's own arrays are the state's). A mechanism
+needs what the draft holds, or adds a field to it; the others do not know it exists (taken off the
+list, it is gone and nothing else breaks: ``tests/test_mechanisms.py``).
 """
 from __future__ import annotations
 
@@ -39,8 +42,10 @@ __all__ = ["PHASES", "Draft", "Mechanism", "mechanisms_for"]
 
 def mechanisms_for(model) -> list[Mechanism]:
     """The mechanisms of ``model`` (a :class:`~estimator.model.SceneModel`) under its configuration,
-    in the order their hooks run: the paper's reasoner (``moving_teleports`` off) teleports and
-    follows its perception only; the full model adds the rest. A new mechanism goes here."""
+    in the order their hooks run. The paper's reasoner (:meth:`~estimator.config.EstimatorConfig.paper`)
+    has teleports (at rest), release on loss, let go behind cover (inert with ``hand_occlusion`` 1),
+    following a hand and process noise (none with its noise off); the full model adds velocity
+    evidence, let go in motion, fusion at rest and static clipping. A new mechanism goes here."""
     cfg = model.config
     out: list[Mechanism] = [Teleports(model)]
     if cfg.moving_teleports and cfg.noise.velocity_slack > 0:
