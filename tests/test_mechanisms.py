@@ -11,6 +11,7 @@ from estimator.model.mechanisms.flick import LetGoMoving
 from estimator.model.mechanisms.rest_fusion import FusionAtRest
 from estimator.model.mechanisms.teleport import Teleports
 from estimator.model.mechanisms.velocity import VelocityEvidence
+from estimator.model.terms import VelocityTerm
 from estimator.observations import Frame
 from helpers import TABLE_TOP, det, table_scene
 from model_helpers import make
@@ -27,6 +28,10 @@ def test_the_papers_reasoner_is_a_shorter_list_of_the_same_mechanisms():
     assert {type(m) for m in paper} < {type(m) for m in full}
     hooks = {name for m in full for name in PHASES if hasattr(m, name)}
     assert hooks == set(PHASES)  # every phase has a mechanism
+    # a mechanism's terms come with it, after those of every model
+    paper_terms = [type(t) for t in make(EstimatorConfig.paper()).terms]
+    full_terms = [type(t) for t in make(default_config(64, "particles")).terms]
+    assert VelocityTerm not in paper_terms and full_terms == paper_terms + [VelocityTerm]
 
 
 class LastAncestor(Mechanism):

@@ -109,12 +109,12 @@ class SceneModel:
         hr = config.reasoner
         self.episode_rule = EpisodeRule(hr.push_lift, hr.push_smoothing, hr.place_wait)
         self._just_initialised = np.zeros(self.M, dtype=bool)
-        self.terms: tuple[LogWeightTerm, ...] = weighing.log_weight_terms(self)  # a new term goes there
         # the static bodies, to stop paths at their surfaces (config.static_clip)
         solid = bool(np.any(self.static)) or scene.floor
         self.geometry = StaticGeometry(scene, config.physics) if config.static_clip and solid else None
         self.mechanisms: list[Mechanism] = mechanisms_for(self)
         self._hooks = {phase: [getattr(m, phase) for m in self.mechanisms if hasattr(m, phase)] for phase in PHASES}
+        self.terms: tuple[LogWeightTerm, ...] = weighing.log_weight_terms(self)  # the mechanisms' among them
 
     def mechanism(self, kind: type) -> Mechanism:
         """The mechanism of class ``kind`` in :attr:`mechanisms` (``LookupError`` when there is none)."""

@@ -24,7 +24,6 @@ from .terms import (
     ModeSwitchTerm,
     NegativeEvidenceTerm,
     ProposalTerm,
-    VelocityTerm,
     add_terms,
 )
 
@@ -44,12 +43,16 @@ def diverged_by(move: Move, out: BatchOutput) -> np.ndarray:
 
 
 def log_weight_terms(model) -> tuple[LogWeightTerm, ...]:
-    """The terms a particle's log-weight is the sum of. A new term goes here."""
+    """The terms a particle's log-weight is the sum of, in the order they are added: those of every
+    model (the detections, negative evidence, the mode switches' prior, the hands' reach, the
+    proposal's importance weights), then each mechanism's own (:meth:`Mechanism.terms
+    <estimator.model.mechanisms.base.Mechanism.terms>`, in the order of the list). A new term of
+    every model goes here; a mechanism's, in its module."""
     nz, cfg = model.config.noise, model.config
-    return (DetectionTerm(nz.position_std, nz.orientation_std, nz.outlier_prob),
+    core = (DetectionTerm(nz.position_std, nz.orientation_std, nz.outlier_prob),
             NegativeEvidenceTerm(nz.miss_prob, cfg.visibility_threshold, nz.hand_occlusion),
-            ModeSwitchTerm(cfg.priors), HandReachTerm(cfg.priors.held_out_of_reach), ProposalTerm(),
-            VelocityTerm(nz.velocity_slack, nz.outlier_prob))
+            ModeSwitchTerm(cfg.priors), HandReachTerm(cfg.priors.held_out_of_reach), ProposalTerm())
+    return core + tuple(term for mechanism in model.mechanisms for term in mechanism.terms())
 
 
 def evidence(model, move: Move, settled: Settled, out: BatchOutput, frame: Frame, detected: np.ndarray,

@@ -106,6 +106,11 @@ class Mechanism:
         Those it leaves out keep their values (an array changed in place stays changed)."""
         return {}
 
+    def terms(self) -> tuple:
+        """The mechanism's own terms of the log-weight (callables ``term(evidence) -> (K,)``,
+        :mod:`estimator.model.terms`), added after those of every model."""
+        return ()
+
     def after_physics(self, poses: np.ndarray, aabbs: np.ndarray) -> np.ndarray:
         """The particles' poses ``(K, M, 7)`` after physics (``aabbs (K, M, 2, 3)``), corrected (the
         same array when nothing changes)."""

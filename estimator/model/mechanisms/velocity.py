@@ -7,12 +7,17 @@ from __future__ import annotations
 from actions.modes import FREE
 
 from ..motion import rolled_along
+from ..terms import VelocityTerm
 from .base import Draft, Mechanism
 
 
 class VelocityEvidence(Mechanism):
     """Fills :attr:`Draft.speed_check`: the objects seen moving along their support at this and the
     last update, free in the particle before it, with their velocity in it then and the perceived one."""
+
+    def terms(self) -> tuple:
+        nz = self.model.config.noise
+        return (VelocityTerm(nz.velocity_slack, nz.outlier_prob),)
 
     def perceive(self, u: Draft) -> None:
         mem = self.model.memory
