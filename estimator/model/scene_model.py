@@ -274,9 +274,12 @@ class SceneModel:
         depen = (np.broadcast_to(placed & (cfg.noise.position_std > 0), (K, M)) | u.jolted
                  | state.jolted | u.cover) & (u.modes == FREE)
         set_moving = u.set_moving if u.set_moving is not None and u.set_moving.any() else None
-        return Move(u.poses, u.vel, u.predicted, u.prev_modes, u.modes, u.release_codes, u.tele, u.target, u.target_vel,
-                    u.check, depen, vis_query, u.hold_error, u.let_go, cameras, u.cover_t, u.proposal, u.nudged,
-                    u.jitter, u.far, u.fall, u.detections, set_moving, u.speed_check, u.grip)
+        return Move(poses=u.poses, velocities=u.vel, predicted=u.predicted, previous_modes=u.prev_modes, modes=u.modes,
+                    release_codes=u.release_codes, teleported=u.tele, target=u.target, target_vel=u.target_vel,
+                    check=u.check, depenetrate=depen, vis_query=vis_query, hold_error=u.hold_error,
+                    let_go_unseen=u.let_go, cameras=cameras, cover_t=u.cover_t, proposal_log_weight=u.proposal,
+                    fused=u.nudged, jitter=u.jitter, out_of_reach=u.far, fall=u.fall, detections=u.detections,
+                    set_moving=set_moving, speed_check=u.speed_check, push_grip=u.grip)
 
     def roll_released(self, vel: np.ndarray, released: np.ndarray, supported: np.ndarray) -> None:
         """In place on ``vel (K, M, 6)``: balls let go now (``released (K, M)``) on a support

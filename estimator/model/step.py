@@ -34,7 +34,8 @@ class Move:
     ``target (K, M, 7)`` / ``target_vel (K, M, 6)``: where held objects go and perceived objects
     are checked against; ``check (K, M)``: free objects to test for divergence; ``depenetrate (K, M)``:
     objects displaced without physics; ``vis_query (M,)``: objects whose visibility is wanted;
-    ``hold_error (K, M, 3)``, ``let_go_unseen (K, M)``: see :class:`~estimator.state.ParticleState`;
+    ``hold_error (K, M, 3)``, ``let_go_unseen (K, M)``: see :class:`~estimator.state.ParticleState` (None
+    without the mechanism that keeps them);
     ``cameras``: the cameras that took the frames of the update (None: the scene's camera);
     ``cover_t (K, M)``: when the objects let go now where their hand hid them earlier were let go
     (s, NaN elsewhere; :attr:`behind_cover` is the mask; :func:`~estimator.model.hidden.let_go_behind_cover`:
@@ -69,8 +70,8 @@ class Move:
     check: np.ndarray
     depenetrate: np.ndarray
     vis_query: np.ndarray
-    hold_error: np.ndarray
-    let_go_unseen: np.ndarray
+    hold_error: np.ndarray | None = None
+    let_go_unseen: np.ndarray | None = None
     cameras: tuple | None = None
     cover_t: np.ndarray | None = None
     proposal_log_weight: np.ndarray | None = None
