@@ -30,7 +30,7 @@ class Draft:
     ``prev_modes``, ``modes``, ``release_codes``, ``predicted``, ``jitter``, ``tele``, ``newly_known``,
     ``moving``, ``falling`` and ``spinning (M,)``, ``start (M, 3)``, ``fall`` (:class:`~estimator.model.step.Fall`),
     ``set_moving``, ``speed_check``, ``left_view (M,)``, ``cover_t``, ``proposal (K,)``, ``grip``,
-    ``let_go``, ``resting``, ``nudged``, ``detections``, ``stale``, ``target``, ``target_vel``,
+    ``let_go``, ``resting``, ``nudged``, ``detections``, ``target``, ``target_vel``,
     ``hold_error``, ``jolted``, ``check``."""
 
     state: object
@@ -67,7 +67,6 @@ class Draft:
     resting: np.ndarray | None = None
     nudged: np.ndarray | None = None
     detections: np.ndarray | None = None
-    stale: np.ndarray | None = None
     target: np.ndarray | None = None
     target_vel: np.ndarray | None = None
     hold_error: np.ndarray | None = None
