@@ -62,6 +62,9 @@ class SceneEstimator:
             optional camera).
         config: estimator configuration; :meth:`EstimatorConfig.paper` for the paper's reasoner.
         rng: source of all randomness (default: ``numpy.random.default_rng(0)``).
+        mechanisms: ``model -> list`` of the scene model's mechanisms (default: those the configuration
+            asks for, :func:`~estimator.model.mechanisms.mechanisms_for`); see
+            :class:`~estimator.model.SceneModel`.
 
     Particle state (:attr:`state`, a :class:`~estimator.state.ParticleState`; K particles, M objects),
     also readable as attributes: ``poses (K, M, 7)``, ``velocities (K, M, 6)``, ``params (K, M, 5)``
@@ -80,7 +83,8 @@ class SceneEstimator:
     is_in = _StateField()
     event_t = _StateField()
 
-    def __init__(self, scene, config: EstimatorConfig | None = None, rng: np.random.Generator | None = None):
+    def __init__(self, scene, config: EstimatorConfig | None = None, rng: np.random.Generator | None = None, *,
+                 mechanisms=None):
         self.scene = scene
         self.config = cfg = config or EstimatorConfig.paper()
         self.rng = rng if rng is not None else np.random.default_rng(0)
@@ -90,7 +94,7 @@ class SceneEstimator:
         self.pool = WorldPool(scene, K, cfg.workers, cfg.physics, cfg.worlds,
                               max_particles=cfg.max_particles if cfg.adaptive.enabled else None)
         try:
-            self.model = SceneModel(scene, cfg, self.pool.initial_params)
+            self.model = SceneModel(scene, cfg, self.pool.initial_params, mechanisms=mechanisms)
             self.state = self.model.initial_state(self.rng)
         except BaseException:
             self.pool.close()

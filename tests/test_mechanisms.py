@@ -2,7 +2,6 @@
 being on it (its hooks run, its arrays are kept and resampled without the loop knowing them)."""
 import numpy as np
 
-import estimator.model.scene_model as scene_model
 from estimator.config import EstimatorConfig, NoiseConfig, default_config
 from estimator.filter import SceneEstimator
 from estimator.model.mechanisms import PHASES, Mechanism, mechanisms_for
@@ -44,11 +43,11 @@ class LastAncestor(Mechanism):
         u.state.was[:] = np.arange(len(u.state.was))[:, None]
 
 
-def test_a_new_mechanism_is_one_entry_its_hooks_run_and_its_array_is_resampled_with_the_particles(monkeypatch):
-    monkeypatch.setattr(scene_model, "mechanisms_for", lambda model: mechanisms_for(model) + [LastAncestor(model)])
+def test_a_new_mechanism_is_one_entry_its_hooks_run_and_its_array_is_resampled_with_the_particles():
     box = {"id": "box", "box": {"size": [0.06, 0.06, 0.06]}, "pose": {"position": [0, 0, TABLE_TOP + 0.03]}}
     cfg = EstimatorConfig(particles=16, workers=0, noise=NoiseConfig(position_std=0.02), resample_threshold=1.0)
-    with SceneEstimator(table_scene(box), cfg, np.random.default_rng(1)) as est:
+    with SceneEstimator(table_scene(box), cfg, np.random.default_rng(1),
+                        mechanisms=lambda model: mechanisms_for(model) + [LastAncestor(model)]) as est:
         assert est.state.was.shape == (16, 2) and est.state.was.dtype == np.int32 and np.all(est.state.was == -1)
         for i, x in enumerate([0.0, 0.01, 0.02]):
             est.update(Frame(0.1 * i, {"box": det([x, 0.0, TABLE_TOP + 0.03])}))
@@ -61,27 +60,26 @@ def test_a_new_mechanism_is_one_entry_its_hooks_run_and_its_array_is_resampled_w
             assert np.allclose(est.state.poses[rows, 1, :3], est.state.poses[rows[0], 1, :3], atol=0.0)
 
 
-def _p_held_after_a_lift_out_of_view(monkeypatch, drop=None):
+def _p_held_after_a_lift_out_of_view(drop=None):
     """A box lifted 25 cm off the table and then no longer seen (no hand tracked); P(held) a second
     after it vanished, with the model's mechanisms less ``drop``."""
-    if drop is not None:
-        monkeypatch.setattr(scene_model, "mechanisms_for",
-                            lambda model: [m for m in mechanisms_for(model) if not isinstance(m, drop)])
+    def mechanisms(model):
+        return [m for m in mechanisms_for(model) if drop is None or not isinstance(m, drop)]
+
     box = {"id": "box", "box": {"size": [0.06, 0.06, 0.06]}, "pose": {"position": [0.1, 0, TABLE_TOP + 0.03]}}
     cfg = EstimatorConfig(particles=32, workers=0, noise=NoiseConfig())
     frames = [Frame(t, {"box": det([0.1, 0.0, TABLE_TOP + 0.03 + 0.25 * min(1.0, max(0.0, (t - 0.3) / 0.6))])})
               for t in np.arange(0.0, 1.2, 1 / 30)]
     frames += [Frame(t, {}) for t in np.arange(1.2, 2.2, 1 / 30)]  # gone
-    with SceneEstimator(table_scene(box), cfg, np.random.default_rng(2)) as est:
+    with SceneEstimator(table_scene(box), cfg, np.random.default_rng(2), mechanisms=mechanisms) as est:
         beliefs = est.run(frames)
         return beliefs[-1].objects["box"].p_held
 
 
-def test_a_mechanism_taken_off_the_list_is_gone_and_nothing_else_breaks(monkeypatch):
+def test_a_mechanism_taken_off_the_list_is_gone_and_nothing_else_breaks():
     """Release on loss is one module and one entry: without it a box lifted out of view is still held
     in every particle a second later; with it, the particles let it go at its rate."""
     from estimator.model.mechanisms.release import ReleaseOnLoss
 
-    assert _p_held_after_a_lift_out_of_view(monkeypatch, drop=ReleaseOnLoss) == 1.0
-    monkeypatch.undo()
-    assert _p_held_after_a_lift_out_of_view(monkeypatch) < 0.9
+    assert _p_held_after_a_lift_out_of_view(drop=ReleaseOnLoss) == 1.0
+    assert _p_held_after_a_lift_out_of_view() < 0.9

@@ -79,14 +79,18 @@ class SceneModel:
 
     Args:
         scene: the scene. config: the estimator's configuration.
-        memory: the perception memory the model reads (and whose velocities teleports reset).
         base_params: ``(M, 5)`` the scene's physical parameters (the worlds' initial ones).
+        memory: the perception memory the model reads (default: one built for ``scene`` and ``config``).
+        mechanisms: ``model -> list[Mechanism]``, the mechanisms it is built from, in the order their
+            hooks run (default :func:`~estimator.model.mechanisms.mechanisms_for`; a caller adds its
+            own with ``lambda model: mechanisms_for(model) + [Mine(model)]``).
 
-    ``known (M,)``: objects with an initial pose or perceived since; ``terms``: the log-weight terms.
+    ``known (M,)``: objects with an initial pose or perceived since; ``mechanisms``: the list;
+    ``terms``: the log-weight terms.
     """
 
     def __init__(self, scene: Scene, config: EstimatorConfig, base_params: np.ndarray,
-                 memory: PerceptionMemory | None = None):
+                 memory: PerceptionMemory | None = None, mechanisms=None):
         self.scene = scene
         self.config = config
         self.memory = memory if memory is not None else PerceptionMemory(
@@ -112,7 +116,7 @@ class SceneModel:
         # the static bodies, to stop paths at their surfaces (config.static_clip)
         solid = bool(np.any(self.static)) or scene.floor
         self.geometry = StaticGeometry(scene, config.physics) if config.static_clip and solid else None
-        self.mechanisms: list[Mechanism] = mechanisms_for(self)
+        self.mechanisms: list[Mechanism] = (mechanisms or mechanisms_for)(self)
         self._hooks = {phase: [getattr(m, phase) for m in self.mechanisms if hasattr(m, phase)] for phase in PHASES}
         self.terms: tuple[LogWeightTerm, ...] = weighing.log_weight_terms(self)  # the mechanisms' among them
 
