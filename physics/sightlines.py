@@ -8,8 +8,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .rays import ray_cast
 from .transforms import quat_rotate
-from .world import World, ray_cast
+from .world import World
 
 SOLID_DEPTH = 0.005
 """How far inside a box-shaped object (m) its :func:`~physics.visibility.solid_box` lies: a ray

@@ -12,7 +12,6 @@ import pybullet as pb
 from .world import World
 
 
-
 def wake(world: World, indices) -> None:
     """Wake objects ``indices`` (needed after a reset when :attr:`PhysicsSettings.sleeping`).
     Bullet clears a woken body's velocity in the next step: a body loaded with a velocity while

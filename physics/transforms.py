@@ -129,3 +129,28 @@ def quat_from_rotvec(r: np.ndarray) -> np.ndarray:
     with np.errstate(invalid="ignore", divide="ignore"):
         k = np.where(angle > 1e-12, np.sin(half) / np.maximum(angle, 1e-300), 0.5)
     return np.concatenate([r * k[..., None], np.cos(half)[..., None]], axis=-1)
+
+
+def link_from_com(com_poses: np.ndarray, com_vel: np.ndarray | None, inertial: np.ndarray,
+                  inertial_inv: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """Centre-of-mass poses ``(..., n, 7)`` and velocities ``(..., n, 6)`` (or None) of bodies whose
+    centre-of-mass frame in their link frame is ``inertial (n, 7)`` (``inertial_inv`` its inverse)
+    to link-frame poses and link-origin velocities (linear m/s, angular rad/s, world frame)."""
+    poses = pose_compose(com_poses, inertial_inv)
+    if com_vel is None:
+        return poses, None
+    vel = np.array(com_vel, dtype=float)
+    vel[..., :3] += np.cross(vel[..., 3:], -quat_rotate(poses[..., 3:], inertial[:, :3]))
+    return poses, vel
+
+
+def com_from_link(poses: np.ndarray, vel: np.ndarray | None,
+                  inertial: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """The inverse of :func:`link_from_com`: link-frame poses ``(..., n, 7)`` and link-origin
+    velocities ``(..., n, 6)`` (or None) to centre-of-mass ones."""
+    com = pose_compose(poses, inertial)
+    if vel is None:
+        return com, None
+    cvel = np.array(vel, dtype=float)
+    cvel[..., :3] += np.cross(cvel[..., 3:], quat_rotate(poses[..., 3:], inertial[:, :3]))
+    return com, cvel

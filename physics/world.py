@@ -18,9 +18,10 @@ import numpy as np
 import pybullet as pb
 
 from .bodies import apply_dynamics, create_body
+from .rays import ray_cast
 from .scene import ObjectSpec, Scene
 from .settings import PhysicsSettings, connect
-from .transforms import pose_compose, pose_inverse, quat_rotate
+from .transforms import com_from_link, link_from_com, pose_inverse
 
 FLOOR = -2
 """Body index returned by ray queries for the floor plane (``-1`` means nothing was hit)."""
@@ -28,24 +29,6 @@ FLOOR = -2
 PARK_DISTANCE = 50.0
 PARK_DEPTH = 25.0
 """An object set more than this (m) below the floor is parked: it collides with nothing and sleeps."""
-MAX_RAYS_PER_BATCH = 16000
-
-
-def ray_cast(client: int, starts: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Batched ray tests ``starts -> ends`` ``(N, 3)`` in a client's frame: the body id ``(N,)`` int64
-    first hit by each ray (-1 for none) and the fraction of its length where it hit ``(N,)`` (1.0 for
-    none)."""
-    n = len(starts)
-    uids = np.full(n, -1, dtype=np.int64)
-    frac = np.ones(n)
-    for lo in range(0, n, MAX_RAYS_PER_BATCH):
-        hi = min(n, lo + MAX_RAYS_PER_BATCH)
-        res = pb.rayTestBatch(starts[lo:hi].tolist(), ends[lo:hi].tolist(), physicsClientId=client)
-        uids[lo:hi] = [r[0] for r in res]
-        frac[lo:hi] = [r[2] if r[0] >= 0 else 1.0 for r in res]
-    return uids, frac
-
-
 class World:
     """A physics world holding the objects of ``scene`` (plus an optional floor plane at z = 0).
 
@@ -341,13 +324,7 @@ class World:
         if not self._has_offset:
             return com_poses, com_vel
         idx = slice(None) if indices is None else self._indices(indices)
-        off = self._inertial[idx]
-        poses = pose_compose(com_poses, self._inertial_inv[idx])
-        if com_vel is None:
-            return poses, None
-        vel = np.array(com_vel, dtype=float)
-        vel[..., :3] += np.cross(vel[..., 3:], -quat_rotate(poses[..., 3:], off[:, :3]))
-        return poses, vel
+        return link_from_com(com_poses, com_vel, self._inertial[idx], self._inertial_inv[idx])
 
     def com_frame(self, poses: np.ndarray, vel: np.ndarray | None = None,
                   indices=None) -> tuple[np.ndarray, np.ndarray | None]:
@@ -356,13 +333,7 @@ class World:
         centre-of-mass ones."""
         if not self._has_offset:
             return poses, vel
-        off = self._inertial[slice(None) if indices is None else self._indices(indices)]
-        com = pose_compose(poses, off)
-        if vel is None:
-            return com, None
-        cvel = np.array(vel, dtype=float)
-        cvel[..., :3] += np.cross(cvel[..., 3:], quat_rotate(poses[..., 3:], off[:, :3]))
-        return com, cvel
+        return com_from_link(poses, vel, self._inertial[slice(None) if indices is None else self._indices(indices)])
 
     def step(self, n: int = 1) -> None:
         """Advance the simulation by ``n`` fixed steps of :attr:`PhysicsSettings.time_step` seconds

@@ -46,3 +46,23 @@ def test_rotation_matrices_turn_vectors_as_the_quaternions_do():
     assert np.allclose(np.einsum("nij,nj->ni", R, v), tf.quat_rotate(tf.quat_normalize(q), v), atol=1e-12)
     assert np.allclose(R, Rotation.from_quat(q).as_matrix(), atol=1e-12)
     assert tf.quat_to_matrix(q.reshape(5, 10, 4)).shape == (5, 10, 3, 3)
+
+
+def test_link_and_centre_of_mass_frames_convert_both_ways():
+    from physics.transforms import com_from_link, link_from_com, pose_inverse
+
+    rng = np.random.default_rng(3)
+    inertial = np.concatenate([rng.normal(0, 0.02, (4, 3)), _unit(rng.normal(size=(4, 4)))], axis=1)
+    poses = np.concatenate([rng.normal(size=(5, 4, 3)), _unit(rng.normal(size=(5, 4, 4)))], axis=-1)
+    vel = rng.normal(size=(5, 4, 6))
+    com, cvel = com_from_link(poses, vel, inertial)
+    back, bvel = link_from_com(com, cvel, inertial, pose_inverse(inertial))
+    assert np.allclose(back[..., :3], poses[..., :3]) and np.allclose(bvel, vel)
+    assert np.allclose(np.abs(np.sum(back[..., 3:] * poses[..., 3:], axis=-1)), 1.0)  # same rotation
+    # the centre of mass moves with the body: v_com = v_link + w x (R c)
+    c = com[..., :3] - poses[..., :3]
+    assert np.allclose(cvel[..., :3], vel[..., :3] + np.cross(vel[..., 3:], c)) and np.allclose(cvel[..., 3:], vel[..., 3:])
+
+
+def _unit(q):
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
