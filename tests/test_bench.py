@@ -38,10 +38,14 @@ def test_bench_command_prints_json(capsys):
     assert main(["bench", "--particles", "2", "--objects", "2", "--updates", "2", "--workers", "0", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["workers"] == 0 and len(out["results"]) == 1 and out["results"][0]["particles"] == 2
+    parts = out["results"][0]["model_parts_ms_median"]  # the scene model's parts, the slowest first
+    assert "Teleports.perceive" in parts and {"settle", "weigh", "commit"} <= set(parts)
+    assert all(v >= 0 for v in parts.values()) and list(parts.values()) == sorted(parts.values(), reverse=True)
     assert main(["bench", "--particles", "2", "--objects", "2", "--updates", "2", "--workers", "0",
                  "--breakdown"]) == 0
     out = capsys.readouterr().out.splitlines()
     assert out[0].startswith("| K | objects |") and "worker over bare (us/particle)" in out[0]
+    assert "slowest model parts (ms)" in out[0]
     assert out[1].startswith("|---|") and len(out) == 3 and out[2].startswith("| 2 | 2 |")
 
 

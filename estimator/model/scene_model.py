@@ -21,6 +21,7 @@ the particles and the worlds and calls, at each update, its narrow contract:
 from __future__ import annotations
 
 import logging
+from time import perf_counter
 
 import numpy as np
 
@@ -86,7 +87,9 @@ class SceneModel:
             own with ``lambda model: mechanisms_for(model) + [Mine(model)]``).
 
     ``known (M,)``: objects with an initial pose or perceived since; ``mechanisms``: the list;
-    ``terms``: the log-weight terms.
+    ``terms``: the log-weight terms; ``seconds``: the wall time (s) spent so far in each part of the
+    model, each mechanism's hook by ``"<class>.<phase>"``, and ``"settle"``, ``"weigh"``, ``"commit"``
+    (``bench --breakdown`` reports it per update).
     """
 
     def __init__(self, scene: Scene, config: EstimatorConfig, base_params: np.ndarray,
@@ -117,7 +120,10 @@ class SceneModel:
         solid = bool(np.any(self.static)) or scene.floor
         self.geometry = StaticGeometry(scene, config.physics) if config.static_clip and solid else None
         self.mechanisms: list[Mechanism] = (mechanisms or mechanisms_for)(self)
-        self._hooks = {phase: [getattr(m, phase) for m in self.mechanisms if hasattr(m, phase)] for phase in PHASES}
+        self._hooks = {phase: [(f"{type(m).__name__}.{phase}", getattr(m, phase)) for m in self.mechanisms
+                               if hasattr(m, phase)] for phase in PHASES}
+        # wall time (s) spent in each part of the model so far: each hook, and "settle", "weigh", "commit"
+        self.seconds: dict[str, float] = {name: 0.0 for hooks in self._hooks.values() for name, _ in hooks}
         self.terms: tuple[LogWeightTerm, ...] = weighing.log_weight_terms(self)  # the mechanisms' among them
 
     def mechanism(self, kind: type) -> Mechanism:
@@ -155,9 +161,13 @@ class SceneModel:
         (:meth:`settle`), the evidence and the new log-weights (:meth:`log_weight`). When every particle
         has zero weight the detected objects are re-seeded from perception (:meth:`reseed`, in the
         settled arrays) and the log-weights are all zero."""
+        t0 = perf_counter()
         settled = self.settle(state, p.move, out, p.t, p.dt, p.detected, p.perceived)
+        t1 = perf_counter()
         evidence = self.evidence(p.move, settled, out, p.frame, p.detected, p.perceived, state.unseen_in_view)
         logw = self.log_weight(state.log_weights, evidence)
+        self._spent("settle", t1 - t0)
+        self._spent("weigh", perf_counter() - t1)
         if not np.any(np.isfinite(logw)):
             self.recoveries += 1
             log.warning("t=%.3f: every particle has zero weight; re-seeding detected objects from perception", p.t)
@@ -170,6 +180,7 @@ class SceneModel:
         """The particles after the update (the largest finite log-weight made 0), their events recorded;
         the perception memory closes the update."""
         thr, settled = self.config.visibility_threshold, w.settled
+        t0 = perf_counter()
         declared = {}
         for mechanism in self.mechanisms:  # each one's arrays after the update
             declared.update(mechanism.commit(state, p, w, rng))
@@ -177,7 +188,11 @@ class SceneModel:
                                  settled.modes == FREE, **declared)
         self.memory.end_tick(p.perceived, p.detected, settled.tick_vel)
         record_event_times(new.event_t, settled.codes, p.t, settled.times, new.push_decided)
+        self._spent("commit", perf_counter() - t0)
         return new
+
+    def _spent(self, part: str, seconds: float) -> None:
+        self.seconds[part] = self.seconds.get(part, 0.0) + seconds
 
     def particles_needed(self, settled: Settled, weights: np.ndarray) -> int:
         """How many particles the belief of ``settled`` under ``weights (K,)`` needs
@@ -266,8 +281,10 @@ class SceneModel:
                   jolted=np.zeros((K, M), dtype=bool), target=poses.copy(), target_vel=np.zeros((K, M, 6)),
                   modes=state.modes.copy(), release_codes=np.zeros((K, M), dtype=np.int8))  # nothing let go yet
         for phase in PHASES:
-            for hook in self._hooks[phase]:
+            for name, hook in self._hooks[phase]:
+                t0 = perf_counter()
                 hook(u)
+                self.seconds[name] += perf_counter() - t0
         # what physics checks and reports
         vis_query = self.known & self.dynamic & ~detected
         has_camera = self.scene.camera is not None if cameras is None else len(cameras) > 0

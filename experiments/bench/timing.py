@@ -57,6 +57,7 @@ class StreamTiming:
     exchange_s: list[float] = dataclasses.field(default_factory=list)
     shard_s: list[float] = dataclasses.field(default_factory=list)
     over_s: list[float] = dataclasses.field(default_factory=list)
+    parts_s: list[dict] = dataclasses.field(default_factory=list)  # the scene model's parts, per update
 
     @property
     def stream_s(self) -> float:
@@ -81,6 +82,7 @@ def time_stream(scene: Scene, cfg: EstimatorConfig, frames: Iterable[Frame], rng
         st.peak_memory_mb = _rss_mb(pids)
         t_tick, reasoning = None, 0
         for frame in frames:
+            before = dict(est.model.seconds)
             t0 = time.perf_counter()
             belief = est.update(frame)
             dt = time.perf_counter() - t0
@@ -113,6 +115,7 @@ def time_stream(scene: Scene, cfg: EstimatorConfig, frames: Iterable[Frame], rng
                     st.over_s.append(float(np.mean([(w - b) / n for w, b, n
                                                     in zip(worker_s, bare_worker_s, sizes) if n > 0])))
                     st.particles.append(est.K)
+                    st.parts_s.append({k: v - before.get(k, 0.0) for k, v in est.model.seconds.items()})
             st.peak_memory_mb = max(st.peak_memory_mb, _rss_mb(pids))
             if max_updates is not None and len(st.update_s) >= max_updates:
                 break
@@ -132,6 +135,8 @@ def timing_row(st: StreamTiming) -> dict:
             "exchange_ms_median": 1e3 * float(np.median(st.exchange_s)),
             "slowest_shard_ms_median": 1e3 * float(np.median(st.shard_s)),
             "worker_overhead_us_per_particle": 1e6 * float(np.median(st.over_s)),
+            "model_parts_ms_median": model_parts_ms(st.parts_s),
+            "model_parts_slowest": slowest_parts(model_parts_ms(st.parts_s)),
             **({"mean_particles": float(np.mean(st.particles)), "max_particles": int(np.max(st.particles))}
                if st.particles else {})}
 
@@ -150,7 +155,22 @@ SYNTHETIC_COLUMNS = [("particles", "K", "{}"), ("objects", "objects", "{}")]
 TIMING_COLUMNS = [("update_ms_median", "median (ms)", "{:.1f}"), ("update_ms_p95", "p95 (ms)", "{:.1f}"),
                   ("bare_step_ms_median", "bare stepping (ms)", "{:.1f}"), ("ratio", "ratio", "{:.2f}")]
 RESOURCE_COLUMNS = [("startup_s", "startup (s)", "{:.2f}"), ("peak_memory_mb", "peak memory (MB)", "{:.0f}")]
+def model_parts_ms(parts: list[dict]) -> dict[str, float]:
+    """The median time (ms) per update of each part of the scene model (its mechanisms' hooks,
+    ``settle``, ``weigh``, ``commit``: :attr:`~estimator.model.SceneModel.seconds`) over the timed
+    updates ``parts``, the slowest first."""
+    names = {k for p in parts for k in p}
+    med = {k: 1e3 * float(np.median([p.get(k, 0.0) for p in parts])) for k in names}
+    return dict(sorted(med.items(), key=lambda kv: (-kv[1], kv[0])))
+
+
+def slowest_parts(parts_ms: dict[str, float], n: int = 3) -> str:
+    """The ``n`` slowest parts of :func:`model_parts_ms`, as ``"name ms, ..."``."""
+    return ", ".join(f"{k} {v:.1f}" for k, v in list(parts_ms.items())[:n])
+
+
 BREAKDOWN_COLUMNS = [("main_ms_median", "main process (ms)", "{:.2f}"),
                      ("slowest_shard_ms_median", "slowest shard (ms)", "{:.1f}"),
                      ("exchange_ms_median", "exchange (ms)", "{:.2f}"),
-                     ("worker_overhead_us_per_particle", "worker over bare (us/particle)", "{:.0f}")]
+                     ("worker_overhead_us_per_particle", "worker over bare (us/particle)", "{:.0f}"),
+                     ("model_parts_slowest", "slowest model parts (ms)", "{}")]
