@@ -154,7 +154,8 @@ class SceneModel:
         detected, cameras = self.inputs.take()
         perceived = self.memory.perceived(frame.t)
         move = self.move(state, frame, detected, perceived, dt, rng, cameras)
-        return Proposal(frame.t, dt, frame, detected, perceived, cameras, move, self.batch(move, state))
+        return Proposal(frame.t, dt, frame, detected, perceived, cameras, move, self.batch(move, state),
+                        moving_targets=self.config.moving_teleports)
 
     def weigh(self, state: ParticleState, p: Proposal, out: BatchOutput, rng: np.random.Generator) -> Weighed:
         """After physics (``out``, exploded particles already reset by the pool): the particles settled

@@ -117,7 +117,9 @@ class Proposal:
     (s) after the previous update, from ``frame`` (the newest), with the objects ``detected (M,)``
     since the previous update and ``perceived (M,)`` now, the ``cameras`` that took the frames (None:
     the scene's), the particles' ``move`` and the worlds' input ``batch``
-    (:class:`~estimator.worlds.batch.BatchInput`, without what the pool's cache decides)."""
+    (:class:`~estimator.worlds.batch.BatchInput`, without what the pool's cache decides);
+    ``moving_targets``: whether the divergence test carries a target teleported in motion on at its
+    velocity (the moving teleports, :mod:`estimator.model.mechanisms.teleport`)."""
 
     t: float
     dt: float
@@ -127,6 +129,7 @@ class Proposal:
     cameras: tuple | None
     move: Move
     batch: object
+    moving_targets: bool = False
 
 
 @dataclass(frozen=True)
