@@ -90,7 +90,7 @@ class SceneEstimator:
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self.object_ids = scene.object_ids
         K, M = cfg.initial_particles, len(scene.objects)
-        self.K, self.M = K, M
+        self.M = M
         self.pool = WorldPool(scene, K, cfg.workers, cfg.physics, cfg.worlds,
                               max_particles=cfg.max_particles if cfg.adaptive.enabled else None)
         try:
@@ -109,7 +109,12 @@ class SceneEstimator:
         self.last_belief: Belief | None = None
         self.t_tick: float | None = None
 
-    # -- what the model and the collectors hold -------------------------------------------------------
+    # -- what the state, the model and the collectors hold ----------------------------------------------
+    @property
+    def K(self) -> int:
+        """The number of particles now (it changes with an adaptive count)."""
+        return len(self.state.log_weights)
+
     @property
     def memory(self):
         """The perception memory (:class:`~estimator.model.perception_memory.PerceptionMemory`)."""
@@ -184,7 +189,7 @@ class SceneEstimator:
         t = self.model.inputs.t_frame
         if t is None or (self.t_tick is not None and not t > self.t_tick):
             raise ValueError("step() needs a frame observed since the last reasoning step")
-        cfg, model, K = self.config, self.model, self.K
+        cfg, model, K = self.config, self.model, len(self.state.log_weights)
         # the first update only places the objects; after a gap, at most max_gap is simulated
         dt = 0.0 if self.t_tick is None else min(t - self.t_tick, cfg.reasoner.max_gap)
         proposal = model.propose(self.state, dt, self.rng)
@@ -205,11 +210,12 @@ class SceneEstimator:
         belief = self.collect(t, self.state, weighed.settled, weights, ess, model.known, proposal.perceived,
                               proposal.detected, dt, model.inputs.last_hands, K if cfg.adaptive.enabled else None)
         self.last_belief = belief
+        reseed = K > 1 and np.any(bad) and np.any(weights > 0)
         if K > 1 and (ess < cfg.resample_threshold * K or n > K or n < cfg.adaptive.shrink_below * K):
             self._resample(weights, weighed.settled, proposal.perceived, n)
-        elif K > 1 and np.any(bad) and np.any(weights > 0):
+        elif reseed:
             self._reseed(bad, weights)
-        if K > 1 and np.any(bad) and np.any(weights > 0):
+        if reseed:
             self.reseeded += int(bad.sum())
         return belief
 
@@ -222,14 +228,14 @@ class SceneEstimator:
         own, kernels = self.model.before_resampling(self.state, settled, perceived, weights)
         self.state = self.state.take(anc, own)
         self.pool.follow(anc)  # (slots beyond n: the pool parks their worlds at its next run)
-        self.K = n
         self.model.after_resampling(self.state, kernels, self.rng)
 
     def _reseed(self, bad: np.ndarray, weights: np.ndarray) -> None:
         """Particles ``bad (K,)`` take the state (and weight) of survivors drawn by ``weights (K,)``
         (zero for the bad ones); their worlds reload it at the next update."""
-        anc = np.arange(self.K)
-        anc[bad] = self.rng.choice(self.K, size=int(bad.sum()), p=weights)
+        K = len(bad)
+        anc = np.arange(K)
+        anc[bad] = self.rng.choice(K, size=int(bad.sum()), p=weights)
         logw = self.state.log_weights[anc]
         self.state = self.state.take(anc)
         self.state.log_weights = logw

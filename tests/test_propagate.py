@@ -4,15 +4,9 @@ import numpy as np
 import pytest
 
 from actions.modes import FREE, HELD
-from estimator.worlds.propagate import (
-    PER_PARTICLE,
-    BatchInput,
-    ParticleWorld,
-    StepInput,
-    depenetrate,
-    propagate,
-    propagate_batch,
-)
+from estimator.worlds.batch import PER_PARTICLE, BatchInput, ParticleWorld, StepInput
+from estimator.worlds.held import depenetrate
+from estimator.worlds.propagate import propagate, propagate_batch
 from helpers import TABLE_TOP, table_scene
 from physics.world import PhysicsSettings, World
 

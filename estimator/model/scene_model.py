@@ -124,6 +124,7 @@ class SceneModel:
                                if hasattr(m, phase)] for phase in PHASES}
         # wall time (s) spent in each part of the model so far: each hook, and "settle", "weigh", "commit"
         self.seconds: dict[str, float] = {name: 0.0 for hooks in self._hooks.values() for name, _ in hooks}
+        self.seconds.update(settle=0.0, weigh=0.0, commit=0.0)
         self.terms: tuple[LogWeightTerm, ...] = weighing.log_weight_terms(self)  # the mechanisms' among them
 
     def mechanism(self, kind: type) -> Mechanism:
@@ -167,8 +168,8 @@ class SceneModel:
         t1 = perf_counter()
         evidence = self.evidence(p.move, settled, out, p.frame, p.detected, p.perceived, state.unseen_in_view)
         logw = self.log_weight(state.log_weights, evidence)
-        self._spent("settle", t1 - t0)
-        self._spent("weigh", perf_counter() - t1)
+        self.seconds["settle"] += t1 - t0
+        self.seconds["weigh"] += perf_counter() - t1
         if not np.any(np.isfinite(logw)):
             self.recoveries += 1
             log.warning("t=%.3f: every particle has zero weight; re-seeding detected objects from perception", p.t)
@@ -189,11 +190,8 @@ class SceneModel:
                                  settled.modes == FREE, **declared)
         self.memory.end_tick(p.perceived, p.detected, settled.tick_vel)
         record_event_times(new.event_t, settled.codes, p.t, settled.times, new.push_decided)
-        self._spent("commit", perf_counter() - t0)
+        self.seconds["commit"] += perf_counter() - t0
         return new
-
-    def _spent(self, part: str, seconds: float) -> None:
-        self.seconds[part] = self.seconds.get(part, 0.0) + seconds
 
     def particles_needed(self, settled: Settled, weights: np.ndarray) -> int:
         """How many particles the belief of ``settled`` under ``weights (K,)`` needs
@@ -265,7 +263,6 @@ class SceneModel:
         cfg, mem, K, M = self.config, self.memory, self.K, self.M
         poses, vel = state.poses.copy(), state.velocities.copy()
         newly_known = perceived & ~self.known
-        no = np.zeros(M, dtype=bool)
         fresh = detected if cfg.fresh_checks else perceived
         u = Draft(state=state, frame=frame, detected=detected, perceived=perceived, dt=dt, rng=rng, cameras=cameras,
                   # a finite difference across a jump or a gap is no velocity; one across a reasoning
@@ -275,7 +272,8 @@ class SceneModel:
                   predicted=poses.copy(),  # before teleports: what each particle expected
                   jitter=np.zeros((K, M, 3)), newly_known=newly_known,
                   tele=perceived & (~mem.perceived_prev | mem.jumped() | newly_known),  # teleports, first sightings
-                  moving=no, falling=no, spinning=no, cover_t=np.full((K, M), np.nan), proposal=np.zeros(K),
+                  moving=np.zeros(M, dtype=bool), falling=np.zeros(M, dtype=bool), spinning=np.zeros(M, dtype=bool),
+                   cover_t=np.full((K, M), np.nan), proposal=np.zeros(K),
                   # at rest in the particle (on a support, slower than rest_speed) before this update
                   resting=state.supported & (np.linalg.norm(state.velocities[..., :3], axis=-1) < cfg.noise.rest_speed),
                   check=np.broadcast_to(perceived & fresh, (K, M)).copy(),
@@ -318,8 +316,6 @@ class SceneModel:
                           check=move.check, target=move.target, target_vel=move.target_vel, contents=state.is_in,
                           depenetrate=move.depenetrate, vis_query=move.vis_query)
 
-    # -- after physics --------------------------------------------------------------------------------
-    # -- the weights ----------------------------------------------------------------------------------
     def _out_of_reach(self, frame: Frame, detected: np.ndarray) -> np.ndarray | None:
         """Dynamic objects ``(M,)`` detected since the last update whose latest detection lies farther
         than :data:`~estimator.model.hand_memory.HAND_RADIUS` from every hand tracked in ``frame``;

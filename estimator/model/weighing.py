@@ -62,7 +62,8 @@ def evidence(model, move: Move, settled: Settled, out: BatchOutput, frame: Frame
     mem = model.memory
     carried = mem.hand_travel() > model.config.priors.carry_distance
     # an object its hand has not moved since it was last detected there is not hidden by that hand
-    seen_in_hand = mem.following_hand(frame) & ~carried
+    following = mem.following_hand(frame)
+    seen_in_hand = following & ~carried
     visible = behind_hands(model, out.visible, settled.poses, out.aabbs, frame, move.cameras,
                                 move.vis_query & ~seen_in_hand)
     return Evidence(poses=settled.poses, predicted=move.predicted, previous_modes=move.previous_modes,
@@ -70,7 +71,7 @@ def evidence(model, move: Move, settled: Settled, out: BatchOutput, frame: Frame
                     perceived=perceived, detected_poses=mem.last_pose if move.detections is None else move.detections,
                     has_orientation=mem.last_has_orientation, detection_std=mem.last_std,
                     visible=visible, queried=move.vis_query,
-                    in_tracked_hand=mem.following_hand(frame), finite=out.finite,
+                    in_tracked_hand=following, finite=out.finite,
                     unseen_in_view=unseen_in_view,
                     fell_unseen=None if move.let_go_unseen is None else (settled.modes == FREE)
                     & (frame.t - move.let_go_unseen < model.config.reasoner.t_perceived - 1e-9),

@@ -127,6 +127,7 @@ def time_stream(scene: Scene, cfg: EstimatorConfig, frames: Iterable[Frame], rng
 def timing_row(st: StreamTiming) -> dict:
     """The figures of one measurement (times in ms unless named ``_s``)."""
     med, bare_med = float(np.median(st.update_s)), float(np.median(st.bare_s))
+    parts = model_parts_ms(st.parts_s)
     return {"updates": len(st.update_s), "steps_per_update": int(np.median(st.steps)),
             "update_ms_median": 1e3 * med, "update_ms_p95": 1e3 * float(np.percentile(st.update_s, 95)),
             "bare_step_ms_median": 1e3 * bare_med, "ratio": med / bare_med, "updates_per_s": 1.0 / med,
@@ -135,8 +136,7 @@ def timing_row(st: StreamTiming) -> dict:
             "exchange_ms_median": 1e3 * float(np.median(st.exchange_s)),
             "slowest_shard_ms_median": 1e3 * float(np.median(st.shard_s)),
             "worker_overhead_us_per_particle": 1e6 * float(np.median(st.over_s)),
-            "model_parts_ms_median": model_parts_ms(st.parts_s),
-            "model_parts_slowest": slowest_parts(model_parts_ms(st.parts_s)),
+            "model_parts_ms_median": parts, "model_parts_slowest": slowest_parts(parts),
             **({"mean_particles": float(np.mean(st.particles)), "max_particles": int(np.max(st.particles))}
                if st.particles else {})}
 

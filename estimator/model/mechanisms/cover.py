@@ -26,11 +26,10 @@ class LetGoBehindCover(Mechanism):
     def commit(self, state, p, w, rng) -> dict:
         """The places the held objects were hidden at, lowest and last at rest after the update
         (:func:`~estimator.model.hidden.places_after_update`), and the push grips."""
-        K, M = state.modes.shape
         names = ("hidden_at", "hidden_t", "hidden_n", "down_at", "down_t", "rest_at", "rest_t")
         out = dict(zip(names, places_after_update(state, w.evidence, w.settled, p.t, rng,
                                                   self.model.config.visibility_threshold)))
-        out["push_grip"] = p.move.push_grip if p.move.push_grip is not None else np.full((K, M), np.nan)
+        out["push_grip"] = p.move.push_grip  # set by this mechanism's release hook at every update
         return out
 
     def release(self, u: Draft) -> None:
