@@ -30,8 +30,19 @@ from physics.world import PhysicsSettings
 from .config_sections import AdaptiveConfig, HandConfig, NoiseConfig, ReasonerConfig
 from .relations import RelationConfig
 
+SOLVER_RESIDUAL = 1e-6
+"""(m/s)^2: the particle worlds' Bullet solver stops iterating when the squared velocity
+corrections of a sweep over the contacts sum to less than this (Bullet's residual is
+the change of impulse times the constraint's inverse effective mass: a velocity). At 1e-6 what the
+solver leaves unresolved is about 1 mm/s, a fifth of the speed at which the worlds call an object at
+rest (:data:`~estimator.worlds.resting.REST_SPEED`, 5 mm/s). At 1e-4 (1 cm/s, twice that speed and a
+quarter of what gravity adds in one step) the solver stops after about one sweep: a body resting
+on a few points of a mesh (pybullet_data's duck) is kicked whenever the filter moves it along its
+support (regularisation, process noise), rocks, and tips over in most particles while the true one
+stands (``tests/test_config.py``)."""
+
 __all__ = ["AdaptiveConfig", "EstimatorConfig", "HandConfig", "NoiseConfig", "ReasonerConfig", "config_from_dict",
-           "config_to_dict", "default_config", "load_config", "reasoning_due", "with_adaptive_count"]
+           "config_to_dict", "default_config", "load_config", "reasoning_due", "with_adaptive_count", "SOLVER_RESIDUAL"]
 
 
 def reasoning_due(t_last: float | None, t: float, horizon: float) -> bool:
@@ -81,8 +92,8 @@ class EstimatorConfig:
       held still in the air), was moved by that particle's physics (knocked by something the
       particle let fall), not by an agent: its held episode is silent, no Pick and no Place or Push
       at its end (the paper reports a Pick for every divergence: off in paper mode).
-    * ``physics``: the particle worlds' engine settings; the solver stops at a residual of 1e-4
-      (the ground-truth simulator keeps pybullet's 1e-7): resting scenes step faster; URDFs are
+    * ``physics``: the particle worlds' engine settings; the solver stops at a residual of
+      :data:`SOLVER_RESIDUAL` (the ground-truth simulator keeps pybullet's 1e-7); URDFs are
       loaded without their visual meshes and textures (much less memory and start-up); objects at
       rest sleep (stepping skips them) until touched, reset or moved (see
       :func:`~estimator.worlds.propagate.propagate_batch`).
@@ -104,7 +115,7 @@ class EstimatorConfig:
     hands: HandConfig = field(default_factory=HandConfig)
     relations: RelationConfig = field(default_factory=RelationConfig)
     physics: PhysicsSettings = field(default_factory=lambda: PhysicsSettings(
-        solver_residual_threshold=1e-4, sleeping=True, collision_only=True))
+        solver_residual_threshold=SOLVER_RESIDUAL, sleeping=True, collision_only=True))
     resample_threshold: float = 0.5
     event_threshold: float = 0.5
     event_window: float = 1.0

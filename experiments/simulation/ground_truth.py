@@ -28,10 +28,32 @@ GRASP_REACH = 0.04
 """A grasp needs the object's bounding box within hand radius + this distance (m) of the hand centre."""
 CONTACT_DISTANCE = 0.003
 """At a release, an object with a contact closer than this (m) rests on a support (a Place)."""
+SETTLE_WINDOW = 0.05
+"""s: after the scenario's ``settle`` time the truth goes on settling, by windows of this length,
+until no dynamic object moved faster than :data:`SETTLE_SPEED` or turned faster than
+:data:`SETTLE_SPIN` over the last window (a duck dropped onto the table still rocks after 0.3 s:
+handed to the estimator mid-swing, it is a pose no object rests in)."""
+SETTLE_SPEED = 0.005
+"""m/s: see :data:`SETTLE_WINDOW` (the particle worlds' own at-rest speed)."""
+SETTLE_SPIN = 0.05
+"""rad/s: see :data:`SETTLE_WINDOW`."""
+SETTLE_MAX = 3.0
+"""s: the most the truth settles beyond the scenario's ``settle`` time (then t = 0, at rest or not)."""
 
 
 # --------------------------------------------------------------------------------------------------
 # the ground-truth world
+
+
+def at_rest(before: np.ndarray, after: np.ndarray, dt: float) -> bool:
+    """Whether poses ``(D, 7)`` (link frames, quaternions x, y, z, w) taken ``dt`` seconds apart
+    moved slower than :data:`SETTLE_SPEED` and turned slower than :data:`SETTLE_SPIN` on average."""
+    if len(before) == 0:
+        return True
+    speed = np.linalg.norm(after[:, :3] - before[:, :3], axis=1) / dt
+    dot = np.clip(np.abs(np.sum(after[:, 3:] * before[:, 3:], axis=1)), 0.0, 1.0)
+    spin = 2.0 * np.arccos(dot) / dt
+    return bool(np.all(speed < SETTLE_SPEED) and np.all(spin < SETTLE_SPIN))
 
 
 class GroundTruth:
@@ -293,15 +315,32 @@ class GroundTruth:
 
     # -- the run ------------------------------------------------------------------------------------
     def settle(self) -> None:
-        """Simulate ``scenario.settle`` seconds with the hand at its start; the state reached is t = 0."""
+        """Simulate ``scenario.settle`` seconds with the hand at its start, then on until the dynamic
+        objects are at rest (:data:`SETTLE_WINDOW`, at most :data:`SETTLE_MAX` more); the state
+        reached is t = 0."""
+
+        def steps(n: int) -> None:
+            for _ in range(n):
+                if self.hand_uid >= 0:
+                    self._drive_hand(0.0)
+                self._step()
+
         n = int(round(self.scenario.settle / self.dt))
-        for _ in range(n):
-            if self.hand_uid >= 0:
-                self._drive_hand(0.0)
-            self._step()
+        window = max(1, int(round(SETTLE_WINDOW / self.dt)))
+        steps(max(0, n - window))  # the settle time's last window is the first one tested
+        for _ in range(int(round(SETTLE_MAX / SETTLE_WINDOW)) + (n >= window)):
+            before = self._dynamic_poses()
+            steps(window)
+            if at_rest(before, self._dynamic_poses(), window * self.dt):
+                break
         if self.hand_uid >= 0:
             self._start_segment(0.0)
             self._advance_script(0.0, 0)
+
+    def _dynamic_poses(self) -> np.ndarray:
+        """Poses ``(D, 7)`` of the scene's dynamic objects, as the truth has them now."""
+        self._sync()
+        return self.world.get_poses(self.world.dynamic_indices)
 
     def look(self, camera: CameraSpec) -> np.ndarray:
         """Visible fractions ``(M,)`` of every object to ``camera`` in the world's present state
