@@ -13,7 +13,8 @@ class PhysicsSettings:
 
     ``time_step`` is the fixed step (s); ``solver_iterations`` Bullet's constraint-solver iterations,
     ``solver_residual_threshold`` the residual at which the solver stops earlier (pybullet's default
-    1e-7; 1e-4 makes resting scenes cheaper to step);
+    1e-7; the particle worlds use :data:`estimator.config.SOLVER_RESIDUAL`, 1e-6: Bullet's residual
+    is the sum of the squared velocity corrections of a sweep, (m/s)^2);
     ``deterministic_pairs`` sorts overlapping pairs so that two identically built worlds agree bit
     for bit. ``sleeping`` lets bodies be put to sleep (:func:`physics.sleep.sleep`; Bullet's own
     deactivation too): a sleeping body costs almost nothing to step and wakes when an awake body
