@@ -11,7 +11,7 @@ Format (units: metres, kilograms, seconds, degrees)::
     name: my_scenario              # default: the file name
     description: one line
     duration: 4.0                  # seconds of recorded simulation
-    settle: 0.3                    # seconds simulated before t = 0 so that objects come to rest
+    settle: 0.3                    # seconds simulated before t = 0 (then on until objects rest)
     scene: {...}                   # a scene in the scene-file format (objects, camera, floor)
     hand:                          # optional: the scripted human hand
       radius: 0.035                # a sphere (m)
