@@ -246,7 +246,6 @@ def record(name: str, seed: int = 0) -> tuple[dict, list[dict], list[dict]]:
     model = mujoco.MjModel.from_xml_string(_mjcf(rec))
     data = mujoco.MjData(model)
     ids = {b.id: mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, b.id) for b in rec.bodies}
-    hand_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "hand") if rec.hand else -1
     flicks = [b for b in rec.bodies if not b.static and any(b.velocity)]
     welds = {b.id: k for k, b in enumerate(b for b in rec.bodies if not b.static)}
     cam = np.asarray(CAMERA["position"], float)

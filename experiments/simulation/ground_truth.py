@@ -11,6 +11,7 @@ import numpy as np
 import pybullet as pb
 
 from estimator.relations import relation_list, relation_masks
+from estimator.worlds.resting import REST_SPEED, REST_SPIN
 from experiments.scenarios import HandTarget
 from experiments.simulation.camera import SyntheticCamera
 from experiments.simulation.files import SimulationResult, _r, _rl
@@ -20,7 +21,7 @@ from experiments.simulation.pushes import PUSH_GAP, PushTracker
 from experiments.simulation.variants import Variant
 from physics.errors import InputError
 from physics.scene import CameraSpec
-from physics.transforms import pose_compose, pose_inverse
+from physics.transforms import pose_compose, pose_inverse, quat_angle
 from physics.world import PhysicsSettings, World
 
 HAND_ID = "human/right"
@@ -30,13 +31,10 @@ CONTACT_DISTANCE = 0.003
 """At a release, an object with a contact closer than this (m) rests on a support (a Place)."""
 SETTLE_WINDOW = 0.05
 """s: after the scenario's ``settle`` time the truth goes on settling, by windows of this length,
-until no dynamic object moved faster than :data:`SETTLE_SPEED` or turned faster than
-:data:`SETTLE_SPIN` over the last window (a duck dropped onto the table still rocks after 0.3 s:
-handed to the estimator mid-swing, it is a pose no object rests in)."""
-SETTLE_SPEED = 0.005
-"""m/s: see :data:`SETTLE_WINDOW` (the particle worlds' own at-rest speed)."""
-SETTLE_SPIN = 0.05
-"""rad/s: see :data:`SETTLE_WINDOW`."""
+until no dynamic object moved faster than the particle worlds' at-rest speed and spin
+(:data:`~estimator.worlds.resting.REST_SPEED`, :data:`~estimator.worlds.resting.REST_SPIN`) over
+the last window (a duck dropped onto the table still rocks after 0.3 s: handed to the estimator
+mid-swing, it is a pose no object rests in)."""
 SETTLE_MAX = 3.0
 """s: the most the truth settles beyond the scenario's ``settle`` time (then t = 0, at rest or not)."""
 
@@ -47,13 +45,11 @@ SETTLE_MAX = 3.0
 
 def at_rest(before: np.ndarray, after: np.ndarray, dt: float) -> bool:
     """Whether poses ``(D, 7)`` (link frames, quaternions x, y, z, w) taken ``dt`` seconds apart
-    moved slower than :data:`SETTLE_SPEED` and turned slower than :data:`SETTLE_SPIN` on average."""
-    if len(before) == 0:
-        return True
+    moved slower than :data:`~estimator.worlds.resting.REST_SPEED` and turned slower than
+    :data:`~estimator.worlds.resting.REST_SPIN` on average."""
     speed = np.linalg.norm(after[:, :3] - before[:, :3], axis=1) / dt
-    dot = np.clip(np.abs(np.sum(after[:, 3:] * before[:, 3:], axis=1)), 0.0, 1.0)
-    spin = 2.0 * np.arccos(dot) / dt
-    return bool(np.all(speed < SETTLE_SPEED) and np.all(spin < SETTLE_SPIN))
+    spin = quat_angle(after[:, 3:], before[:, 3:]) / dt
+    return bool(np.all(speed < REST_SPEED) and np.all(spin < REST_SPIN))
 
 
 class GroundTruth:
