@@ -150,6 +150,13 @@ class NoiseConfig:
       (:class:`~estimator.model.terms.VelocityTerm`: how fast a rolled ball slows down tells its
       rolling friction, which a teleport at every update hides from the position); this is added in
       quadrature to the perceived velocity's standard error. 0: not weighed.
+    * ``decel_error``: an object seen rolling or sliding along its support for a while is weighed on
+      its deceleration, fitted through all its detections since it started rolling (up to a second:
+      :class:`~estimator.model.mechanisms.deceleration.DecelerationEvidence`), against the one each
+      particle's physics gave it over its last update: this is what tells a ball's rolling friction,
+      and where it will stop. ``decel_error`` is the physics' own error, a fraction of the perceived
+      deceleration added in quadrature to the fit's standard error (two engines given the same
+      stated rolling friction stop a rolled ball 5-10 % apart). 0: not weighed.
     * ``param_jitter``: after resampling, parameters are shrunk toward their weighted mean by
       ``a = sqrt(1 - jitter**2)`` and jittered so that their spread is kept (Liu & West; frictions
       and masses in log space, :mod:`estimator.model.params`); 0 disables.
@@ -206,6 +213,7 @@ class NoiseConfig:
     restitution_range: tuple[float, float] | None = (0.0, 0.3)
     mass_scale_range: tuple[float, float] | None = (0.8, 1.25)
     velocity_slack: float = 0.03
+    decel_error: float = 0.1
     param_jitter: float = 0.1
     param_floor: float = 0.1
     param_widen: float = 0.35
@@ -221,7 +229,8 @@ class NoiseConfig:
         check_nonneg(self, "position_std", "orientation_std", "process_position_std",
                       "process_orientation_std", "held_drift_std", "held_offset_std", "param_jitter", "outlier_prob",
                       "miss_prob", "motion_noise", "rest_speed", "covariance_floor_std", "regularisation",
-                      "max_jitter_std", "fusion_floor_std", "covariance_speed_time", "hand_radius", "param_floor", "velocity_slack", "param_widen")
+                      "max_jitter_std", "fusion_floor_std", "covariance_speed_time", "hand_radius", "param_floor", "velocity_slack", "param_widen",
+                      "decel_error")
         if not (isinstance(self.param_reach, (int, float)) and self.param_reach >= 1):
             raise ValueError(f"NoiseConfig.param_reach must be >= 1, got {self.param_reach!r}")
         dof = self.position_dof

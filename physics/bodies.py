@@ -1,8 +1,12 @@
 """Bodies of a scene's objects in a pybullet client: URDFs (retried once, collision-only if asked),
 primitives and open containers (their collision shapes shared between copies of a scene), and their
-physical parameters. Every call names its client."""
+physical parameters (and the rolling friction Bullet must be given to realise a stated one,
+:func:`bullet_rolling_friction`). Every call names its client."""
 from __future__ import annotations
 
+import math
+
+import numpy as np
 import pybullet as pb
 
 from .errors import SceneError
@@ -86,3 +90,33 @@ def apply_dynamics(client: int, uid: int, friction: float | None, rolling: float
     kw = {k: float(v) for k, v in values.items() if v is not None}
     if kw:
         pb.changeDynamics(uid, -1, physicsClientId=client, **kw)
+
+
+def bullet_rolling_friction(stated, support_friction):
+    """The rolling friction (m) to give a Bullet body so that it rolls on a support of lateral
+    friction ``support_friction`` with the rolling friction ``stated`` (m): the resisting torque
+    ``stated`` x normal force, as a scene states it and as MuJoCo realises it, whatever the support.
+    Bullet combines two bodies' coefficients as ``rolling_a mu_b + rolling_b mu_a``: a ball of rolling
+    friction r rolls twice as far on a support of lateral friction 0.5 as on one of 1.0. For a
+    support without rolling friction of its own (the floor, a table, a box: Bullet's default is 0)
+    ``stated / support_friction`` gives exactly ``stated``. Arrays broadcast; where the support is
+    unknown (NaN) or frictionless, ``stated`` is returned unchanged."""
+    stated = np.asarray(stated, dtype=float)
+    mu = np.asarray(support_friction, dtype=float)
+    ok = np.isfinite(mu) & (mu > 0)
+    return np.where(ok, stated / np.where(ok, mu, 1.0), stated)
+
+
+def support_friction(client: int, uid: int, min_normal_z: float = 0.5) -> float:
+    """Lateral friction of the body ``uid`` rests on, from the contacts of the last collision
+    detection: of the bodies whose contact normal points up into ``uid`` (z component of the normal
+    on the other body above ``min_normal_z``), the one pushing hardest (largest summed normal force);
+    NaN when nothing supports it."""
+    force: dict[int, float] = {}
+    for cp in pb.getContactPoints(bodyA=uid, physicsClientId=client):
+        if cp[7][2] > min_normal_z:
+            force[cp[2]] = force.get(cp[2], 0.0) + cp[9]
+    if not force:
+        return math.nan
+    other = max(sorted(force), key=lambda u: force[u])
+    return float(pb.getDynamicsInfo(other, -1, physicsClientId=client)[1])

@@ -7,6 +7,11 @@ from dataclasses import dataclass
 import pybullet as pb
 
 
+FLOOR_FRICTION = 0.5
+"""Lateral friction of the floor plane (Bullet's default for a body, stated here because the rolling
+friction a body realises on the floor depends on it: :func:`physics.bodies.bullet_rolling_friction`)."""
+
+
 @dataclass(frozen=True)
 class PhysicsSettings:
     """Engine settings of a world.
@@ -56,4 +61,5 @@ def connect(settings: PhysicsSettings, floor: bool) -> tuple[int, int]:
     if floor:
         plane = pb.createCollisionShape(pb.GEOM_PLANE, physicsClientId=c)
         floor_uid = pb.createMultiBody(0, plane, physicsClientId=c)
+        pb.changeDynamics(floor_uid, -1, lateralFriction=FLOOR_FRICTION, physicsClientId=c)
     return c, floor_uid

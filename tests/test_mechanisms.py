@@ -7,6 +7,7 @@ from estimator.config import EstimatorConfig, NoiseConfig, default_config
 from estimator.filter import SceneEstimator
 from estimator.model.mechanisms import PHASES, Mechanism, mechanisms_for
 from estimator.model.mechanisms.base import ArraySpec
+from estimator.model.mechanisms.deceleration import DecelerationTerm
 from estimator.model.mechanisms.flick import LetGoMoving
 from estimator.model.mechanisms.rest_fusion import FusionAtRest
 from estimator.model.mechanisms.teleport import Teleports
@@ -31,7 +32,7 @@ def test_the_papers_reasoner_is_a_shorter_list_of_the_same_mechanisms():
     # a mechanism's terms come with it, after those of every model
     paper_terms = [type(t) for t in make(EstimatorConfig.paper()).terms]
     full_terms = [type(t) for t in make(default_config(64, "particles")).terms]
-    assert VelocityTerm not in paper_terms and full_terms == paper_terms + [VelocityTerm]
+    assert VelocityTerm not in paper_terms and full_terms == paper_terms + [VelocityTerm, DecelerationTerm]
 
 
 class LastAncestor(Mechanism):

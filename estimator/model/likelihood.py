@@ -67,6 +67,25 @@ def velocity_log_likelihood(velocities: np.ndarray, seen: np.ndarray, std: np.nd
     return np.where(mask, _with_outliers(log_n, outlier_prob), 0.0).sum(axis=1)
 
 
+def acceleration_log_likelihood(accelerations: np.ndarray, seen: np.ndarray, std: np.ndarray, mask: np.ndarray,
+                                temper: np.ndarray, outlier_prob: float) -> np.ndarray:
+    """Log-likelihood ``(K,)`` float64 of perceived horizontal accelerations under the particles'.
+
+    Args:
+        accelerations: ``(K, M, 2)`` each particle's horizontal acceleration of each object (m/s^2).
+        seen: ``(M, 2)`` the perceived accelerations (m/s^2).
+        std: ``(M,)`` their standard deviation per axis (m/s^2).
+        mask: ``(K, M)`` bool, the entries weighed (the others add nothing).
+        temper: ``(M,)`` in [0, 1], the power each object's likelihood is raised to (the share of its
+            evidence that is new at this update).
+        outlier_prob: as :func:`position_log_likelihood`, a uniform outlier density of 1 per (m/s^2)^2.
+    """
+    std = np.asarray(std, dtype=float)
+    z2 = np.sum(((accelerations - seen[None]) / std[None, :, None]) ** 2, axis=-1)
+    log_n = -0.5 * z2 - np.log(2 * math.pi * std ** 2)[None, :]
+    return (np.where(mask, _with_outliers(log_n, outlier_prob), 0.0) * np.asarray(temper, float)[None, :]).sum(axis=1)
+
+
 def orientation_log_likelihood(orientations: np.ndarray, detected: np.ndarray, orientation_std: float,
                                outlier_prob: float) -> np.ndarray:
     """Log-likelihood ``(K, N)`` float64 of N detected orientations under each particle.

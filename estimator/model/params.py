@@ -11,12 +11,18 @@ happened to keep a few particles for other reasons (an object's velocity, anothe
 detection) does not fix it for good: what the evidence says later can still move it. The bounds are
 the prior's range widened by ``param_reach`` (a factor): evidence may carry a parameter beyond what
 the user's scene file and the prior allowed, not without limit.
+
+A particle's parameters mean what the scene file states; :func:`world_params` gives what the Bullet
+worlds must be set to for it (a rolling friction depends, in Bullet, on what the object rests on).
 """
 from __future__ import annotations
 
 import math
 
 import numpy as np
+
+from physics.bodies import bullet_rolling_friction
+from physics.settings import FLOOR_FRICTION
 
 from ..config import EstimatorConfig
 
@@ -66,3 +72,36 @@ def shrink_params(p: np.ndarray, h: float, bounds: np.ndarray, rng: np.random.Ge
         x = x + extra * rng.standard_normal(p.shape)
     out = np.where(logs[None], np.exp(x), x)
     return np.clip(out, bounds[:, 0], bounds[:, 1])
+
+
+def support_friction(params: np.ndarray, on_top: np.ndarray, is_in: np.ndarray,
+                     floor_friction: float = FLOOR_FRICTION) -> np.ndarray:
+    """Lateral friction ``(K, M)`` of what each particle's object rests on: the mean over the
+    containers it is in (``is_in (K, M, M)``: a container's floor holds it, whatever else its box
+    overlaps), else over what it is on top of (``on_top (K, M, M+1)``, column M the floor, of friction
+    ``floor_friction``), their frictions the particle's (``params (K, M, 5)``, column 0); NaN where it
+    rests on nothing."""
+    M = params.shape[1]
+    inside = np.any(is_in, axis=-1, keepdims=True)
+    under = np.where(inside, is_in, on_top[..., :M])
+    on_floor = on_top[..., M] & ~inside[..., 0]
+    total = np.einsum("kmj,kj->km", under.astype(float), params[..., 0]) + on_floor * floor_friction
+    n = under.sum(axis=-1) + on_floor
+    return np.where(n > 0, total / np.maximum(n, 1), np.nan)
+
+
+def world_params(params: np.ndarray, on_top: np.ndarray, is_in: np.ndarray,
+                 floor_friction: float = FLOOR_FRICTION) -> np.ndarray:
+    """The parameters ``(K, M, 5)`` to set in the Bullet worlds for the particles' ``params (K, M,
+    5)``: the same, but each rolling friction is what Bullet needs to realise it on the support the
+    object rested on at the last update (:func:`support_friction` from ``on_top (K, M, M+1)`` and
+    ``is_in (K, M, M)``; :func:`physics.bodies.bullet_rolling_friction`): the stated coefficient is a
+    contact's resisting torque per newton on any support, as MuJoCo and the truth simulator realise
+    it. Returns ``params`` itself when nothing changes."""
+    mu = support_friction(params, on_top, is_in, floor_friction)
+    rolling = bullet_rolling_friction(params[..., 1], mu)
+    if np.array_equal(rolling, params[..., 1]):
+        return params
+    out = params.copy()
+    out[..., 1] = rolling
+    return out

@@ -22,12 +22,15 @@ from ..observations import Frame
 from .detection_noise import DetectionNoise, onset_distance
 from .hand_memory import HandsInMemory
 from .hands import HandFilter
-from .tracks import dwell_back, fit_line, free_fall, rested
+from .tracks import dwell_back, fit_acceleration, fit_line, free_fall, rested
 
 MOTION_ONSET = 0.015
 """m: an object still until now starts moving when a detection lies this far from where it was still
 (the average of its still detections), or farther where the tracker's noise asks for it
 (:meth:`PerceptionMemory.onset`); it started at its last detection closer than that."""
+ACCEL_WINDOW = 1.0
+"""s: the longest stretch of a roll whose detections are fitted for its deceleration
+(:meth:`PerceptionMemory.acceleration`); detections are kept at least this long."""
 VELOCITY_WINDOW = 0.2
 """s: an object's perceived velocity is the least-squares slope of its detections over this long (since
 its last gap longer than ``t_perceived``): a difference of two frames 1/30 s apart turns a few
@@ -146,7 +149,7 @@ class PerceptionMemory(HandsInMemory):
             hist = self._history[m]
             hist.append((frame.t, tuple(det.position.tolist()),
                          None if det.orientation is None else tuple(det.orientation.tolist())))
-            while hist and hist[0][0] < frame.t - max(2.0 * hr.place_dwell + 0.1, VELOCITY_WINDOW):
+            while hist and hist[0][0] < frame.t - max(2.0 * hr.place_dwell + 0.1, VELOCITY_WINDOW, ACCEL_WINDOW):
                 hist.popleft()
             self._fit_due[m] = True
             self._nearest_hand(frame, m)
@@ -196,11 +199,24 @@ class PerceptionMemory(HandsInMemory):
         ``position_std`` where it gave one, else the detections' horizontal scatter about their line
         (:attr:`perc_vel_scatter`, from three detections on) up to ``position_std`` (m, the model's
         perception noise, also used with two detections)."""
-        self._fit_pending()
-        scatter = np.where(np.isfinite(self._scatter), np.minimum(self._scatter, position_std), position_std)
-        sigma = np.where(np.isfinite(self.last_std), self.last_std, scatter)
+        sigma = self._noise_std(position_std)
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.where(self._sxx > 0, sigma / np.sqrt(self._sxx), 0.0)
+
+    def _noise_std(self, position_std: float) -> np.ndarray:
+        """``(M,)`` m: each object's detection noise per axis (see :meth:`velocity_std`)."""
+        self._fit_pending()
+        scatter = np.where(np.isfinite(self._scatter), np.minimum(self._scatter, position_std), position_std)
+        return np.where(np.isfinite(self.last_std), self.last_std, scatter)
+
+    def acceleration(self, m: int, since: float, position_std: float) -> tuple[np.ndarray, float, float] | None:
+        """Object m's horizontal acceleration over its detections from ``since`` (s) to its latest one,
+        at most :data:`ACCEL_WINDOW` back and within its current segment: ``(a (2,) m/s^2, standard
+        error per axis m/s^2, span s)`` (:func:`~estimator.model.tracks.fit_acceleration`, the noise
+        as :meth:`velocity_std`'s); None when too few detections span too short a time."""
+        t = float(self.last_seen[m])
+        start = max(since, t - ACCEL_WINDOW, float(self._segment_start[m]))
+        return fit_acceleration(self._history[m], start, t, float(self._noise_std(position_std)[m]))
 
     def _fit_velocity(self, m: int, t: float) -> tuple[np.ndarray, float, np.ndarray, float]:
         """Least-squares line through object m's detections over the :data:`VELOCITY_WINDOW` up to its

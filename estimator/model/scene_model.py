@@ -42,7 +42,7 @@ from .hand_memory import HAND_RADIUS
 from .inputs import StepInputs
 from .mechanisms import PHASES, Draft, Mechanism, mechanisms_for
 from .motion import out_of_reach, roll_released, rolled_along
-from .params import param_bounds
+from .params import param_bounds, world_params
 from .perception_memory import PerceptionMemory
 from .step import Move, Proposal, Settled, Weighed
 from .terms import Evidence, LogWeightTerm, held_unseen_in_view
@@ -312,7 +312,8 @@ class SceneModel:
     def batch(self, move: Move, state: ParticleState) -> BatchInput:
         """The pool's input for ``move`` (which entries to load, and which a world produced at rest,
         the pool's cache decides: :meth:`~estimator.worlds.pool.WorldPool.advance`)."""
-        return BatchInput(poses=move.poses, velocities=move.velocities, params=state.params, modes=move.modes,
+        params = world_params(state.params, state.on_top, state.is_in)
+        return BatchInput(poses=move.poses, velocities=move.velocities, params=params, modes=move.modes,
                           check=move.check, target=move.target, target_vel=move.target_vel, contents=state.is_in,
                           depenetrate=move.depenetrate, vis_query=move.vis_query)
 

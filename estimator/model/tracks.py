@@ -36,6 +36,34 @@ def fit_line(history, since: float, t: float) -> tuple[np.ndarray, float, np.nda
     return slope, sxx, xs.mean(axis=0)[:2] + slope[:2] * (t - ts.mean()), scatter, max(dof, 0)
 
 
+def fit_acceleration(history, since: float, t: float, sigma: float,
+                     min_points: int = 6, min_span: float = 0.2) -> tuple[np.ndarray, float, float] | None:
+    """Constant horizontal acceleration through the detections of ``history`` from ``since`` (s) to
+    ``t`` (s): the least-squares parabola ``p0 + v tau + a tau^2 / 2`` per axis. Returns ``(a (2,)
+    m/s^2, its standard error per axis m/s^2, the detections' time span s)`` for detection noise
+    ``sigma`` (m per axis); None with fewer than ``min_points`` detections or a span under
+    ``min_span`` (s). Over a span T with n detections the standard error falls as ``sigma /
+    (sqrt(n) T^2)``: a roll seen for a second tells its deceleration far better than the velocity
+    of one reasoning step does."""
+    pts = [(h[0], h[1]) for h in history if since - 1e-9 <= h[0] <= t + 1e-9]
+    if len(pts) < min_points:
+        return None
+    ts = np.array([p[0] for p in pts])
+    span = float(ts[-1] - ts[0])
+    if span < min_span:
+        return None
+    tau = ts - ts.mean()
+    X = np.stack([np.ones_like(tau), tau, 0.5 * tau * tau], axis=1)
+    xs = np.array([p[1][:2] for p in pts], dtype=float)
+    gram = X.T @ X
+    try:
+        coef = np.linalg.solve(gram, X.T @ xs)
+        var = float(np.linalg.inv(gram)[2, 2])
+    except np.linalg.LinAlgError:
+        return None
+    return coef[2], float(sigma) * math.sqrt(max(var, 0.0)), span
+
+
 def free_fall(history, segment_start: float, times: np.ndarray, g: float,
               sigma: float) -> tuple[np.ndarray, np.ndarray, float] | None:
     """The free fall through the last two detections of ``history`` (both at or after

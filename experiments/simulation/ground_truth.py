@@ -19,6 +19,7 @@ from experiments.simulation.hand_path import _quat_from_rpy, _Segment
 from experiments.simulation.perception import PerceptionModel
 from experiments.simulation.pushes import PUSH_GAP, PushTracker
 from experiments.simulation.variants import Variant
+from physics.bodies import bullet_rolling_friction, support_friction
 from physics.errors import InputError
 from physics.scene import CameraSpec
 from physics.transforms import pose_compose, pose_inverse, quat_angle
@@ -71,6 +72,11 @@ class GroundTruth:
         self.pushes = PushTracker(int(round(PUSH_GAP / self.dt)))
         self.warnings: list[str] = []
         self.hand_shift = np.zeros(3)  # m, added to the hand's scripted path (see :meth:`perturb`)
+        # m: the rolling friction each dynamic object states (None: none), and what Bullet is given
+        # for it on the support it rests on now (:meth:`_realise_rolling`)
+        self.rolling = {i: s.rolling_friction for i, s in enumerate(variant.scene.objects)
+                        if not s.static and s.rolling_friction is not None}
+        self._given_rolling = dict(self.rolling)
         try:
             self._build_hand()
             self._build_torso()
@@ -98,8 +104,25 @@ class GroundTruth:
         return self.world.settings.time_step
 
     def _step(self) -> None:
-        """Advance the truth by one step of :attr:`dt`."""
+        """Advance the truth by one step of :attr:`dt`, then give each object that states a rolling
+        friction what Bullet needs to realise it on the support it now rests on."""
         self.world.step(1)
+        self._realise_rolling()
+
+    def _realise_rolling(self) -> None:
+        """The scene's rolling friction is a contact's resisting torque per newton of normal force
+        on any support (as MuJoCo realises it); Bullet scales a body's by its support's lateral
+        friction (:func:`physics.bodies.bullet_rolling_friction`). Set from the last step's contacts;
+        an object resting on nothing keeps what it had."""
+        c = self.world.client
+        for i, stated in self.rolling.items():
+            mu = support_friction(c, self.world.uids[i])
+            if not math.isfinite(mu):
+                continue
+            given = float(bullet_rolling_friction(stated, mu))
+            if given != self._given_rolling[i]:
+                self.world.set_dynamics(i, rolling_friction=given)
+                self._given_rolling[i] = given
 
     def _sync(self) -> None:
         """Bring this world (poses, contacts) up to date before it is read (nothing to do when it is
@@ -297,6 +320,9 @@ class GroundTruth:
         sighting). ``params``: physical parameters the object has from now on (``mass`` kg,
         ``friction``, ``rolling_friction``, ``spinning_friction``, ``restitution``; others kept)."""
         if params:
+            if params.get("rolling_friction") is not None and not self.world.static[index]:
+                self.rolling[index] = float(params["rolling_friction"])  # realised at the next step
+                self._given_rolling[index] = math.nan
             self.world.set_dynamics(index, lateral_friction=params.get("friction"),
                                     rolling_friction=params.get("rolling_friction"),
                                     spinning_friction=params.get("spinning_friction"),

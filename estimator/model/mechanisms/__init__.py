@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from .base import PHASES, Draft, Mechanism
 from .cover import LetGoBehindCover
+from .deceleration import DecelerationEvidence
 from .flick import LetGoMoving
 from .follow_hand import FollowHands
 from .process_noise import ProcessNoise
@@ -45,11 +46,13 @@ def mechanisms_for(model) -> list[Mechanism]:
     in the order their hooks run. The paper's reasoner (:meth:`~estimator.config.EstimatorConfig.paper`)
     has teleports (at rest), release on loss, let go behind cover (inert with ``hand_occlusion`` 1),
     following a hand and process noise (none with its noise off); the full model adds velocity
-    evidence, let go in motion, fusion at rest and static clipping. A new mechanism goes here."""
+    and deceleration evidence, let go in motion, fusion at rest and static clipping. A new mechanism goes here."""
     cfg = model.config
     out: list[Mechanism] = [Teleports(model)]
     if cfg.moving_teleports and cfg.noise.velocity_slack > 0:
         out.append(VelocityEvidence(model))
+    if cfg.moving_teleports and cfg.noise.decel_error > 0:
+        out.append(DecelerationEvidence(model))
     out += [ReleaseOnLoss(model), LetGoBehindCover(model)]
     if cfg.priors.let_go_moving > 0:
         out.append(LetGoMoving(model))

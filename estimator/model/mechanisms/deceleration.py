@@ -1,0 +1,149 @@
+"""Deceleration evidence: an object seen rolling (or sliding) along its support is weighed on how fast
+each particle's physics slowed it down over its last update against the deceleration fitted through
+all its detections since it started rolling (:func:`~estimator.model.tracks.fit_acceleration`).
+
+A teleport in motion gives every particle the perceived velocity again at every update, so neither the
+position nor one update's velocity says much about a ball's rolling friction: over 80 ms a friction
+twice as large changes the velocity by 2 cm/s, under the noise of a velocity fitted through a few
+detections. The deceleration fitted through a second of detections is known to a few cm/s^2
+(its standard error falls as the span to the power 5/2), and it is what decides where a ball that
+rolls out of view stops. Consecutive updates fit overlapping detections: each weighs the fit with
+the share of its information that is new, ``5 dt / T`` over a span T (the information about a
+constant acceleration grows as ``T^5``), so that the terms of a whole roll add up to what its
+detections say once. Part of the full model (``moving_teleports``, with ``decel_error`` above 0).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from actions.modes import FREE
+
+from ...resampling import normalise_log_weights
+from ...state import ArraySpec
+from ..likelihood import acceleration_log_likelihood
+from ..motion import rolled_along
+from .base import Draft, Mechanism
+
+DECEL_FLOOR = 0.02
+"""m/s^2: the least standard deviation of a perceived deceleration (an object rolling freely, whose
+fitted deceleration is near zero, is still weighed with some tolerance for the physics' error)."""
+
+
+CHANGE_CHI2 = 9.21
+"""The 99 % quantile of a chi-square of two degrees of freedom: the test that a roll's deceleration
+changed (:meth:`DecelerationEvidence._fit`)."""
+
+
+class DecelerationEvidence(Mechanism):
+    """Keeps each particle's horizontal velocity at the start of its last update (``roll_v0 (K, M, 2)``
+    m/s, NaN before the first) and weighs, at the next one, the deceleration its physics gave each
+    object seen rolling along its support at both (free in the particle) against the perceived one
+    (:func:`~estimator.model.likelihood.acceleration_log_likelihood`)."""
+
+    arrays = {"roll_v0": ArraySpec((2,), float, np.nan)}
+
+    def __init__(self, model):
+        super().__init__(model)
+        M = len(model.scene.objects)
+        self._since = np.full(M, np.nan)  # s: the update since which each object is seen rolling along
+        self._t_prev = -math.inf
+        self._dt_prev = math.nan
+        self._check: tuple | None = None
+        self.surprise = np.zeros(M)  # as the model's (note_surprise), from the decelerations alone
+
+    def terms(self) -> tuple:
+        return (DecelerationTerm(self, self.model.config.noise.outlier_prob),)
+
+    def perceive(self, u: Draft) -> None:
+        mem, nz = self.model.memory, self.model.config.noise
+        along = u.moving & ~u.falling & mem.perceived_prev & rolled_along(mem.previous_tick_velocity())
+        self._since[~along] = np.nan
+        self._since[along & np.isnan(self._since)] = u.t  # not before: a flicked ball slides, then rolls
+        self._check = None
+        v0 = getattr(u.state, "roll_v0", None)
+        if along.any() and v0 is not None and self._dt_prev > 0:
+            M = len(along)
+            seen, std, temper = np.zeros((M, 2)), np.ones(M), np.zeros(M)
+            ok = np.zeros(M, dtype=bool)
+            for m in np.flatnonzero(along):
+                fit = self._fit(int(m))
+                if fit is None:
+                    continue
+                a, se, span = fit
+                ok[m] = True
+                seen[m] = a
+                std[m] = math.sqrt(se * se + (nz.decel_error * float(np.linalg.norm(a))) ** 2 + DECEL_FLOOR ** 2)
+                temper[m] = min(1.0, 5.0 * self._dt_prev / span)
+            if ok.any():
+                accel = (u.state.velocities[..., :2] - v0) / self._dt_prev
+                mask = ok[None, :] & (u.prev_modes == FREE) & np.all(np.isfinite(v0), axis=-1)
+                self._check = (mask, accel, seen, std, temper)
+                self._note_surprise(u.state.log_weights, mask, accel, seen, std)
+        self._t_prev = u.t
+
+    def _fit(self, m: int) -> tuple | None:
+        """Object m's deceleration since it is seen rolling (:meth:`~estimator.model.perception_memory
+        .PerceptionMemory.acceleration`), over its detections while the deceleration stayed constant:
+        where the fit over the later half of the span disagrees with the whole span's (a flicked ball
+        slides before it rolls, slowing down several times faster), the earlier half is dropped for
+        good (a chi-square test on the difference of the nested fits, whose variance is the
+        difference of theirs)."""
+        mem, std = self.model.memory, self.model.config.noise.position_std
+        fit = mem.acceleration(m, float(self._since[m]), std)
+        if fit is None:
+            return None
+        a, se, span = fit
+        half = mem.acceleration(m, float(mem.last_seen[m]) - 0.5 * span, std)
+        if half is not None and half[1] > se:
+            d = half[0] - a
+            if float(d @ d) / (half[1] ** 2 - se ** 2) > CHANGE_CHI2:
+                self._since[m] = float(mem.last_seen[m]) - 0.5 * span
+                return half
+        return fit
+
+    def _note_surprise(self, logw: np.ndarray, mask: np.ndarray, accel: np.ndarray, seen: np.ndarray,
+                       std: np.ndarray) -> None:
+        """:attr:`surprise`, as the model's (:func:`~estimator.model.weighing.note_surprise`; not
+        averaged over updates, as the fit is over the whole roll): how far the perceived deceleration
+        of each checked object is from the particles' weighted mean, in its standard deviations. Every particle slowing a ball down the same wrong way (its rolling
+        friction outside what they hold) widens its frictions' kernel at the next resampling
+        (:meth:`commit` hands it to the model), so that the population can reach what the evidence
+        says."""
+        if len(logw) < 2 or not np.any(np.isfinite(logw)):
+            return
+        w, _ = normalise_log_weights(logw)
+        for m in np.flatnonzero(mask.any(axis=0)).tolist():
+            wm = w * mask[:, m]
+            if wm.sum() <= 0:
+                continue
+            d = (seen[m] - (wm[:, None] * accel[:, m]).sum(axis=0) / wm.sum()) / std[m]
+            self.surprise[m] = float(d @ d) / 2.0  # the fit averages the whole roll already
+
+    def commit(self, state, p, w, rng) -> dict:
+        if self._check is not None:  # the model's surprise is the larger of the velocities' and this
+            checked = self._check[0].any(axis=0)
+            model = self.model
+            model.surprise[checked] = np.maximum(model.surprise[checked], self.surprise[checked])
+        self._dt_prev = float(p.dt)
+        return {"roll_v0": np.asarray(p.move.velocities[..., :2], dtype=float).copy()}
+
+
+@dataclass(frozen=True)
+class DecelerationTerm:
+    """The log-weight term of :class:`DecelerationEvidence` (``mechanism``): the deceleration each
+    particle's physics gave the objects checked at this update against the perceived one
+    (:func:`~estimator.model.likelihood.acceleration_log_likelihood`, only where the object is still
+    free in the particle); zero when nothing was checked."""
+
+    mechanism: DecelerationEvidence
+    outlier_prob: float
+
+    def __call__(self, ev) -> np.ndarray:
+        check = self.mechanism._check
+        if check is None:
+            return np.zeros(len(ev.poses))
+        mask, accel, seen, std, temper = check
+        return acceleration_log_likelihood(accel, seen, std, mask & (ev.modes == FREE), temper, self.outlier_prob)
