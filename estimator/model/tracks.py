@@ -37,7 +37,7 @@ def fit_line(history, since: float, t: float) -> tuple[np.ndarray, float, np.nda
 
 
 def fit_acceleration(history, since: float, t: float, sigma: float,
-                     min_points: int = 6, min_span: float = 0.2) -> tuple[np.ndarray, float, float] | None:
+                     min_points: int = 5, min_span: float = 0.15) -> tuple[np.ndarray, float, float] | None:
     """Constant horizontal acceleration through the detections of ``history`` from ``since`` (s) to
     ``t`` (s): the least-squares parabola ``p0 + v tau + a tau^2 / 2`` per axis. Returns ``(a (2,)
     m/s^2, its standard error per axis m/s^2, the detections' time span s)`` for detection noise
@@ -50,7 +50,7 @@ def fit_acceleration(history, since: float, t: float, sigma: float,
         return None
     ts = np.array([p[0] for p in pts])
     span = float(ts[-1] - ts[0])
-    if span < min_span:
+    if span < min_span - 1e-9:
         return None
     tau = ts - ts.mean()
     X = np.stack([np.ones_like(tau), tau, 0.5 * tau * tau], axis=1)

@@ -24,7 +24,7 @@ from actions.modes import FREE
 from ...resampling import normalise_log_weights
 from ...state import ArraySpec
 from ..likelihood import acceleration_log_likelihood
-from ..motion import rolled_along
+from ..motion import MOVING_MAX_VERTICAL_SPEED, rolled_along
 from .base import Draft, Mechanism
 
 DECEL_FLOOR = 0.02
@@ -59,7 +59,9 @@ class DecelerationEvidence(Mechanism):
 
     def perceive(self, u: Draft) -> None:
         mem, nz = self.model.memory, self.model.config.noise
-        along = u.moving & ~u.falling & mem.perceived_prev & rolled_along(mem.previous_tick_velocity())
+        level = np.abs(u.tick_vel[:, 2]) < MOVING_MAX_VERTICAL_SPEED  # seen rolling along, teleported or not
+        along = (u.detected & u.perceived & mem.perceived_prev & ~u.newly_known & level
+                 & rolled_along(mem.previous_tick_velocity()))
         self._since[~along] = np.nan
         self._since[along & np.isnan(self._since)] = u.t  # not before: a flicked ball slides, then rolls
         self._check = None
