@@ -133,3 +133,17 @@ def test_mode_switch_prior_values():
 def test_exploded_particles_get_minus_infinity():
     out = exploded_log_likelihood(np.array([True, False, True]))
     assert out.dtype == np.float64 and out[0] == 0.0 and out[2] == 0.0 and out[1] == -np.inf
+
+
+def test_the_acceleration_likelihood_is_a_tempered_gaussian_on_the_entries_weighed():
+    from estimator.model.likelihood import acceleration_log_likelihood
+
+    accel = np.array([[[0.5, 0.0], [9.0, 9.0]], [[1.5, 0.1], [0.0, 0.0]]])  # (K=2, M=2, 2)
+    seen = np.array([[0.5, 0.0], [0.0, 0.0]])
+    std = np.array([0.1, 0.2])
+    mask = np.array([[True, False], [True, False]])
+    out = acceleration_log_likelihood(accel, seen, std, mask, np.array([0.4, 1.0]), 0.0)
+    norm = -math.log(2 * math.pi * 0.01)
+    assert out == pytest.approx([0.4 * norm, 0.4 * (norm - 0.5 * (100.0 + 1.0))])
+    with_outliers = acceleration_log_likelihood(accel, seen, std, mask, np.ones(2), 0.05)
+    assert with_outliers[1] == pytest.approx(math.log(0.05), abs=1e-6)  # a wild one costs an outlier's

@@ -3,7 +3,7 @@ import math
 
 import numpy as np
 
-from estimator.model.params import shrink_params
+from estimator.model.params import shrink_params, world_params
 
 
 def test_liu_west_shrinkage_keeps_mean_and_spread():
@@ -15,3 +15,25 @@ def test_liu_west_shrinkage_keeps_mean_and_spread():
     assert np.all(np.abs(q - p) < 0.25) and np.any(q != p)
     clipped = shrink_params(p, 0.5, np.array([[0.4, 0.9]] * 5), np.random.default_rng(9))
     assert clipped.min() >= 0.4 and clipped.max() <= 0.9
+
+
+def test_the_worlds_get_each_rolling_friction_divided_by_what_the_object_rests_in_or_on():
+    """Objects: a static table (friction 1.0), a crate (0.5 in particle 0, 0.8 in particle 1), a
+    ball (rolling friction 0.002). Particle 0: the ball in the crate, whose box also overlaps the
+    table's (the crate's floor holds it); particle 1: on the floor; particle 2: on the table and
+    the crate at once (the mean); particle 3: on nothing (in the air): its own."""
+    from physics.settings import FLOOR_FRICTION
+
+    params = np.tile([[1.0, 0.0, 0.0, 0.0, 0.0], [0.5, 0.0, 0.0, 0.1, 1.0], [0.5, 0.002, 0.0, 0.2, 0.05]], (4, 1, 1))
+    params[1, 1, 0] = 0.8
+    on_top = np.zeros((4, 3, 4), bool)
+    is_in = np.zeros((4, 3, 3), bool)
+    on_top[0, 2, 0] = is_in[0, 2, 1] = True
+    on_top[1, 2, 3] = True
+    on_top[2, 2, 0] = on_top[2, 2, 1] = True
+    out = world_params(params, on_top, is_in)
+    assert np.allclose(out[:, 2, 1], [0.002 / 0.5, 0.002 / FLOOR_FRICTION, 0.002 / 0.75, 0.002])
+    assert np.array_equal(np.delete(out, 1, axis=2), np.delete(params, 1, axis=2))
+    assert params[0, 2, 1] == 0.002  # the particles' own parameters are what the scene states
+    nothing = np.zeros_like(on_top)
+    assert world_params(params, nothing, np.zeros_like(is_in)) is params

@@ -81,6 +81,7 @@ def acceleration_log_likelihood(accelerations: np.ndarray, seen: np.ndarray, std
         outlier_prob: as :func:`position_log_likelihood`, a uniform outlier density of 1 per (m/s^2)^2.
     """
     std = np.asarray(std, dtype=float)
+    accelerations = np.where(mask[..., None], accelerations, seen[None])  # what is not weighed may be NaN
     z2 = np.sum(((accelerations - seen[None]) / std[None, :, None]) ** 2, axis=-1)
     log_n = -0.5 * z2 - np.log(2 * math.pi * std ** 2)[None, :]
     return (np.where(mask, _with_outliers(log_n, outlier_prob), 0.0) * np.asarray(temper, float)[None, :]).sum(axis=1)

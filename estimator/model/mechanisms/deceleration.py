@@ -51,7 +51,9 @@ class DecelerationEvidence(Mechanism):
         self._since = np.full(M, np.nan)  # s: the update since which each object is seen rolling along
         self._t_prev = -math.inf
         self._dt_prev = math.nan
-        self._check: tuple | None = None
+        # this update's check, for the term: (mask (K, M), particles' accelerations (K, M, 2),
+        # perceived (M, 2), their std (M,), temper (M,)); None: nothing checked
+        self.check: tuple | None = None
         self.surprise = np.zeros(M)  # as the model's (note_surprise), from the decelerations alone
 
     def terms(self) -> tuple:
@@ -64,7 +66,7 @@ class DecelerationEvidence(Mechanism):
                  & rolled_along(mem.previous_tick_velocity()))
         self._since[~along] = np.nan
         self._since[along & np.isnan(self._since)] = u.t  # not before: a flicked ball slides, then rolls
-        self._check = None
+        self.check = None
         v0 = getattr(u.state, "roll_v0", None)
         if along.any() and v0 is not None and self._dt_prev > 0:
             M = len(along)
@@ -82,7 +84,7 @@ class DecelerationEvidence(Mechanism):
             if ok.any():
                 accel = (u.state.velocities[..., :2] - v0) / self._dt_prev
                 mask = ok[None, :] & (u.prev_modes == FREE) & np.all(np.isfinite(v0), axis=-1)
-                self._check = (mask, accel, seen, std, temper)
+                self.check = (mask, accel, seen, std, temper)
                 self._note_surprise(u.state.log_weights, mask, accel, seen, std)
         self._t_prev = u.t
 
@@ -110,10 +112,10 @@ class DecelerationEvidence(Mechanism):
                        std: np.ndarray) -> None:
         """:attr:`surprise`, as the model's (:func:`~estimator.model.weighing.note_surprise`; not
         averaged over updates, as the fit is over the whole roll): how far the perceived deceleration
-        of each checked object is from the particles' weighted mean, in its standard deviations. Every particle slowing a ball down the same wrong way (its rolling
-        friction outside what they hold) widens its frictions' kernel at the next resampling
-        (:meth:`commit` hands it to the model), so that the population can reach what the evidence
-        says."""
+        of each checked object is from the particles' weighted mean, in its standard deviations.
+        Every particle slowing a ball down the same wrong way (its rolling friction outside what
+        they hold) widens its frictions' kernel at the next resampling (:meth:`commit` hands it to
+        the model), so that the population can reach what the evidence says."""
         if len(logw) < 2 or not np.any(np.isfinite(logw)):
             return
         w, _ = normalise_log_weights(logw)
@@ -125,8 +127,8 @@ class DecelerationEvidence(Mechanism):
             self.surprise[m] = float(d @ d) / 2.0  # the fit averages the whole roll already
 
     def commit(self, state, p, w, rng) -> dict:
-        if self._check is not None:  # the model's surprise is the larger of the velocities' and this
-            checked = self._check[0].any(axis=0)
+        if self.check is not None:  # the model's surprise is the larger of the velocities' and this
+            checked = self.check[0].any(axis=0)
             model = self.model
             model.surprise[checked] = np.maximum(model.surprise[checked], self.surprise[checked])
         self._dt_prev = float(p.dt)
@@ -144,7 +146,7 @@ class DecelerationTerm:
     outlier_prob: float
 
     def __call__(self, ev) -> np.ndarray:
-        check = self.mechanism._check
+        check = self.mechanism.check
         if check is None:
             return np.zeros(len(ev.poses))
         mask, accel, seen, std, temper = check
