@@ -136,14 +136,18 @@ def test_exploded_particles_get_minus_infinity():
 
 
 def test_the_acceleration_likelihood_is_a_tempered_gaussian_on_the_entries_weighed():
+    """Object 0 is weighed in particles 0 and 1, not in 2 (held there: its physics did not move it),
+    which gets the log of their mean likelihood; object 1 is weighed nowhere and adds nothing."""
     from estimator.model.likelihood import acceleration_log_likelihood
 
-    accel = np.array([[[0.5, 0.0], [9.0, 9.0]], [[1.5, 0.1], [0.0, 0.0]]])  # (K=2, M=2, 2)
+    accel = np.array([[[0.5, 0.0], [9.0, 9.0]], [[1.5, 0.1], [0.0, 0.0]], [[np.nan, np.nan], [0.0, 0.0]]])
     seen = np.array([[0.5, 0.0], [0.0, 0.0]])
     std = np.array([0.1, 0.2])
-    mask = np.array([[True, False], [True, False]])
+    mask = np.array([[True, False], [True, False], [False, False]])
     out = acceleration_log_likelihood(accel, seen, std, mask, np.array([0.4, 1.0]), 0.0)
     norm = -math.log(2 * math.pi * 0.01)
-    assert out == pytest.approx([0.4 * norm, 0.4 * (norm - 0.5 * (100.0 + 1.0))])
+    own = [norm, norm - 0.5 * (100.0 + 1.0)]
+    mean = math.log((math.exp(own[0]) + math.exp(own[1])) / 2)
+    assert out == pytest.approx([0.4 * own[0], 0.4 * own[1], 0.4 * mean])
     with_outliers = acceleration_log_likelihood(accel, seen, std, mask, np.ones(2), 0.05)
     assert with_outliers[1] == pytest.approx(math.log(0.05), abs=1e-6)  # a wild one costs an outlier's

@@ -75,16 +75,28 @@ def acceleration_log_likelihood(accelerations: np.ndarray, seen: np.ndarray, std
         accelerations: ``(K, M, 2)`` each particle's horizontal acceleration of each object (m/s^2).
         seen: ``(M, 2)`` the perceived accelerations (m/s^2).
         std: ``(M,)`` their standard deviation per axis (m/s^2).
-        mask: ``(K, M)`` bool, the entries weighed (the others add nothing).
+        mask: ``(K, M)`` bool, the entries weighed.
         temper: ``(M,)`` in [0, 1], the power each object's likelihood is raised to (the share of its
             evidence that is new at this update).
         outlier_prob: as :func:`position_log_likelihood`, a uniform outlier density of 1 per (m/s^2)^2.
+
+    The evidence compares the particles it applies to among themselves, and says nothing about the
+    others (an object held in a particle, moved by an agent, has no deceleration of its own
+    physics): for each object, a particle not weighed gets the log of the mean likelihood of those
+    weighed, so that whether the object is free or held is left to the other terms.
     """
     std = np.asarray(std, dtype=float)
     accelerations = np.where(mask[..., None], accelerations, seen[None])  # what is not weighed may be NaN
     z2 = np.sum(((accelerations - seen[None]) / std[None, :, None]) ** 2, axis=-1)
-    log_n = -0.5 * z2 - np.log(2 * math.pi * std ** 2)[None, :]
-    return (np.where(mask, _with_outliers(log_n, outlier_prob), 0.0) * np.asarray(temper, float)[None, :]).sum(axis=1)
+    log_n = _with_outliers(-0.5 * z2 - np.log(2 * math.pi * std ** 2)[None, :], outlier_prob)
+    n = mask.sum(axis=0)
+    with np.errstate(divide="ignore"):
+        masked = np.where(mask, log_n, -np.inf)
+        top = np.max(masked, axis=0)
+        top = np.where(np.isfinite(top), top, 0.0)
+        mean = top + np.log(np.sum(np.exp(masked - top[None, :]), axis=0) / np.maximum(n, 1))
+    ll = np.where(mask, log_n, np.where(n > 0, mean, 0.0)[None, :])
+    return (ll * np.asarray(temper, float)[None, :]).sum(axis=1)
 
 
 def orientation_log_likelihood(orientations: np.ndarray, detected: np.ndarray, orientation_std: float,

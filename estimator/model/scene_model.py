@@ -120,8 +120,9 @@ class SceneModel:
         solid = bool(np.any(self.static)) or scene.floor
         self.geometry = StaticGeometry(scene, config.physics) if config.static_clip and solid else None
         self.mechanisms: list[Mechanism] = (mechanisms or mechanisms_for)(self)
+        # a hook is a method of the mechanism's class named by its phase (not any attribute so named)
         self._hooks = {phase: [(f"{type(m).__name__}.{phase}", getattr(m, phase)) for m in self.mechanisms
-                               if hasattr(m, phase)] for phase in PHASES}
+                               if callable(getattr(type(m), phase, None))] for phase in PHASES}
         # wall time (s) spent in each part of the model so far: each hook, and "settle", "weigh", "commit"
         self.seconds: dict[str, float] = {name: 0.0 for hooks in self._hooks.values() for name, _ in hooks}
         self.seconds.update(settle=0.0, weigh=0.0, commit=0.0)

@@ -24,7 +24,7 @@ from actions.modes import FREE
 from ...resampling import normalise_log_weights
 from ...state import ArraySpec
 from ..likelihood import acceleration_log_likelihood
-from ..motion import MOVING_MAX_VERTICAL_SPEED, rolled_along
+from ..motion import rolled_along
 from .base import Draft, Mechanism
 
 DECEL_FLOOR = 0.02
@@ -53,7 +53,7 @@ class DecelerationEvidence(Mechanism):
         self._dt_prev = math.nan
         # this update's check, for the term: (mask (K, M), particles' accelerations (K, M, 2),
         # perceived (M, 2), their std (M,), temper (M,)); None: nothing checked
-        self.check: tuple | None = None
+        self.weighed: tuple | None = None
         self.surprise = np.zeros(M)  # as the model's (note_surprise), from the decelerations alone
 
     def terms(self) -> tuple:
@@ -61,12 +61,12 @@ class DecelerationEvidence(Mechanism):
 
     def perceive(self, u: Draft) -> None:
         mem, nz = self.model.memory, self.model.config.noise
-        level = np.abs(u.tick_vel[:, 2]) < MOVING_MAX_VERTICAL_SPEED  # seen rolling along, teleported or not
-        along = (u.detected & u.perceived & mem.perceived_prev & ~u.newly_known & level
-                 & rolled_along(mem.previous_tick_velocity()))
+        # seen rolling along its support and teleported in motion (as for the velocity evidence): put
+        # back on its detections, the particles' physics alone did not follow it
+        along = u.moving & ~u.falling & mem.perceived_prev & rolled_along(mem.previous_tick_velocity())
         self._since[~along] = np.nan
         self._since[along & np.isnan(self._since)] = u.t  # not before: a flicked ball slides, then rolls
-        self.check = None
+        self.weighed = None
         v0 = getattr(u.state, "roll_v0", None)
         if along.any() and v0 is not None and self._dt_prev > 0:
             M = len(along)
@@ -84,7 +84,7 @@ class DecelerationEvidence(Mechanism):
             if ok.any():
                 accel = (u.state.velocities[..., :2] - v0) / self._dt_prev
                 mask = ok[None, :] & (u.prev_modes == FREE) & np.all(np.isfinite(v0), axis=-1)
-                self.check = (mask, accel, seen, std, temper)
+                self.weighed = (mask, accel, seen, std, temper)
                 self._note_surprise(u.state.log_weights, mask, accel, seen, std)
         self._t_prev = u.t
 
@@ -127,8 +127,8 @@ class DecelerationEvidence(Mechanism):
             self.surprise[m] = float(d @ d) / 2.0  # the fit averages the whole roll already
 
     def commit(self, state, p, w, rng) -> dict:
-        if self.check is not None:  # the model's surprise is the larger of the velocities' and this
-            checked = self.check[0].any(axis=0)
+        if self.weighed is not None:  # the model's surprise is the larger of the velocities' and this
+            checked = self.weighed[0].any(axis=0)
             model = self.model
             model.surprise[checked] = np.maximum(model.surprise[checked], self.surprise[checked])
         self._dt_prev = float(p.dt)
@@ -146,7 +146,7 @@ class DecelerationTerm:
     outlier_prob: float
 
     def __call__(self, ev) -> np.ndarray:
-        check = self.mechanism.check
+        check = self.mechanism.weighed
         if check is None:
             return np.zeros(len(ev.poses))
         mask, accel, seen, std, temper = check
