@@ -1,6 +1,7 @@
-"""Deceleration evidence: an object seen rolling (or sliding) along its support is weighed on how fast
-each particle's physics slowed it down over its last update against the deceleration fitted through
-all its detections since it started rolling (:func:`~estimator.model.tracks.fit_acceleration`).
+"""Deceleration evidence: an object seen rolling (or sliding) along its support, teleported in motion,
+is weighed on how fast each particle's physics slowed it down over its last update against the
+deceleration fitted through all its detections since it was first seen so
+(:func:`~estimator.model.tracks.fit_acceleration`).
 
 A teleport in motion gives every particle the perceived velocity again at every update, so neither the
 position nor one update's velocity says much about a ball's rolling friction: over 80 ms a friction
