@@ -150,8 +150,8 @@ class NoiseConfig:
       (:class:`~estimator.model.terms.VelocityTerm`: how fast a rolled ball slows down tells its
       rolling friction, which a teleport at every update hides from the position); this is added in
       quadrature to the perceived velocity's standard error. 0: not weighed.
-    * ``decel_error``: an object seen rolling or sliding along its support for a while is weighed on
-      its deceleration, fitted through all its detections since it started rolling (up to a second:
+    * ``decel_error``: an object seen rolling or sliding along its support, teleported in motion, is
+      weighed on its deceleration, fitted through all its detections since it was first seen so (up to a second:
       :class:`~estimator.model.mechanisms.deceleration.DecelerationEvidence`), against the one each
       particle's physics gave it over its last update: this is what tells a ball's rolling friction,
       and where it will stop. ``decel_error`` is the physics' own error, a fraction of the perceived

@@ -2,8 +2,10 @@
 deceleration each particle's physics gave it against the one fitted through its detections."""
 import math
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
+from test_filter import _rolled_ball
 
 from actions.modes import HELD
 from estimator.config import EstimatorConfig, NoiseConfig, default_config
@@ -11,7 +13,6 @@ from estimator.filter import SceneEstimator
 from estimator.model.mechanisms.deceleration import DecelerationEvidence, DecelerationTerm
 from estimator.observations import Detection, Frame
 from model_helpers import BALL, make
-from test_filter import _rolled_ball
 
 DECEL = 0.6  # m/s^2, the ball's true deceleration along x
 
@@ -58,11 +59,7 @@ def test_a_ball_seen_rolling_is_weighed_on_the_deceleration_its_particles_physic
     assert 0 < temper[BALL] < 1  # most of what the fit says was weighed at earlier updates
     term = next(t for t in model.terms if isinstance(t, DecelerationTerm))
 
-    class Ev:
-        poses = np.zeros((3, 5, 7))
-
-    Ev.modes = modes
-    logw = term(Ev)
+    logw = term(SimpleNamespace(poses=np.zeros((3, 5, 7)), modes=modes))
     assert logw[0] > logw[1] + 1.0  # the physics that slowed it down as seen wins
     assert logw[1] < logw[2] < logw[0]  # held there: neither for nor against (the mean of the others)
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.special import logsumexp
 
 from actions.modes import HELD, ModePriors
 from physics.transforms import quat_angle
@@ -61,10 +62,15 @@ def velocity_log_likelihood(velocities: np.ndarray, seen: np.ndarray, std: np.nd
         mask: ``(K, M)`` bool, the entries weighed (the others add nothing).
         outlier_prob: as :func:`position_log_likelihood`, a uniform outlier density of 1 per (m/s)^2.
     """
+    return np.where(mask, _planar_log_density(velocities, seen, std, outlier_prob), 0.0).sum(axis=1)
+
+
+def _planar_log_density(values: np.ndarray, seen: np.ndarray, std: np.ndarray, outlier_prob: float) -> np.ndarray:
+    """``(K, M)``: the log-density of ``seen (M, 2)`` under isotropic normals about ``values (K, M, 2)``
+    of standard deviation ``std (M,)`` per axis, mixed with the outlier floor (:func:`_with_outliers`)."""
     std = np.asarray(std, dtype=float)
-    z2 = np.sum(((velocities - seen[None]) / std[None, :, None]) ** 2, axis=-1)
-    log_n = -0.5 * z2 - np.log(2 * math.pi * std ** 2)[None, :]
-    return np.where(mask, _with_outliers(log_n, outlier_prob), 0.0).sum(axis=1)
+    z2 = np.sum(((values - seen[None]) / std[None, :, None]) ** 2, axis=-1)
+    return _with_outliers(-0.5 * z2 - np.log(2 * math.pi * std ** 2)[None, :], outlier_prob)
 
 
 def acceleration_log_likelihood(accelerations: np.ndarray, seen: np.ndarray, std: np.ndarray, mask: np.ndarray,
@@ -85,16 +91,10 @@ def acceleration_log_likelihood(accelerations: np.ndarray, seen: np.ndarray, std
     physics): for each object, a particle not weighed gets the log of the mean likelihood of those
     weighed, so that whether the object is free or held is left to the other terms.
     """
-    std = np.asarray(std, dtype=float)
     accelerations = np.where(mask[..., None], accelerations, seen[None])  # what is not weighed may be NaN
-    z2 = np.sum(((accelerations - seen[None]) / std[None, :, None]) ** 2, axis=-1)
-    log_n = _with_outliers(-0.5 * z2 - np.log(2 * math.pi * std ** 2)[None, :], outlier_prob)
+    log_n = _planar_log_density(accelerations, seen, std, outlier_prob)
     n = mask.sum(axis=0)
-    with np.errstate(divide="ignore"):
-        masked = np.where(mask, log_n, -np.inf)
-        top = np.max(masked, axis=0)
-        top = np.where(np.isfinite(top), top, 0.0)
-        mean = top + np.log(np.sum(np.exp(masked - top[None, :]), axis=0) / np.maximum(n, 1))
+    mean = logsumexp(log_n, axis=0, b=mask) - np.log(np.maximum(n, 1))  # log of the weighed ones' mean
     ll = np.where(mask, log_n, np.where(n > 0, mean, 0.0)[None, :])
     return (ll * np.asarray(temper, float)[None, :]).sum(axis=1)
 

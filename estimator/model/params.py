@@ -74,9 +74,10 @@ def shrink_params(p: np.ndarray, h: float, bounds: np.ndarray, rng: np.random.Ge
     return np.clip(out, bounds[:, 0], bounds[:, 1])
 
 
-def support_friction(params: np.ndarray, on_top: np.ndarray, is_in: np.ndarray,
+def resting_friction(params: np.ndarray, on_top: np.ndarray, is_in: np.ndarray,
                      floor_friction: float = FLOOR_FRICTION) -> np.ndarray:
-    """Lateral friction ``(K, M)`` of what each particle's object rests on: the mean over the
+    """Lateral friction ``(K, M)`` of what each particle's object rests on, from the particles'
+    relations (:func:`physics.bodies.support_friction` reads it from a world's contacts): the mean over the
     containers it is in (``is_in (K, M, M)``: a container's floor holds it, whatever else its box
     overlaps), else over what it is on top of (``on_top (K, M, M+1)``, column M the floor, of friction
     ``floor_friction``), their frictions the particle's (``params (K, M, 5)``, column 0); NaN where it
@@ -94,11 +95,11 @@ def world_params(params: np.ndarray, on_top: np.ndarray, is_in: np.ndarray,
                  floor_friction: float = FLOOR_FRICTION) -> np.ndarray:
     """The parameters ``(K, M, 5)`` to set in the Bullet worlds for the particles' ``params (K, M,
     5)``: the same, but each rolling friction is what Bullet needs to realise it on the support the
-    object rested on at the last update (:func:`support_friction` from ``on_top (K, M, M+1)`` and
+    object rested on at the last update (:func:`resting_friction` from ``on_top (K, M, M+1)`` and
     ``is_in (K, M, M)``; :func:`physics.bodies.bullet_rolling_friction`): the stated coefficient is a
     contact's resisting torque per newton on any support, as MuJoCo and the truth simulator realise
     it. Returns ``params`` itself when nothing changes."""
-    mu = support_friction(params, on_top, is_in, floor_friction)
+    mu = resting_friction(params, on_top, is_in, floor_friction)
     rolling = bullet_rolling_friction(params[..., 1], mu)
     if np.array_equal(rolling, params[..., 1]):
         return params

@@ -55,13 +55,11 @@ def fit_acceleration(history, since: float, t: float, sigma: float,
     tau = ts - ts.mean()
     X = np.stack([np.ones_like(tau), tau, 0.5 * tau * tau], axis=1)
     xs = np.array([p[1][:2] for p in pts], dtype=float)
-    gram = X.T @ X
     try:
-        coef = np.linalg.solve(gram, X.T @ xs)
-        var = float(np.linalg.inv(gram)[2, 2])
+        inv = np.linalg.inv(X.T @ X)
     except np.linalg.LinAlgError:
         return None
-    return coef[2], float(sigma) * math.sqrt(max(var, 0.0)), span
+    return (inv @ (X.T @ xs))[2], float(sigma) * math.sqrt(max(float(inv[2, 2]), 0.0)), span
 
 
 def free_fall(history, segment_start: float, times: np.ndarray, g: float,

@@ -130,13 +130,26 @@ def note_surprise(model, ev: Evidence, logw: np.ndarray) -> None:
     are widened at the next resampling (:meth:`regularise`)."""
     if ev.velocity_check is None or model.K < 2 or not np.any(np.isfinite(logw)):
         return
+    std = np.sqrt(np.asarray(ev.seen_velocity_std, float) ** 2 + model.config.noise.velocity_slack ** 2)
+    new = mean_innovation(logw, ev.velocity_check, ev.predicted_velocity, ev.seen_velocity, std)
+    seen = np.isfinite(new)
+    model.surprise[seen] = 0.5 * model.surprise[seen] + 0.5 * new[seen]
+
+
+def mean_innovation(logw: np.ndarray, mask: np.ndarray, predicted: np.ndarray, seen: np.ndarray,
+                    std: np.ndarray) -> np.ndarray:
+    """``(M,)``: half the squared distance, in standard deviations ``std (M,)`` per axis, between what
+    was perceived, ``seen (M, 2)``, and the particles' prediction ``predicted (K, M, 2)`` averaged
+    under the weights ``logw (K,)`` over the particles ``mask (K, M)`` (about 1 when calibrated); NaN
+    for objects no weighted particle predicts."""
+    out = np.full(len(seen), np.nan)
+    if len(logw) < 2 or not np.any(np.isfinite(logw)):
+        return out
     w, _ = normalise_log_weights(logw)
-    nz = model.config.noise
-    std = np.sqrt(np.asarray(ev.seen_velocity_std, float) ** 2 + nz.velocity_slack ** 2)
-    for m in np.flatnonzero(ev.velocity_check.any(axis=0)).tolist():
-        rows = ev.velocity_check[:, m]
-        wm = w * rows
+    for m in np.flatnonzero(mask.any(axis=0)).tolist():
+        wm = w * mask[:, m]
         if wm.sum() <= 0:
             continue
-        d = (ev.seen_velocity[m] - (wm[:, None] * ev.predicted_velocity[:, m]).sum(axis=0) / wm.sum()) / std[m]
-        model.surprise[m] = 0.5 * model.surprise[m] + 0.5 * float(d @ d) / 2.0
+        d = (seen[m] - (wm[:, None] * predicted[:, m]).sum(axis=0) / wm.sum()) / std[m]
+        out[m] = float(d @ d) / 2.0
+    return out

@@ -22,10 +22,10 @@ import numpy as np
 
 from actions.modes import FREE
 
-from ...resampling import normalise_log_weights
 from ...state import ArraySpec
 from ..likelihood import acceleration_log_likelihood
 from ..motion import rolled_along
+from ..weighing import mean_innovation
 from .base import Draft, Mechanism
 
 DECEL_FLOOR = 0.02
@@ -50,12 +50,14 @@ class DecelerationEvidence(Mechanism):
         super().__init__(model)
         M = len(model.scene.objects)
         self._since = np.full(M, np.nan)  # s: the update since which each object is seen rolling along
-        self._t_prev = -math.inf
         self._dt_prev = math.nan
         # this update's check, for the term: (mask (K, M), particles' accelerations (K, M, 2),
         # perceived (M, 2), their std (M,), temper (M,)); None: nothing checked
         self.weighed: tuple | None = None
-        self.surprise = np.zeros(M)  # as the model's (note_surprise), from the decelerations alone
+        # (M,): :func:`~estimator.model.weighing.mean_innovation` of this update's check (NaN: none).
+        # Every particle slowing a ball down the same wrong way widens its frictions' kernel at the
+        # next resampling (:meth:`commit` hands it to the model's surprise)
+        self.surprise = np.full(M, np.nan)
 
     def terms(self) -> tuple:
         return (DecelerationTerm(self, self.model.config.noise.outlier_prob),)
@@ -68,8 +70,8 @@ class DecelerationEvidence(Mechanism):
         self._since[~along] = np.nan
         self._since[along & np.isnan(self._since)] = u.t  # not before: a flicked ball slides, then rolls
         self.weighed = None
-        v0 = getattr(u.state, "roll_v0", None)
-        if along.any() and v0 is not None and self._dt_prev > 0:
+        v0 = u.state.roll_v0
+        if along.any() and self._dt_prev > 0:
             M = len(along)
             seen, std, temper = np.zeros((M, 2)), np.ones(M), np.zeros(M)
             ok = np.zeros(M, dtype=bool)
@@ -86,8 +88,9 @@ class DecelerationEvidence(Mechanism):
                 accel = (u.state.velocities[..., :2] - v0) / self._dt_prev
                 mask = ok[None, :] & (u.prev_modes == FREE) & np.all(np.isfinite(v0), axis=-1)
                 self.weighed = (mask, accel, seen, std, temper)
-                self._note_surprise(u.state.log_weights, mask, accel, seen, std)
-        self._t_prev = u.t
+                # how far every particle is from the roll, for the model's surprise (not averaged
+                # over updates, as the model's is: the fit is over the whole roll already)
+                self.surprise = mean_innovation(u.state.log_weights, mask, accel, seen, std)
 
     def _fit(self, m: int) -> tuple | None:
         """Object m's deceleration since it is seen rolling (:meth:`~estimator.model.perception_memory
@@ -109,29 +112,10 @@ class DecelerationEvidence(Mechanism):
                 return half
         return fit
 
-    def _note_surprise(self, logw: np.ndarray, mask: np.ndarray, accel: np.ndarray, seen: np.ndarray,
-                       std: np.ndarray) -> None:
-        """:attr:`surprise`, as the model's (:func:`~estimator.model.weighing.note_surprise`; not
-        averaged over updates, as the fit is over the whole roll): how far the perceived deceleration
-        of each checked object is from the particles' weighted mean, in its standard deviations.
-        Every particle slowing a ball down the same wrong way (its rolling friction outside what
-        they hold) widens its frictions' kernel at the next resampling (:meth:`commit` hands it to
-        the model), so that the population can reach what the evidence says."""
-        if len(logw) < 2 or not np.any(np.isfinite(logw)):
-            return
-        w, _ = normalise_log_weights(logw)
-        for m in np.flatnonzero(mask.any(axis=0)).tolist():
-            wm = w * mask[:, m]
-            if wm.sum() <= 0:
-                continue
-            d = (seen[m] - (wm[:, None] * accel[:, m]).sum(axis=0) / wm.sum()) / std[m]
-            self.surprise[m] = float(d @ d) / 2.0  # the fit averages the whole roll already
-
     def commit(self, state, p, w, rng) -> dict:
         if self.weighed is not None:  # the model's surprise is the larger of the velocities' and this
-            checked = self.weighed[0].any(axis=0)
-            model = self.model
-            model.surprise[checked] = np.maximum(model.surprise[checked], self.surprise[checked])
+            checked = self.weighed[0].any(axis=0) & np.isfinite(self.surprise)
+            self.model.surprise[checked] = np.maximum(self.model.surprise[checked], self.surprise[checked])
         self._dt_prev = float(p.dt)
         return {"roll_v0": np.asarray(p.move.velocities[..., :2], dtype=float).copy()}
 
