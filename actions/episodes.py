@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .modes import HELD, NO_EVENT, PICK, PLACE, PUSH, RELEASE, merge_events, switch_events
+from .modes import HELD, NO_EVENT, PICK, PLACE, PUSH, RELEASE, is_free, is_held, merge_events, switch_events
 from .push import LET_GO_T, PICK_T, REF_Z, SMOOTH_Z, end_codes, end_holds, lifted, track_holds, unrested_picks
 
 
@@ -75,7 +75,7 @@ def carried(is_in: np.ndarray, on_top: np.ndarray, modes: np.ndarray) -> np.ndar
     relations ``is_in (..., M, M)`` and ``on_top (..., M, M + 1)`` (its last column, the floor, is
     never held)."""
     m = is_in.shape[-1]
-    held = (np.asarray(modes) == HELD)[..., None, :]
+    held = is_held(modes)[..., None, :]
     return ((np.asarray(is_in, dtype=bool) | np.asarray(on_top, dtype=bool)[..., :m]) & held).any(axis=-1)
 
 
@@ -132,7 +132,7 @@ def update_events(holds: np.ndarray, acted_on: np.ndarray, carried: np.ndarray, 
         s.release_codes
     supported, resting, start_z, z, seen_z, pick_t = s.supported, s.resting, s.start_z, s.z, s.seen_z, s.pick_t
     let_go_t, release_t, rolled_off = s.let_go_t, s.release_t, s.rolled_off
-    held = np.asarray(modes_physics) == HELD
+    held = is_held(modes_physics)
     record = holds  # before this update (its fall off an edge is no lift)
     let_go = holds[..., LET_GO_T]
     pending = np.isfinite(let_go)
@@ -151,7 +151,7 @@ def update_events(holds: np.ndarray, acted_on: np.ndarray, carried: np.ndarray, 
     confirmed = waiting & ~fell & (resting | (t - let_go >= rule.wait - 1e-9))
     modes = np.where(fell, HELD, modes_after).astype(np.asarray(modes_after).dtype)
     puts = switch_events(modes_physics, modes_after, supported)
-    flash = (np.asarray(modes_before) != HELD) & held & (puts == RELEASE)  # held and let fall at once
+    flash = is_free(modes_before) & held & (puts == RELEASE)  # held and let fall at once
     puts = np.where(flash, NO_EVENT, puts).astype(puts.dtype)
     picks = np.where(flash, NO_EVENT, picks).astype(picks.dtype)
     new_let_go = puts == PLACE
@@ -176,5 +176,5 @@ def update_events(holds: np.ndarray, acted_on: np.ndarray, carried: np.ndarray, 
     still_waiting = waiting & ~fell & ~confirmed
     when = t if let_go_t is None else np.fmax(let_go_t, holds[..., PICK_T])
     holds[..., LET_GO_T] = np.where(new_let_go, when, np.where(still_waiting, let_go, np.nan))
-    holds = end_holds(holds, (modes == HELD) | still_waiting | new_let_go)
+    holds = end_holds(holds, is_held(modes) | still_waiting | new_let_go)
     return UpdateEvents(codes, times, holds, modes)

@@ -26,6 +26,36 @@ import numpy as np
 FREE = np.int8(0)
 HELD = np.int8(1)
 
+
+@dataclass(frozen=True)
+class Mode:
+    """One mode of the hybrid model: its code in the ``int8`` mode arrays, its name and who moves an
+    object in it (``by_agent``: an agent sets its pose and physics does not move it; otherwise
+    physics does)."""
+
+    code: np.int8
+    name: str
+    by_agent: bool
+
+
+MODES = (Mode(FREE, "free", by_agent=False), Mode(HELD, "held", by_agent=True))
+"""The registry of modes, indexed by code. Code asks what a mode means through :func:`is_held` /
+:func:`is_free` (or :data:`MODES`), never by comparing codes, so that a new mode is one entry here."""
+
+_BY_AGENT = np.array([m.by_agent for m in MODES], dtype=bool)
+if any(int(m.code) != i for i, m in enumerate(MODES)):
+    raise ImportError("actions.modes.MODES must be indexed by code")
+
+
+def is_held(modes) -> np.ndarray:
+    """``bool``, the shape of ``modes`` (int8 codes, any shape): objects moved by an agent."""
+    return _BY_AGENT[np.asarray(modes)]
+
+
+def is_free(modes) -> np.ndarray:
+    """``bool``, the shape of ``modes`` (int8 codes, any shape): objects moved by physics."""
+    return ~_BY_AGENT[np.asarray(modes)]
+
 NO_EVENT = 0
 PICK = 1
 PLACE = 2
@@ -47,8 +77,8 @@ def switch_events(previous: np.ndarray, new: np.ndarray, supported: np.ndarray) 
     new = np.asarray(new)
     supported = np.broadcast_to(np.asarray(supported, dtype=bool), new.shape)
     out = np.zeros(new.shape, dtype=np.int8)
-    out[(previous == FREE) & (new == HELD)] = PICK
-    released = (previous == HELD) & (new == FREE)
+    out[is_free(previous) & is_held(new)] = PICK
+    released = is_held(previous) & is_free(new)
     out[released & supported] = PLACE
     out[released & ~supported] = RELEASE
     return out
@@ -144,9 +174,9 @@ class ModePriors:
         new = np.asarray(new)
         perceived = np.broadcast_to(np.asarray(perceived, dtype=bool), new.shape)
         p = np.ones(new.shape)
-        free = previous == FREE
-        p = np.where(free & perceived, np.where(new == HELD, self.pick, 1.0 - self.pick), p)
-        held_seen = (previous == HELD) & perceived
-        p = np.where(held_seen, np.where(new == FREE, self.place, 1.0 - self.place), p)
+        free = is_free(previous)
+        p = np.where(free & perceived, np.where(is_held(new), self.pick, 1.0 - self.pick), p)
+        held_seen = is_held(previous) & perceived
+        p = np.where(held_seen, np.where(is_free(new), self.place, 1.0 - self.place), p)
         with np.errstate(divide="ignore"):
             return np.log(p)

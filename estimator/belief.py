@@ -19,7 +19,7 @@ from scipy.stats import chi2
 from scipy.stats import f as f_dist
 
 from actions.events import EventRecord
-from actions.modes import HELD
+from actions.modes import is_held
 from physics.transforms import quat_angle
 
 from .relations import relation_list
@@ -199,7 +199,7 @@ def support_labels(modes: np.ndarray, on_top: np.ndarray, is_in: np.ndarray) -> 
     label = np.where(any_on, 1 + m + np.argmax(on_top, axis=-1), label)
     any_in = is_in.any(axis=-1)
     label = np.where(any_in, 1 + np.argmax(is_in, axis=-1), label)
-    return np.where(modes == HELD, 0, label)
+    return np.where(is_held(modes), 0, label)
 
 
 def _label_name(label: int, object_ids) -> tuple[str, str | None]:
@@ -291,7 +291,7 @@ def compute_belief(t: float, object_ids, known: np.ndarray, perceived: np.ndarra
     n_lab = np.bincount(flat, minlength=size).reshape(m_count, n_labels)
     pos_lab = np.stack([np.bincount(flat, weights=wk * poses[..., d].ravel(), minlength=size)
                         for d in range(3)], axis=-1).reshape(m_count, n_labels, 3)
-    p_held_all = weights @ (modes == HELD)
+    p_held_all = weights @ is_held(modes)
     objects = {}
     means, covs, quats, angs = pose_stats(poses, weights)
     eye = np.eye(3)

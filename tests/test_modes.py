@@ -5,15 +5,28 @@ from actions.modes import (
     EVENT_NAMES,
     FREE,
     HELD,
+    MODES,
     NO_EVENT,
     PICK,
     PLACE,
     PUSH,
     RELEASE,
     ModePriors,
+    is_free,
+    is_held,
     merge_events,
     switch_events,
 )
+
+
+def test_mode_registry_answers_who_moves_an_object_for_any_shape():
+    assert [int(m.code) for m in MODES] == list(range(len(MODES)))
+    assert [m.name for m in MODES] == ["free", "held"]
+    modes = np.array([[FREE, HELD, HELD], [HELD, FREE, FREE]], dtype=np.int8)
+    assert is_held(modes).tolist() == [[False, True, True], [True, False, False]]
+    assert is_free(modes).tolist() == (~is_held(modes)).tolist()
+    assert is_held(modes).dtype == bool and is_held(modes[:, 1]).shape == (2,)
+    assert bool(is_held(HELD)) and bool(is_free(FREE)) and not bool(is_held([FREE])[0])
 
 
 def test_switch_events_labels():

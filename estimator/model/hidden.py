@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from actions.modes import FREE, HELD, PLACE, RELEASE, ModePriors
+from actions.modes import FREE, PLACE, RELEASE, ModePriors, is_free, is_held
 
 from ..config import NoiseConfig
 from ..observations import Frame
@@ -91,7 +91,7 @@ def release_behind_cover(modes: np.ndarray, unseen_in_view: np.ndarray, hidden_n
     if noise.hand_occlusion >= 1.0:
         return np.zeros((K, M), dtype=bool), np.zeros(K)
     h, r = noise.hand_occlusion, priors.release_hidden
-    cand = (modes == HELD) & (unseen_in_view == 1) & (hidden_n > 0) & np.asarray(in_tracked_hand, bool)[None, :]
+    cand = is_held(modes) & (unseen_in_view == 1) & (hidden_n > 0) & np.asarray(in_tracked_hand, bool)[None, :]
     L = h + (1.0 - h) * noise.miss_prob
     p = r / (r + (1.0 - r) * L)
     factor = math.log((r + (1.0 - r) * L) / L)
@@ -113,7 +113,7 @@ def set_down_behind_cover(modes: np.ndarray, rest_at: np.ndarray, rest_t: np.nda
     rise = priors.carry_distance
     with np.errstate(invalid="ignore"):
         lifted = (hand_z[None, :] - rest_at[..., 2] > rise) & (before_z - rest_at[..., 2] <= rise)
-    cand = ((modes == HELD) & np.isfinite(rest_t) & lifted
+    cand = (is_held(modes) & np.isfinite(rest_t) & lifted
             & np.asarray(in_tracked_hand, dtype=bool)[None, :])
     if not np.any(cand):
         return cand
@@ -200,7 +200,7 @@ def let_go_out_of_view(state, poses: np.ndarray, vel: np.ndarray, modes: np.ndar
         vel[ended] = 0.0
         when = np.where(ended, frame.t, when)
     slides = unseen & (np.zeros_like(unseen) if round_objects is None else np.asarray(round_objects, dtype=bool))
-    pushed = (modes == HELD) & never_lifted(state.holds, lift) & slides[None, :]
+    pushed = is_held(modes) & never_lifted(state.holds, lift) & slides[None, :]
     grip = push_grips(grip, pushed, detected, rng)
     noise_travel = PUSH_END_SIGMAS * math.sqrt(2.0) * hand_std
     for m in np.flatnonzero(pushed.any(axis=0)):
@@ -245,9 +245,9 @@ def places_after_update(state, ev, settled, t: float, rng: np.random.Generator,
     :class:`~estimator.model.terms.Evidence`; ``settled``: its :class:`~estimator.model.step.Settled`;
     ``threshold``: the visible fraction that counts as in view."""
     s = state
-    in_hand = (settled.modes == HELD) & np.asarray(ev.in_tracked_hand, bool)[None, :]
+    in_hand = is_held(settled.modes) & np.asarray(ev.in_tracked_hand, bool)[None, :]
     in_view = (ev.visible >= threshold) & np.asarray(ev.queried, bool)[None, :]
-    reset = (settled.modes != HELD) | ev.detected[None, :]
+    reset = is_free(settled.modes) | ev.detected[None, :]
     hidden = in_hand & ~ev.perceived[None, :] & ~in_view
     # an object that still counts as perceived (t_perceived) follows its hand too: set down then
     unseen = in_hand & ~ev.detected[None, :] & ~in_view

@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from actions.modes import HELD
+from actions.modes import is_held
 from actions.push import PICK_T, lifted
 
 from ..config import NoiseConfig
@@ -84,7 +84,7 @@ def held_targets(frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: n
             target[:, fidx, :2] = at_now[fidx, :2]
             target[:, fidx, 2] = falling.z[fidx]
             target_vel[:, fidx, 2] = falling.mean_vz[fidx]
-    held = (modes == HELD) & (~detected | stale)[None, :]
+    held = is_held(modes) & (~detected | stale)[None, :]
     for m in np.flatnonzero(held.any(axis=0)):
         rows = held[:, m]
         hand = now[m, :3] if stale[m] else memory.hand_target(frame, m)
@@ -112,7 +112,7 @@ def push_cannot_lift(target: np.ndarray, target_vel: np.ndarray, poses: np.ndarr
     has it (``poses (K, M, 7)``) and rises at no speed. A hand rising off a pushed object out of
     view leaves it there (:func:`pushes_ended`, once the rise is beyond the hand's noise); had it
     grasped it, the object shows when it is seen again."""
-    rows = (modes == HELD) & ~np.asarray(detected, dtype=bool)[None, :] & never_lifted(holds, lift)
+    rows = is_held(modes) & ~np.asarray(detected, dtype=bool)[None, :] & never_lifted(holds, lift)
     if np.any(rows):
         target[..., 2] = np.where(rows, np.minimum(target[..., 2], poses[..., 2]), target[..., 2])
         target_vel[..., 2] = np.where(rows, np.minimum(target_vel[..., 2], 0.0), target_vel[..., 2])
@@ -201,7 +201,7 @@ def pushes_ended(modes: np.ndarray, holds: np.ndarray, before_z: np.ndarray, han
     weight. (Had the hand grasped it out of view, it shows when it is seen again.)"""
     with np.errstate(invalid="ignore"):
         rose = hand_z[None, :] - np.asarray(before_z, dtype=float) > lift
-    return (modes == HELD) & never_lifted(holds, lift) & rose & np.asarray(in_tracked_hand, dtype=bool)[None, :]
+    return is_held(modes) & never_lifted(holds, lift) & rose & np.asarray(in_tracked_hand, dtype=bool)[None, :]
 
 
 def never_lifted(holds: np.ndarray, lift: float) -> np.ndarray:

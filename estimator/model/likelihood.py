@@ -21,7 +21,7 @@ import math
 import numpy as np
 from scipy.special import logsumexp
 
-from actions.modes import HELD, ModePriors
+from actions.modes import ModePriors, is_held
 from physics.transforms import quat_angle
 
 
@@ -174,7 +174,7 @@ def negative_evidence_log_likelihood(visible: np.ndarray, modes: np.ndarray, que
     """
     if not np.any(queried):
         return np.zeros(len(visible))
-    in_hand = (modes == HELD) & np.asarray(in_tracked_hand, dtype=bool)[None, :]
+    in_hand = is_held(modes) & np.asarray(in_tracked_hand, dtype=bool)[None, :]
     seen = visible >= visibility_threshold
     if exempt is not None:
         seen = seen & ~exempt
@@ -231,7 +231,7 @@ def hand_reach_log_likelihood(modes: np.ndarray, out_of_reach: np.ndarray, held_
             hand tracked in it (none when no hand is tracked).
         held_out_of_reach: probability in [0, 1] (0: such a particle gets zero weight).
     """
-    n = np.sum((np.asarray(modes) == HELD) & np.asarray(out_of_reach, dtype=bool)[None, :], axis=1)
+    n = np.sum(is_held(modes) & np.asarray(out_of_reach, dtype=bool)[None, :], axis=1)
     if held_out_of_reach > 0:
         return n * math.log(held_out_of_reach)
     return np.where(n > 0, -np.inf, 0.0)

@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from actions.modes import HELD
+from actions.modes import is_held
 from physics.transforms import carry_pose, quat_from_rotvec, quat_multiply
 
 from ..config import NoiseConfig
@@ -166,7 +166,7 @@ def let_go_moving(modes: np.ndarray, supported: np.ndarray, candidates: np.ndarr
     cand_m = np.asarray(candidates, dtype=bool) & rolled_along(tick_vel)
     if q <= 0 or not np.any(cand_m):
         return np.zeros((K, M), dtype=bool), np.zeros(K)
-    cand = (modes == HELD) & supported & cand_m[None, :]
+    cand = is_held(modes) & supported & cand_m[None, :]
     let = cand & (rng.random((K, M)) < q)
     kept = cand & ~let
     logw = -math.log(q) * let.sum(axis=1) - (math.log1p(-q) if q < 1 else 0.0) * kept.sum(axis=1)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from actions.modes import FREE
+from actions.modes import is_free
 
 from ..resampling import effective_sample_size
 from ..state import ParticleState
@@ -35,7 +35,7 @@ def unweighable(model, settled: Settled) -> np.ndarray:
     rest on a support in every particle, and no other object on or in them in any particle."""
     at_rest = settled.supported & slow(settled.velocities)
     parent = settled.on_top[..., :model.M].any(axis=1) | settled.is_in.any(axis=1)
-    return np.all((settled.modes == FREE) & at_rest & ~parent, axis=0)
+    return np.all(is_free(settled.modes) & at_rest & ~parent, axis=0)
 
 
 def regularisation_kernels(model, poses: np.ndarray, weights: np.ndarray,
@@ -60,7 +60,7 @@ def regularise(model, state: ParticleState, kernels: dict[int, np.ndarray], rng:
     spread; a jitter into static geometry stops at its surface, ``static_clip``), then the
     physical parameters (Liu-West shrinkage, :func:`shrink_params`)."""
     for m, chol in kernels.items():
-        free = state.modes[:, m] == FREE
+        free = is_free(state.modes[:, m])
         noise = rng.standard_normal((model.K, 3)) @ chol.T
         before = state.poses[free, m].copy()
         state.poses[free, m, :3] += noise[free]

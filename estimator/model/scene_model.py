@@ -27,7 +27,7 @@ import numpy as np
 
 from actions.episodes import EpisodeRule
 from actions.events import record_event_times
-from actions.modes import FREE
+from actions.modes import is_free
 from physics.penetration import StaticGeometry
 from physics.scene import Scene
 
@@ -188,7 +188,7 @@ class SceneModel:
         for mechanism in self.mechanisms:  # each one's arrays after the update
             declared.update(mechanism.commit(state, p, w, rng))
         new = state.after_update(p.move, settled, w.log_weights, held_unseen_in_view(w.evidence, thr),
-                                 settled.modes == FREE, **declared)
+                                 is_free(settled.modes), **declared)
         self.memory.end_tick(p.perceived, p.detected, settled.tick_vel)
         record_event_times(new.event_t, settled.codes, p.t, settled.times, new.push_decided)
         self.seconds["commit"] += perf_counter() - t0
@@ -293,7 +293,7 @@ class SceneModel:
         placed = u.tele | self._just_initialised
         self._just_initialised = np.zeros(M, dtype=bool)
         depen = (np.broadcast_to(placed & (cfg.noise.position_std > 0), (K, M)) | u.jolted
-                 | state.jolted | u.cover) & (u.modes == FREE)
+                 | state.jolted | u.cover) & is_free(u.modes)
         set_moving = u.set_moving if u.set_moving is not None and u.set_moving.any() else None
         return Move(poses=u.poses, velocities=u.vel, predicted=u.predicted, previous_modes=u.prev_modes, modes=u.modes,
                     release_codes=u.release_codes, teleported=u.tele, target=u.target, target_vel=u.target_vel,

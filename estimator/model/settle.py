@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from actions.episodes import Switches, carried, update_events
-from actions.modes import FREE, HELD, PUSH
+from actions.modes import FREE, HELD, PUSH, is_free, is_held
 from actions.push import REF_Z, late_picks
 
 from ..config_sections import RELEASE_DOWN_SPEED
@@ -46,7 +46,7 @@ def settle(model, state: ParticleState, move: Move, out: BatchOutput, t: float, 
     # fast enough, it is let go whatever is under it; accelerating down, only if nothing is
     falling = (vel[:, 2] < -hr.release_speed)[None, :] | (
         ((accel < -hr.release_accel) & (vel[:, 2] < -RELEASE_DOWN_SPEED))[None, :] & ~supported)
-    held_seen = (new_modes == HELD) & perceived[None, :]
+    held_seen = is_held(new_modes) & perceived[None, :]
     after_physics = out.modes
     put_down = held_seen & rested[None, :] & supported
     if np.any(put_down) and model.episode_rule.lift < hr.place_gap:
@@ -87,16 +87,16 @@ def settle(model, state: ParticleState, move: Move, out: BatchOutput, t: float, 
         np.where((onset >= t - cfg.event_window) & (onset <= t), onset, t), let_go_t=t - hr.place_dwell,
         release_t=move.cover_t, rolled_off=None if move.fall is None else move.fall.mask[None, :]), t, rule)
     # taken in hand while still seen at rest, then seen to start moving: the Pick is that start
-    codes, times, holds = late_picks(ev.codes, ev.times, ev.holds, ev.modes == HELD, onset, quiet,
+    codes, times, holds = late_picks(ev.codes, ev.times, ev.holds, is_held(ev.modes), onset, quiet,
                                      t - cfg.event_window, t)
     set_moving = move.set_moving
     if unheld is not None:  # those at rest in their particle before: set moving by an agent nobody tracks
         at_rest = np.linalg.norm(state.velocities[..., :3], axis=-1) < rule.rest_speed
         fresh = np.isfinite(onset) & (onset >= t - dt - hr.place_dwell)  # it just started moving, not
-        started = unheld & at_rest & (move.previous_modes == FREE) & fresh[None, :]  # a drift of physics
+        started = unheld & at_rest & is_free(move.previous_modes) & fresh[None, :]  # a drift of physics
         set_moving = started if set_moving is None else (set_moving | started)
     if set_moving is not None:  # set moving by an agent nobody tracks: a Push when it began
-        pushed = set_moving & (ev.modes == FREE) & (codes == 0)
+        pushed = set_moving & is_free(ev.modes) & (codes == 0)
         if np.any(pushed):
             began = np.where(np.isfinite(onset), onset, t)[None, :]
             codes = np.where(pushed, PUSH, codes).astype(codes.dtype)
@@ -108,7 +108,7 @@ def settle(model, state: ParticleState, move: Move, out: BatchOutput, t: float, 
         velocities[kk, mm] = 0.0
         velocities[kk, mm, :2] = mem.perc_vel[mm, :2]
         model.roll_released(velocities, unheld, np.ones_like(unheld))
-    released = (after_physics == HELD) & (ev.modes == FREE)
+    released = is_held(after_physics) & is_free(ev.modes)
     if np.any(released):
         velocities = velocities.copy()
         model.roll_released(velocities, released, supported)
@@ -138,7 +138,7 @@ def unheld_overrides(model, move: Move, out: BatchOutput, supported: np.ndarray,
             & moving_beyond_noise(model.memory, model.config.noise.position_std))
     if not np.any(cand):
         return None
-    out_mask = (move.modes == FREE) & (out.modes == HELD) & cand[None, :] & supported
+    out_mask = is_free(move.modes) & is_held(out.modes) & cand[None, :] & supported
     return out_mask if np.any(out_mask) else None
 
 

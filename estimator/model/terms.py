@@ -17,7 +17,7 @@ from typing import Callable
 
 import numpy as np
 
-from actions.modes import HELD, ModePriors
+from actions.modes import ModePriors, is_free, is_held
 
 from .likelihood import (
     detection_log_likelihood,
@@ -145,7 +145,7 @@ class DetectionTerm:
                 src[..., :3] = np.where(over[..., None], at, src[..., :3])
                 src[..., 3:] = np.where(over[..., None], ev.predicted[:, idx, 3:], src[..., 3:])
         if ev.fell is not None and np.any(ev.fell[idx]):  # the height of a free one: the detection's own
-            flat = ev.fell[idx][None, :] & (ev.modes[:, idx] != HELD)
+            flat = ev.fell[idx][None, :] & is_free(ev.modes[:, idx])
             src[..., 2] = np.where(flat, ev.detected_poses[idx, 2][None, :], src[..., 2])
         std = ev.detection_std[idx]
         std = np.where(np.isfinite(std), std, max(self.default_std, 1e-3))
@@ -235,8 +235,8 @@ def held_unseen_in_view(ev: "Evidence", visibility_threshold: float) -> np.ndarr
     unperceived object in a tracked hand was queried and in view; zero for objects detected in this
     update or not held (see :func:`negative_evidence_log_likelihood`)."""
     n = ev.unseen_in_view.astype(np.int32, copy=True)
-    in_hand = (ev.modes == HELD) & (np.asarray(ev.in_tracked_hand, dtype=bool) & ~ev.perceived)[None, :]
+    in_hand = is_held(ev.modes) & (np.asarray(ev.in_tracked_hand, dtype=bool) & ~ev.perceived)[None, :]
     counted = in_hand & ev.queried[None, :] & (ev.visible >= visibility_threshold)
     n[counted] += 1
-    n[(ev.modes != HELD) | ev.detected[None, :]] = 0
+    n[is_free(ev.modes) | ev.detected[None, :]] = 0
     return n

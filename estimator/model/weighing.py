@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from actions.modes import FREE, HELD
+from actions.modes import is_free, is_held
 from physics.visibility import sphere_occlusion
 
 from ..observations import Frame
@@ -38,7 +38,7 @@ def diverged_by(move: Move, out: BatchOutput) -> np.ndarray:
     """``(K, M)`` float: the divergence (m) at which physics overrode each free, checked object
     (the pool switched it to HELD and put it on its perception, Algorithm 1), NaN for the others
     (``Evidence.diverged``)."""
-    over = move.check & (move.modes == FREE) & (out.modes == HELD)
+    over = move.check & is_free(move.modes) & is_held(out.modes)
     return np.where(over, out.max_divergence, np.nan)
 
 
@@ -73,14 +73,14 @@ def evidence(model, move: Move, settled: Settled, out: BatchOutput, frame: Frame
                     visible=visible, queried=move.vis_query,
                     in_tracked_hand=following, finite=out.finite,
                     unseen_in_view=unseen_in_view,
-                    fell_unseen=None if move.let_go_unseen is None else (settled.modes == FREE)
+                    fell_unseen=None if move.let_go_unseen is None else is_free(settled.modes)
                     & (frame.t - move.let_go_unseen < model.config.reasoner.t_perceived - 1e-9),
                     proposal_log_weight=move.proposal_log_weight, fused=move.fused,
                     out_of_reach=move.out_of_reach, diverged=diverged_by(move, out),
                     fell=None if move.fall is None else move.fall.mask,
                     carried=carried,
                     **({} if move.speed_check is None else dict(
-                        velocity_check=move.speed_check[0] & (settled.modes == FREE),
+                        velocity_check=move.speed_check[0] & is_free(settled.modes),
                         predicted_velocity=move.speed_check[1], seen_velocity=move.speed_check[2],
                         seen_velocity_std=move.speed_check[3])))
 

@@ -18,7 +18,7 @@ import math
 import numpy as np
 import pybullet as pb
 
-from actions.modes import FREE, HELD
+from actions.modes import HELD, is_free, is_held
 from physics.sleep import asleep, near, touching, wake
 from physics.world import World
 
@@ -110,7 +110,7 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     com_p, com_v = w0.com_frame(batch.poses, batch.velocities)
     com_p = np.array(com_p)
     com_p[..., :3] += origins
-    held_mask = (batch.modes == HELD) & dyn_mask
+    held_mask = is_held(batch.modes) & dyn_mask
     depen_mask = batch.depenetrate & dyn_mask
     moved = reset | held_mask | depen_mask
     settled = np.zeros((K, M), dtype=bool)
@@ -120,7 +120,7 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     reset_l, depen_l, moved_l = reset.tolist(), depen_mask.tolist(), moved.tolist()
     settled_l = settled.tolist()
     # watched objects and the first step at which each one needs testing
-    checked = batch.check & (batch.modes == FREE) & dyn_mask
+    checked = batch.check & is_free(batch.modes) & dyn_mask
     tvel = np.where(checked[..., None], batch.target_vel[..., :3], 0.0) if moving else np.zeros((K, M, 3))
     # where each target is at the update's start: a moving target reaches its pose at the end
     target_com = w0.com_frame(batch.target)[0][..., :3] + origins - tvel * (n_steps * dt)
@@ -195,7 +195,7 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     for k, i, d in switched_at:
         max_d[k, i] = d
     if sleeping:
-        sleep_resting(pws, dyn_mask & (modes_out == FREE) & ~moved, com_v, vel)
+        sleep_resting(pws, dyn_mask & is_free(modes_out) & ~moved, com_v, vel)
     finite = (np.isfinite(poses).all(axis=(1, 2)) & np.isfinite(vel).all(axis=(1, 2))
               & (np.abs(vel[..., :3]) < MAX_SPEED).all(axis=(1, 2)))
     aabbs[~finite] = np.nan

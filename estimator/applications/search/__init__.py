@@ -21,7 +21,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from actions.modes import HELD
+from actions.modes import is_held
 
 from ...model.likelihood import hidden_by_person
 from ...observations import Detection, Frame
@@ -117,7 +117,7 @@ def person_hides(est, obj: int) -> np.ndarray:
     cannot find what the person hides, whatever the ray tests say: the filter's negative evidence
     and the plan then agree."""
     s = est.state
-    held = s.modes[:, obj] == HELD
+    held = is_held(s.modes[:, obj])
     if est.memory.hold_hand[obj] is None or not held.any():
         return np.zeros(len(held))
     nz = est.config.noise

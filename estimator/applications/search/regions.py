@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from actions.modes import HELD
+from actions.modes import is_held
 from physics.scene import Scene
 
 from ...belief import support_labels
@@ -174,4 +174,4 @@ def region_probabilities(labels: np.ndarray, weights: np.ndarray, n_regions: int
 
 def held_mask(ps: ParticleSet, obj: int) -> np.ndarray:
     """Particles ``(K,)`` in which object ``obj`` is held."""
-    return ps.modes[:, obj] == HELD
+    return is_held(ps.modes[:, obj])

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from actions.modes import FREE, HELD
+from actions.modes import is_free, is_held
 
 from ...state import ArraySpec
 
@@ -85,7 +85,7 @@ class Draft:
     @property
     def let_go_now(self) -> np.ndarray:
         """``(K, M)`` bool: held at the last update, free now."""
-        return (self.prev_modes == HELD) & (self.modes == FREE)
+        return is_held(self.prev_modes) & is_free(self.modes)
 
 
 class Mechanism:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from actions.modes import FREE
+from actions.modes import is_free
 
 from ...state import ArraySpec
 from ..likelihood import acceleration_log_likelihood
@@ -86,7 +86,7 @@ class DecelerationEvidence(Mechanism):
                 temper[m] = min(1.0, 5.0 * self._dt_prev / span)
             if ok.any():
                 accel = (u.state.velocities[..., :2] - v0) / self._dt_prev
-                mask = ok[None, :] & (u.prev_modes == FREE) & np.all(np.isfinite(v0), axis=-1)
+                mask = ok[None, :] & is_free(u.prev_modes) & np.all(np.isfinite(v0), axis=-1)
                 self.weighed = (mask, accel, seen, std, temper)
                 # how far every particle is from the roll, for the model's surprise (not averaged
                 # over updates, as the model's is: the fit is over the whole roll already)
@@ -135,4 +135,4 @@ class DecelerationTerm:
         if check is None:
             return np.zeros(len(ev.poses))
         mask, accel, seen, std, temper = check
-        return acceleration_log_likelihood(accel, seen, std, mask & (ev.modes == FREE), temper, self.outlier_prob)
+        return acceleration_log_likelihood(accel, seen, std, mask & is_free(ev.modes), temper, self.outlier_prob)

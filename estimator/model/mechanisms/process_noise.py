@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from actions.modes import FREE
+from actions.modes import is_free
 
 from ..noise import process_noise
 from .base import Draft, Mechanism
@@ -26,5 +26,5 @@ class ProcessNoise(Mechanism):
         resting object does not wander, and, untouched, sleeps in its world). Returns the objects
         moved by more than 2 mm std ``(K, M)``."""
         model = self.model
-        free_unseen = (modes == FREE) & (~perceived & model.dynamic & model.known)[None, :] & ~resting
+        free_unseen = is_free(modes) & (~perceived & model.dynamic & model.known)[None, :] & ~resting
         return process_noise(poses, free_unseen, supported, last_motion, dt, model.config.noise, rng)

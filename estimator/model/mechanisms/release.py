@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from actions.modes import FREE, HELD, ModePriors, switch_events
+from actions.modes import FREE, ModePriors, is_held, switch_events
 
 from ..holding import stratified_uniforms
 from ..motion import rolled_along, velocity_draws
@@ -58,7 +58,7 @@ def release_on_loss(modes: np.ndarray, perceived: np.ndarray, supported: np.ndar
     if left_view is not None:  # let go for certain
         left_view = np.asarray(left_view, dtype=bool)
         gone, p_rel = gone | left_view, np.where(left_view, 1.0, p_rel)
-    new[(new == HELD) & gone[None, :] & (u < p_rel[None, :])] = FREE
+    new[is_held(new) & gone[None, :] & (u < p_rel[None, :])] = FREE
     return new, switch_events(modes, new, supported)
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from actions.modes import FREE
+from actions.modes import is_free
 
 from ...resampling import normalise_log_weights
 from ...worlds.resting import slow
@@ -47,7 +47,7 @@ class FusionAtRest(Mechanism):
         if not nz.fuse_resting or K < 2 or not np.any(still):
             return out
         idx = np.flatnonzero(still)
-        mask = (modes[:, idx] == FREE) & resting[:, idx]
+        mask = is_free(modes[:, idx]) & resting[:, idx]
         if not np.any(mask):
             return out
         weights, _ = normalise_log_weights(log_weights)

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from actions.modes import HELD
+from actions.modes import is_held
 
 from .base import Draft, Mechanism
 
@@ -16,7 +16,7 @@ class StaticClip(Mechanism):
     """Clips :attr:`Draft.target` before physics and pushes the poses out of static geometry after."""
 
     def check(self, u: Draft) -> None:
-        self.clip_targets(u.poses, u.target, u.target_vel, (u.modes == HELD) | u.check)
+        self.clip_targets(u.poses, u.target, u.target_vel, is_held(u.modes) | u.check)
 
     def clip_targets(self, poses: np.ndarray, target: np.ndarray, target_vel: np.ndarray, which: np.ndarray) -> None:
         """In place on ``target (K, M, 7)`` and ``target_vel (K, M, 6)``: the paths of the entries

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from actions.modes import FREE, HELD
+from actions.modes import is_free, is_held
 
 from ..motion import MOVING_MAX_VERTICAL_SPEED, place, teleport_kinds
 from ..step import Fall
@@ -72,7 +72,7 @@ class Teleports(Mechanism):
             u.fall = Fall(fall, z1, (z1 - z0) / dt)
         if np.any(tele):
             u.jitter[:, tele] = self.teleport(u.poses, u.vel, np.flatnonzero(tele), u.newly_known, state.is_in,
-                                              u.rng, spinning, start, u.prev_modes == HELD)
+                                              u.rng, spinning, start, is_held(u.prev_modes))
             u.jitter[..., 2] = 0.0  # a support undoes the vertical noise: only the horizontal persists
             if np.any(fall):  # when the fall began is known to the vertical velocity's error
                 u.vel[:, fall, 2] += u.rng.normal(0.0, 1.0, (model.K, int(fall.sum()))) * vz_std[fall]
@@ -86,7 +86,7 @@ class Teleports(Mechanism):
         tracked hand); with none, it was set moving (flicked, knocked) and physics takes it on at its
         velocity (:attr:`Draft.set_moving`)."""
         model, mem, cfg, state = self.model, self.model.memory, self.model.config, u.state
-        started = (u.spinning[None, :] & (u.prev_modes == FREE) & (np.linalg.norm(
+        started = (u.spinning[None, :] & is_free(u.prev_modes) & (np.linalg.norm(
             state.velocities[..., :2], axis=-1) < MOVING_MAX_VERTICAL_SPEED))
         unreached = np.ones(model.M, dtype=bool) if u.far is None else u.far
         # seen moving beyond what the detection noise makes of a still object (a horizontal speed past

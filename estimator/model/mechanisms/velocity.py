@@ -4,7 +4,7 @@ physics had it moving (its friction included) against the velocity now perceived
 ``velocity_slack`` above 0)."""
 from __future__ import annotations
 
-from actions.modes import FREE
+from actions.modes import is_free
 
 from ..motion import rolled_along
 from ..terms import VelocityTerm
@@ -23,6 +23,6 @@ class VelocityEvidence(Mechanism):
         mem = self.model.memory
         along = u.moving & ~u.falling & mem.perceived_prev & rolled_along(mem.previous_tick_velocity())
         if along.any():
-            mask = along[None, :] & (u.prev_modes == FREE)
+            mask = along[None, :] & is_free(u.prev_modes)
             u.speed_check = (mask, u.state.velocities[..., :2].copy(), mem.perc_vel[:, :2].copy(),
                              mem.velocity_std(self.model.config.noise.position_std))
