@@ -143,8 +143,8 @@ class ModePriors:
     place: float = 0.2
     release: float = 0.01
     release_on_loss: float = 0.5
-    # fit-priors --engines bullet,mujoco now counts 59 of 160 (0.37): thrown balls (ball_bounces_behind_screen,
-    # every loss a release) counted as carried losses; not applied, see the issue note; fitted on Bullet: 0 of 40
+    # fitted on carried losses of held objects: 0 of 40 (Laplace); a thrown ball, whose every loss is a
+    # release, is not carried (fit-priors counts it as such: 59 of 160 with both engines)
     release_on_loss_carried: float = 0.024
     release_on_loss_still: float = 0.5  # fitted: no such loss in the scenarios of either engine (Laplace: 0.5)
     release_hidden: float = 0.214  # fitted: fit-priors, both engines, 21 of 101

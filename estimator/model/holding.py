@@ -29,24 +29,23 @@ def stratified_uniforms(K: int, M: int, rng: np.random.Generator) -> np.ndarray:
 
 def held_targets(frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: np.ndarray, perceived: np.ndarray,
                  dt: float, rng: np.random.Generator, hold_error: np.ndarray, memory: PerceptionMemory,
-                 noise: NoiseConfig, moving_teleports: bool,
-                 teleported: np.ndarray | None = None,
+                 noise: NoiseConfig, carried: np.ndarray | None = None,
                  falling: Fall | None = None, detections: np.ndarray | None = None,
                  stale: np.ndarray | None = None, grip: np.ndarray | None = None,
                  hand_std: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Targets ``(K, M, 7)``, target velocities ``(K, M, 6)`` and offset errors ``(K, M, 3)``.
 
     Perceived objects at their perception (no noise: it would shake what a held object carries), with
-    their perceived velocity (with ``moving_teleports``, only those ``teleported (M,)`` now; the
-    divergence test then carries the target on at that velocity, see
-    :func:`~estimator.worlds.propagate.propagate_batch`); held objects not detected in this update follow the
+    their perceived velocity (when ``carried (M,)`` is given, the teleports in motion: only those
+    objects, teleported in motion now; the divergence test then carries the target on at that
+    velocity, see :func:`~estimator.worlds.propagate.propagate_batch`; None: the paper's teleports); held objects not detected in this update follow the
     hand that held them when last detected, if it is tracked, at its offset then plus each particle's
     error (``hold_error (K, M, 3)`` before, walked by :func:`~estimator.worlds.held.hand_offset_walk`; so
     do those ``stale (M,)``, detected only in an earlier frame of this update, from their
     ``detections (M, 7)`` carried on to ``frame.t`` (by the hand; others seen moving, at their
     velocity: :meth:`~estimator.model.perception_memory.PerceptionMemory.detections_now`; None: none, and
     the memory's latest detections), else
-    stay where they were perceived (while perceived; with ``moving_teleports``, where their last
+    stay where they were perceived (while perceived; with ``carried`` given, where their last
     detection carried on at its perceived velocity puts them now: an object seen moving and then not
     seen goes on, not pinned where it was seen) or where the particle has them, drifting by
     ``held_drift_std`` (m per sqrt(s)) when not perceived. Others: their pose in ``poses (K, M, 7)``.
@@ -67,15 +66,13 @@ def held_targets(frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: n
         target[:, pidx, :3] = now[pidx, :3]
         has_q = memory.last_has_orientation[pidx]
         target[:, pidx[has_q], 3:] = memory.last_pose[pidx[has_q], 3:]
-        # with moving_teleports the divergence test carries a target on at its velocity: only
+        # with teleports in motion the divergence test carries a target on at its velocity: only
         # objects teleported in motion (placed at their detection now) have one
-        with_vel = perceived
-        if moving_teleports:
-            with_vel = perceived & (np.zeros(M, bool) if teleported is None else teleported)
+        with_vel = perceived if carried is None else perceived & carried
         vidx = np.flatnonzero(with_vel)
         target_vel[:, vidx, :3] = memory.perc_vel[vidx, :3]
-        at_now = memory.position_at(frame.t) if moving_teleports or falling is not None else None
-        if moving_teleports:  # not detected now: the detection ages, carried on at its velocity
+        at_now = memory.position_at(frame.t) if carried is not None or falling is not None else None
+        if carried is not None:  # not detected now: the detection ages, carried on at its velocity
             cidx = np.flatnonzero(perceived & ~detected)
             target[:, cidx, :3] = at_now[cidx]
             target_vel[:, cidx, :3] = memory.perc_vel[cidx, :3]

@@ -48,17 +48,18 @@ def mechanisms_for(model) -> list[Mechanism]:
     following a hand and process noise (none with its noise off); the full model adds velocity
     and deceleration evidence, let go in motion, fusion at rest and static clipping. A new mechanism goes here."""
     cfg = model.config
-    out: list[Mechanism] = [Teleports(model)]
-    if cfg.moving_teleports and cfg.noise.velocity_slack > 0:
+    moving = cfg.moving_teleports
+    out: list[Mechanism] = [Teleports(model, moving=moving)]
+    if moving and cfg.noise.velocity_slack > 0:
         out.append(VelocityEvidence(model))
-    if cfg.moving_teleports and cfg.noise.decel_error > 0:
+    if moving and cfg.noise.decel_error > 0:
         out.append(DecelerationEvidence(model))
-    out += [ReleaseOnLoss(model), LetGoBehindCover(model)]
+    out += [ReleaseOnLoss(model, left_view=moving), LetGoBehindCover(model)]
     if cfg.priors.let_go_moving > 0:
         out.append(LetGoMoving(model))
     if cfg.noise.fuse_resting:
         out.append(FusionAtRest(model))
-    out += [FollowHands(model), ProcessNoise(model)]
+    out += [FollowHands(model, moving=moving), ProcessNoise(model)]
     if model.geometry is not None:
         out.append(StaticClip(model))
     return out

@@ -23,12 +23,18 @@ class FollowHands(Mechanism):
     def commit(self, state, p, w, rng) -> dict:
         return {"hold_error": p.move.hold_error}
 
+    def __init__(self, model, moving: bool = True):
+        super().__init__(model)
+        self.moving = moving
+        """Whether objects are teleported in motion (:class:`~estimator.model.mechanisms.teleport.Teleports`):
+        a held object's target then carries on at its perceived velocity."""
+
     def target(self, u: Draft) -> None:
         mem, cfg = self.model.memory, self.model.config
         # detected in an earlier frame of the update only: moved on with its tracked hand, or, seen
         # moving, at its velocity
         stale = mem.stale_in_hand(u.frame) & u.detected
-        u.detections = mem.detections_now(stale, u.t, u.detected if cfg.moving_teleports else None)
+        u.detections = mem.detections_now(stale, u.t, u.detected if self.moving else None)
         u.target, u.target_vel, u.hold_error = self.held_targets(
             u.frame, u.poses, u.modes, u.detected, u.perceived, u.dt, u.rng, u.state.hold_error, u.tele, u.fall,
             u.detections, stale, u.grip)
@@ -45,6 +51,8 @@ class FollowHands(Mechanism):
         """Targets ``(K, M, 7)``, target velocities ``(K, M, 6)`` and hand-offset errors ``(K, M, 3)``
         (:func:`~estimator.model.holding.held_targets`)."""
         cfg = self.model.config
+        carried = None
+        if self.moving:
+            carried = np.zeros(self.model.M, dtype=bool) if teleported is None else teleported
         return held_targets(frame, poses, modes, detected, perceived, dt, rng, hold_error, self.model.memory,
-                            cfg.noise, cfg.moving_teleports, teleported, falling, detections, stale, grip,
-                            cfg.hands.measurement_std)
+                            cfg.noise, carried, falling, detections, stale, grip, cfg.hands.measurement_std)

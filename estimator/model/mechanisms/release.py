@@ -71,9 +71,10 @@ class ReleaseOnLoss(Mechanism):
     """``let_go_unseen (K, M)``: time (s) at which the particle let the object go when it stopped being
     perceived (-inf: never); its fall happened unseen, in the ``t_perceived`` before."""
 
-    def __init__(self, model):
+    def __init__(self, model, left_view: bool = True):
         super().__init__(model)
-        self.left_view = model.config.moving_teleports
+        self.left_view = left_view
+        """Whether an object seen moving along its support when it left view is let go in motion."""
 
     def commit(self, state, p, w, rng) -> dict:
         return {"let_go_unseen": p.move.let_go_unseen}

@@ -35,11 +35,11 @@ def moving_beyond_noise(memory, position_std: float) -> np.ndarray:
 
 
 class Teleports(Mechanism):
-    """Alg. 2, and with ``moving_teleports`` its moving variant (see the module docstring)."""
+    """Alg. 2, and with ``moving`` its moving variant (see the module docstring)."""
 
-    def __init__(self, model):
+    def __init__(self, model, moving: bool = True):
         super().__init__(model)
-        self.moving = model.config.moving_teleports
+        self.moving = moving
 
     def perceive(self, u: Draft) -> None:
         model, mem, cfg = self.model, self.model.memory, self.model.config
