@@ -1,11 +1,14 @@
 """Rerun recordings (``.rrd``) of what the estimator perceives, believes and what was true.
 
 A :class:`Recorder` owns its own :class:`rerun.RecordingStream` (application id ``scene-estimator``,
-a fresh recording id per instance) that writes to one file, or streams live (:class:`LiveView`: a
-gRPC server that rerun's viewers, native or in a browser, connect to, or a connection to a running
-viewer), or both; it never touches rerun's global recording, so two recorders in one process keep
-their data apart. Open the file with ``rerun run.rrd``. Time is the stream's ``t`` (seconds), on the
-timeline :data:`TIMELINE`.
+a fresh recording id per instance) that writes to one file, or streams live
+(:class:`~experiments.recording_options.LiveView`: a gRPC server that rerun's viewers, native or in
+a browser, connect to, or a connection to a running viewer), or both; it never touches rerun's
+global recording, so two recorders in one process keep their data apart. Open the file with
+``rerun run.rrd``. Time is the stream's ``t`` (seconds), on the timeline
+:data:`~experiments.recording_draw.TIMELINE`. Its options, live view and default layout are in
+:mod:`experiments.recording_options`, its colours and column buffers in
+:mod:`experiments.recording_draw`, the geometry it draws in :mod:`experiments.recording_geometry`.
 
 Entity paths (object ids are escaped as entity path parts; M objects)::
 
@@ -34,189 +37,40 @@ from __future__ import annotations
 import os
 import uuid
 from collections import deque
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import rerun as rr
-import rerun.blueprint as rrb
 from rerun.components import FillMode
 
 from estimator.belief import Belief
 from estimator.observations import Frame
+from experiments.recording_draw import (
+    FLOOR_GREY,
+    GREEN,
+    GREEN_SHADE,
+    ORANGE,
+    PINK,
+    TIMELINE,
+    TRUTH_GREY,
+    Rows,
+    packed,
+    path,
+    weight_colors,
+)
 from experiments.recording_geometry import boxes_at, covariance_ellipsoids, local_boxes, static_geometry
+from experiments.recording_options import LiveView, RecorderOptions, check_port_free, default_blueprint, grpc_url
 from physics.scene import Scene
 from physics.world import World
 
 APPLICATION_ID = "scene-estimator"
-TIMELINE = "t"
-
-PINK = (255, 105, 180, 255)
-GREEN = (40, 200, 80, 255)
-GREEN_SHADE = (40, 200, 80, 70)
-ORANGE = (255, 150, 0, 255)
-TRUTH_GREY = (150, 150, 150, 255)
-FLOOR_GREY = (120, 120, 120, 255)
-PARTICLE_LIGHT = np.array([190.0, 215.0, 255.0, 90.0])
-PARTICLE_DARK = np.array([20.0, 40.0, 170.0, 255.0])
-
-
-
-@dataclass(frozen=True)
-class RecorderOptions:
-    """What a :class:`Recorder` logs per estimator update.
-
-    ``max_particles_logged``: particles drawn per object (the heaviest ones when K is larger; 0 logs no
-    particle cloud). ``trail_length``: consensus positions kept per trajectory. ``region``: the
-    uncertainty ellipsoids are each position's region of this probability under its own distribution
-    (a Student-t's is wider than a Gaussian's of the same covariance:
-    :meth:`~estimator.belief.ObjectBelief.region`). ``particle_radius``,
-    ``box_line_radius``: drawing sizes in metres. ``floor_half_size``: half extent (m) of the floor
-    square drawn at z = 0. ``batch``: drawings and plot values are buffered and written as columns
-    every this many ``log_*`` calls; :meth:`Recorder.flush` and :meth:`Recorder.close` write the rest.
-    """
-
-    max_particles_logged: int = 256
-    trail_length: int = 200
-    region: float = 0.9
-    particle_radius: float = 0.003
-    box_line_radius: float = 0.001
-    floor_half_size: float = 1.5
-    batch: int = 32
-
-    def __post_init__(self):
-        if self.max_particles_logged < 0:
-            raise ValueError(f"max_particles_logged must be >= 0, got {self.max_particles_logged}")
-        if self.trail_length < 2:
-            raise ValueError(f"trail_length must be >= 2, got {self.trail_length}")
-        if self.batch < 1:
-            raise ValueError(f"batch must be >= 1, got {self.batch}")
-        if not 0 < self.region < 1:
-            raise ValueError(f"region must be in (0, 1), got {self.region}")
-
-
-@dataclass(frozen=True)
-class LiveView:
-    """Where a :class:`Recorder` streams besides (or instead of) its file.
-
-    ``serve``: host a gRPC server on ``bind``:``grpc_port`` that viewers connect to
-    (``rerun rerun+http://HOST:PORT/proxy``); it keeps up to ``memory_limit`` of the stream for
-    viewers that connect late (the oldest data is dropped beyond it, the static scene never), so
-    that an endless run does not grow without bound. ``web_port``: also serve rerun's web viewer
-    over HTTP on that port, connected to the server (None: none). ``connect``: the gRPC URL of a
-    running viewer or server to send to (``rerun+http://HOST:PORT/proxy``, :func:`grpc_url`).
-    """
-
-    serve: bool = False
-    grpc_port: int = 9876
-    web_port: int | None = 9090
-    bind: str = "0.0.0.0"
-    connect: str | None = None
-    memory_limit: str = "256MiB"
-
-    def __post_init__(self):
-        if not (self.serve or self.connect):
-            raise ValueError("a live view serves (serve=True) or connects to a viewer (connect=URL)")
-        for name in ("grpc_port", "web_port"):
-            port = getattr(self, name)
-            if port is not None and not 0 < port < 65536:
-                raise ValueError(f"{name} must be a TCP port (1-65535), got {port}")
-
-    def viewer_url(self, host: str = "127.0.0.1") -> str | None:
-        """The address to open in a browser (the web viewer, connected to the served stream), with
-        ``host`` the machine's name as the browser reaches it; None without a web viewer."""
-        if not self.serve or self.web_port is None:
-            return None
-        from urllib.parse import quote
-        return f"http://{host}:{self.web_port}/?url=" + quote(self.grpc_uri(host), safe="")
-
-    def grpc_uri(self, host: str = "127.0.0.1") -> str:
-        """The served stream's gRPC URL, as a native viewer opens it (``rerun URL``)."""
-        return f"rerun+http://{host}:{self.grpc_port}/proxy"
-
-
-def grpc_url(address: str) -> str:
-    """A viewer's gRPC URL from ``HOST:PORT``, ``PORT`` or a full ``rerun+http://HOST:PORT/proxy``
-    (``rerun://`` and ``rerun+https://`` too). Raises ValueError for anything else."""
-    a = address.strip()
-    if a.startswith(("rerun://", "rerun+http://", "rerun+https://")):
-        if not a.rstrip("/").endswith("/proxy"):
-            a = a.rstrip("/") + "/proxy"
-        return a
-    host, sep, port = a.rpartition(":")
-    if not sep:
-        host, port = "127.0.0.1", a
-    if not port.isdigit() or not 0 < int(port) < 65536 or (sep and not host):
-        raise ValueError(f"expected HOST:PORT, PORT or rerun+http://HOST:PORT/proxy, got {address!r}")
-    return f"rerun+http://{host}:{int(port)}/proxy"
-
-
-def _check_port_free(bind: str, port: int, what: str) -> None:
-    """Raise ValueError when ``port`` cannot be listened on at ``bind`` (rerun's gRPC server would
-    fail silently in a thread of its own)."""
-    import socket
-    with socket.socket(socket.AF_INET6 if ":" in bind else socket.AF_INET) as s:
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            s.bind((bind, port))
-        except OSError as exc:
-            raise ValueError(f"{what}: cannot listen on {bind}:{port}: {exc.strerror or exc}") from None
-
-
-def path(*parts: str) -> str:
-    """An entity path from raw parts (object ids may hold ``/`` or spaces): ``/plots/p_held/cup``."""
-    return "/" + "/".join(rr.escape_entity_path_part(p) for p in parts)
-
-
-def weight_colors(weights: np.ndarray) -> np.ndarray:
-    """RGBA ``(K, 4)`` uint8 colours shading normalised particle ``weights (K,)``: light and
-    transparent for light particles, dark blue for the heaviest."""
-    w = np.asarray(weights, float)
-    s = w / w.max() if w.size and w.max() > 0 else np.zeros_like(w)
-    return (PARTICLE_LIGHT + s[:, None] * (PARTICLE_DARK - PARTICLE_LIGHT)).astype(np.uint8)
-
-
-class _Rows:
-    """Rows of one entity buffered for :meth:`rerun.RecordingStream.send_columns`.
-
-    Each row (one time point) has ``n`` instances; every instance component is given as an array
-    ``(n, ...)`` or a list of ``n`` items (a row with ``n = 0`` shows nothing). ``mono`` holds
-    components with one value per row (a fill mode), constant for the entity.
-    """
-
-    def __init__(self, archetype, **mono):
-        self.archetype = archetype
-        self.mono = mono
-        self.times: list[float] = []
-        self.lengths: list[int] = []
-        self.parts: dict[str, list] = {}
-
-    def add(self, t: float, n: int, **components) -> None:
-        self.times.append(t)
-        self.lengths.append(n)
-        for name, value in components.items():
-            self.parts.setdefault(name, []).append(value)
-
-    def write(self, stream: rr.RecordingStream, entity: str) -> None:
-        if not self.times:
-            return
-        comps = {name: [x for v in vs for x in v] if isinstance(vs[0], list) else np.concatenate(vs)
-                 for name, vs in self.parts.items()}
-        columns = list(self.archetype.columns(**comps).partition(self.lengths))
-        if self.mono:
-            columns += list(self.archetype.columns(**{k: [v] * len(self.times) for k, v in self.mono.items()}))
-        stream.send_columns(entity, indexes=[rr.TimeColumn(TIMELINE, duration=self.times)], columns=columns)
-        self.times, self.lengths, self.parts = [], [], {}
-
-
-def _packed(rgba) -> np.uint32:
-    r, g, b, a = (int(v) for v in rgba)
-    return np.uint32((r << 24) | (g << 16) | (b << 8) | a)
 
 
 class Recorder:
     """Write a rerun recording of a run to ``path`` (an ``.rrd`` file, created or overwritten), and,
-    with ``live``, stream it to viewers as it is made (:class:`LiveView`; ``path`` may then be None).
+    with ``live``, stream it to viewers as it is made (:class:`~experiments.recording_options.LiveView`;
+    ``path`` may then be None).
 
     The static scene (geometry of static objects, floor, camera frustum) and a default layout (3D view,
     plots, text log) are written at construction. Call :meth:`log_frame`, :meth:`log_belief`,
@@ -253,7 +107,7 @@ class Recorder:
         self._trails: dict[str, deque] = {oid: deque(maxlen=opts.trail_length) for oid in self._dynamic}
         self._relations_seen: set[tuple[str, str, str]] = set()
         self._truth_relations_seen: set[tuple[str, str, str]] = set()
-        self._rows: dict[str, _Rows] = {}
+        self._rows: dict[str, Rows] = {}
         self._pending = 0
         self._paths: dict[tuple[str, ...], str] = {}
         self._closed = True
@@ -261,9 +115,9 @@ class Recorder:
             statics = static_geometry(world, scene)
             self._local = local_boxes(world)
         if live is not None and live.serve:
-            _check_port_free(live.bind, live.grpc_port, "the live view's gRPC server")
+            check_port_free(live.bind, live.grpc_port, "the live view's gRPC server")
             if live.web_port is not None:
-                _check_port_free(live.bind, live.web_port, "the live view's web viewer")
+                check_port_free(live.bind, live.web_port, "the live view's web viewer")
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
         self.stream = rr.RecordingStream(APPLICATION_ID, recording_id=self.recording_id)
@@ -328,10 +182,10 @@ class Recorder:
         if self._pending >= self.options.batch:
             self.flush()
 
-    def _rows_of(self, entity: str, archetype, **mono) -> _Rows:
+    def _rows_of(self, entity: str, archetype, **mono) -> Rows:
         rows = self._rows.get(entity)
         if rows is None:
-            rows = self._rows[entity] = _Rows(archetype, **mono)
+            rows = self._rows[entity] = Rows(archetype, **mono)
         return rows
 
     def _text(self, entity: str, t: float, text: str, level: str) -> None:
@@ -377,14 +231,14 @@ class Recorder:
         centers, half = boxes_at([self._local[o] for o in ids], positions, orientations)
         self._rows_of(entity, rr.Boxes3D, fill_mode=fill_mode).add(
             t, n, half_sizes=half, centers=centers, quaternions=np.asarray(orientations, float).reshape(-1, 4),
-            colors=np.full(n, _packed(color)), radii=np.full(n, self.options.box_line_radius),
+            colors=np.full(n, packed(color)), radii=np.full(n, self.options.box_line_radius),
             labels=list(labels if labels is not None else ids))
 
     def _hands(self, entity: str, t: float, hands: dict, color) -> None:
         n = len(hands)
         pos = np.array([np.asarray(v, float) for v in hands.values()]).reshape(-1, 3)
         self._rows_of(entity, rr.Points3D).add(t, n, positions=pos, radii=np.full(n, 0.02),
-                                               colors=np.full(n, _packed(color)), labels=list(hands))
+                                               colors=np.full(n, packed(color)), labels=list(hands))
 
     def _relations(self, root: tuple[str, ...], t: float, relations: list[dict], seen: set) -> None:
         """One series per relation ever listed; a relation that stops being listed is logged as 0."""
@@ -424,20 +278,20 @@ class Recorder:
                                            * r2[:, None, None], 1.0)
         self._rows_of("/world/belief/uncertainty", rr.Ellipsoids3D,
                       fill_mode=FillMode.TransparentFillMajorWireframe).add(
-            t, n, half_sizes=half, quaternions=quat, centers=pos, colors=np.full(n, _packed(GREEN_SHADE)))
+            t, n, half_sizes=half, quaternions=quat, centers=pos, colors=np.full(n, packed(GREEN_SHADE)))
         self._particles(belief, t, ids)
         hyps = [(oid, h) for oid, b in zip(ids, obs) for h in b.hypotheses]
         self._rows_of("/world/belief/hypotheses", rr.Points3D).add(
             t, len(hyps), positions=np.array([h.position for _, h in hyps], float).reshape(-1, 3),
             radii=np.array([0.004 + 0.012 * float(h.p) for _, h in hyps]),
-            colors=np.full(len(hyps), _packed(ORANGE)),
+            colors=np.full(len(hyps), packed(ORANGE)),
             labels=[f"{oid}: {h.relation if h.support is None else f'{h.relation} {h.support}'} {h.p:.2f}"
                     for oid, h in hyps])
         for oid, p in zip(ids, pos):
             self._trails[oid].append(p)
         strips = [np.array(self._trails[o]) for o in ids if len(self._trails[o]) >= 2]
         self._rows_of("/world/belief/trajectories", rr.LineStrips3D).add(
-            t, len(strips), strips=strips, colors=np.full(len(strips), _packed(GREEN)),
+            t, len(strips), strips=strips, colors=np.full(len(strips), packed(GREEN)),
             radii=np.full(len(strips), 0.0015))
         self._scalar("/plots/ess", t, belief.ess)
         for oid, b in zip(ids, obs):
@@ -501,29 +355,6 @@ class Recorder:
         for e in timeline_json.get("events", []):
             self._text("/log/timeline", e["t"], f"{e['action']} {e['subject']} p={e['p']:.2f}", "INFO")
 
-
-def default_blueprint() -> rrb.Blueprint:
-    """The default layout: the 3D scene on the left; ESS, probabilities (tabs) and the text log on the
-    right."""
-    return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Spatial3DView(name="Scene", origin="/world"),
-            rrb.Vertical(
-                rrb.TimeSeriesView(name="ESS", origin="/plots/ess"),
-                rrb.Tabs(
-                    rrb.TimeSeriesView(name="P(plausible)", origin="/plots/p_plausible"),
-                    rrb.TimeSeriesView(name="P(held)", origin="/plots",
-                                       contents=["$origin/p_held/**", "$origin/truth/held/**"]),
-                    rrb.TimeSeriesView(name="Relations", origin="/plots",
-                                       contents=["$origin/relations/**", "$origin/truth/relations/**"]),
-                ),
-                rrb.TextLogView(name="Facts and events", origin="/log"),
-                row_shares=[1, 2, 2],
-            ),
-            column_shares=[3, 2],
-        ),
-        collapse_panels=True,
-    )
 
 
 def record_simulation(path: str | os.PathLike, scene: Scene, truth: list[dict], observations: list[dict],

@@ -21,8 +21,9 @@ from estimator.config import EstimatorConfig, NoiseConfig
 from estimator.filter import SceneEstimator
 from estimator.observations import Frame
 from experiments.cli.simulate import add_simulate_arguments, run_simulate
-from experiments.recording import APPLICATION_ID, Recorder, RecorderOptions
+from experiments.recording import APPLICATION_ID, Recorder
 from experiments.recording_geometry import covariance_ellipsoids
+from experiments.recording_options import RecorderOptions
 from helpers import TABLE_TOP, frames, headless_chromium, table_scene
 
 pytestmark = pytest.mark.filterwarnings("error::rerun.error_utils.RerunWarning")
@@ -414,7 +415,7 @@ def _pink_pixels(png: bytes) -> int:
 
     from PIL import Image
 
-    from experiments.recording import PINK
+    from experiments.recording_draw import PINK
 
     img = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=int)
     return int(np.sum(np.all(np.abs(img - np.array(PINK[:3])) <= 40, axis=-1)))

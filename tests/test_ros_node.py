@@ -60,7 +60,7 @@ def session(tmp_path_factory):
     if not OK:
         pytest.skip(REASON)
     from estimator.observations import ObservationReader
-    from experiments.ros.node import BAD_KINDS
+    from experiments.ros.bad_input import BAD_KINDS
     from experiments.ros.play import Player, Roscore, pose_stamped, topics_for
     from experiments.ros.rospy_env import import_ros
     from experiments.simulation.simulator import simulate, write_outputs

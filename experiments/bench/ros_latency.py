@@ -41,8 +41,8 @@ COLUMNS = [("scenario", "{}"), ("particles", "{}"), ("frames", "{}"), ("estimate
 def measure(ros, name: str, particles: int, workers: int | None, home: str) -> dict:
     """One row (module docstring) for scenario ``name`` at K = ``particles``."""
     from estimator.observations import ObservationReader
-    from experiments.ros.node import topic_name
     from experiments.ros.play import Player, Roscore, topics_for
+    from experiments.ros.publishers import topic_name
     from experiments.simulation.simulator import simulate, write_outputs
     from physics.scene import load_scene
 

@@ -296,10 +296,10 @@ def _check_run_paths(args) -> None:
 
 
 def _live_view(args):
-    """The :class:`~experiments.recording.LiveView` that ``--rerun-serve`` / ``--rerun-connect`` ask for."""
+    """The :class:`~experiments.recording_options.LiveView` that ``--rerun-serve`` / ``--rerun-connect`` ask for."""
     if args.rerun_serve is None and args.rerun_connect is None:
         return None
-    from experiments.recording import LiveView, grpc_url
+    from experiments.recording_options import LiveView, grpc_url
     if args.rerun_connect is not None:
         grpc_url(args.rerun_connect)  # a malformed address is an error before the run
     return LiveView(serve=args.rerun_serve is not None, grpc_port=args.rerun_grpc_port,

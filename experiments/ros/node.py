@@ -32,12 +32,14 @@ newest message: a bag replayed in a loop; the estimation *restarts* from that me
 estimator, ``t = 0`` there, the TF tree kept), ``wrong_type`` (a topic whose publisher sends another
 message type than the topics file says: its messages are dropped), ``malformed`` (a message that
 does not deserialise).
+
+The bad input's counting and checks are in :mod:`experiments.ros.bad_input`, the messages published
+in :mod:`experiments.ros.publishers`; this module holds the node (subscriptions, frame assembly, the
+spin loop) and the ``ros`` command's entry point (:func:`run_node`).
 """
 from __future__ import annotations
 
-import json
 import math
-import re
 import sys
 import threading
 import time
@@ -46,14 +48,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from experiments.live import TIMELINE_WINDOW, FrameQueue, LiveLoop
-from experiments.ros.reader import FrameAssembler, decode_message
+from experiments.ros.assembler import FrameAssembler, decode_message
+from experiments.ros.bad_input import ROS1_TYPES, BadInput, finite_part
+from experiments.ros.publishers import NodePublishers
 from experiments.ros.topics import TF_STATIC_TOPIC, TF_TOPIC, TopicsSpec
-from experiments.ros.uncertainty import pose_covariance, region_ellipsoid
-
-#: ROS 1 message type of each source type of the topics file
-ROS1_TYPES = {"tf": "tf2_msgs/TFMessage", "pose": "geometry_msgs/PoseStamped"}
-BAD_KINDS = ("non_finite", "unknown_frame", "late", "time_backwards", "wrong_type", "malformed")
-REGION_LEVEL = 0.9
 
 
 @dataclass(frozen=True)
@@ -83,49 +81,10 @@ class NodeOptions:
             raise ValueError(f"tick must be > 0 s, got {self.tick}")
 
 
-def topic_name(object_id: str) -> str:
-    """A valid ROS name for an object id (letters, digits, ``_``; starting with a letter)."""
-    name = re.sub(r"[^A-Za-z0-9_]", "_", object_id)
-    return name if name[:1].isalpha() else "o_" + name
-
-
 class _StreamQueue(FrameQueue):
     """The frames of one stream (from the start, or since a restart); ``t0_ns``: its ``t = 0``."""
 
     t0_ns: int | None = None
-
-
-class BadInput:
-    """Counts of bad input by kind and by topic, the last report, and the log lines (throttled)."""
-
-    def __init__(self, log, first: int, every: int):
-        self.log = log
-        self.first, self.every = first, every
-        self.counts = {k: 0 for k in BAD_KINDS}
-        self.by_topic: dict[str, dict[str, int]] = {}
-        self.last: str | None = None
-        self.version = 0
-        self._lock = threading.Lock()
-
-    def __call__(self, kind: str, topic: str, field: str, message: str) -> None:
-        with self._lock:
-            self.counts[kind] += 1
-            per = self.by_topic.setdefault(topic, {})
-            per[kind] = n = per.get(kind, 0) + 1
-            text = f"bad input ({kind}) on {topic}" + (f", field {field}" if field else "") + f": {message}"
-            self.last = text
-            self.version += 1
-        if n <= self.first or n % self.every == 0:
-            self.log(text + (f" [{n} so far on this topic]" if n > self.first else ""))
-
-    def to_json(self) -> dict:
-        with self._lock:
-            return {"total": sum(self.counts.values()), "counts": dict(self.counts),
-                    "by_topic": {t: dict(c) for t, c in self.by_topic.items()}, "last": self.last}
-
-
-def _finite(values) -> bool:
-    return all(math.isfinite(v) for v in values)
 
 
 class RosNode:
@@ -149,14 +108,8 @@ class RosNode:
         self.frames = self.steps = self.merged = self.estimates = 0
         self.latencies: list[float] = []
         self._stop = threading.Event()
-        ns = "~"
         self._dynamic = [oid for oid in scene.object_ids]
-        self.pub_estimate = rospy.Publisher(ns + "estimate", ros.std_msgs.String, queue_size=10)
-        self.pub_markers = rospy.Publisher(ns + "markers", ros.visualization_msgs.MarkerArray, queue_size=10)
-        self.pub_diag = rospy.Publisher(ns + "diagnostics", ros.std_msgs.String, queue_size=10, latch=True)
-        self.pub_pose = {oid: rospy.Publisher(f"{ns}pose/{topic_name(oid)}", ros.geometry_msgs.PoseWithCovarianceStamped,
-                                              queue_size=10) for oid in scene.object_ids}
-        self.tf_broadcaster = ros.tf2_ros.TransformBroadcaster()
+        self.publishers = NodePublishers(ros, scene.object_ids, topics.world_frame)
         self._subs = []
         self._pump = threading.Thread(target=self._pump_loop, name="frame-closer", daemon=True)
 
@@ -201,40 +154,13 @@ class RosNode:
         except Exception as exc:  # genpy raises several types for a short or garbled buffer
             self.bad("malformed", topic, "", f"cannot deserialise a {expected}: {type(exc).__name__}: {exc}")
             return
-        msg = self._finite_part(msg, kind, topic)
+        msg = finite_part(msg, kind, topic, self.bad)
         if msg is None:
             return
         try:
             self._take(msg, index, topic, kind)
         except Exception as exc:  # never let a message stop the subscriber thread
             self.bad("malformed", topic, "", f"{type(exc).__name__}: {exc}")
-
-    def _finite_part(self, msg, kind: str, topic: str):
-        """``msg`` without its non-finite transforms (TF) or None (a non-finite pose), reported."""
-        if kind == "pose":
-            p = msg.pose
-            for part, v in (("pose.position", (p.position.x, p.position.y, p.position.z)),
-                            ("pose.orientation", (p.orientation.x, p.orientation.y, p.orientation.z,
-                                                  p.orientation.w))):
-                if not _finite(v):
-                    self.bad("non_finite", topic, part, f"non-finite value {list(v)} in frame "
-                                                        f"{msg.header.frame_id!r}; message dropped")
-                    return None
-            return msg
-        keep = []
-        for i, t in enumerate(msg.transforms):
-            tr, rot = t.transform.translation, t.transform.rotation
-            for part, v in (("translation", (tr.x, tr.y, tr.z)), ("rotation", (rot.x, rot.y, rot.z, rot.w))):
-                if not _finite(v):
-                    self.bad("non_finite", topic, f"transforms[{i}].transform.{part}",
-                             f"non-finite value {list(v)} in {t.header.frame_id!r} -> {t.child_frame_id!r}; "
-                             f"transform dropped")
-                    break
-            else:
-                keep.append(t)
-        if len(keep) < len(msg.transforms):
-            msg.transforms = keep
-        return msg if keep else None
 
     def _take(self, msg, index: int, topic: str, kind: str) -> None:
         with self._lock:
@@ -344,99 +270,16 @@ class RosNode:
         doc = {"node": self.callerid, "particles": self.config.particles, "seed": self.seed,
                "ready": bool(self._subs), **live, "estimates": self.estimates, "restarts": self.resets,
                "bad": self.bad.to_json()}
-        self.pub_diag.publish(self.ros.std_msgs.String(data=json.dumps(doc)))
+        self.publishers.diagnostics(doc)
 
     # -- out --------------------------------------------------------------------------------------
 
     def _publish(self, step, t0_ns: int | None) -> None:
-        ros, rospy = self.ros, self.ros.rospy
-        belief = step.belief
-        stamp = rospy.Time(nsecs=0) if t0_ns is None else _time(rospy, t0_ns + int(round(belief.t * 1e9)))
-        world = self.topics.world_frame
-        gm = ros.geometry_msgs
-        line = belief.to_json()
-        line.update({"merged": step.merged, "latency": round(step.latency, 4)})
-        transforms = []
-        for oid, ob in belief.objects.items():
-            pos, q = [float(v) for v in ob.position], [float(v) for v in ob.orientation]
-            t = gm.TransformStamped()
-            t.header.stamp, t.header.frame_id, t.child_frame_id = stamp, world, f"estimate/{oid}"
-            t.transform.translation = gm.Vector3(*pos)
-            t.transform.rotation = gm.Quaternion(*q)
-            transforms.append(t)
-            msg = gm.PoseWithCovarianceStamped()
-            msg.header.stamp, msg.header.frame_id = stamp, world
-            msg.pose.pose.position = gm.Point(*pos)
-            msg.pose.pose.orientation = gm.Quaternion(*q)
-            msg.pose.covariance = [float(v) for v in self._covariance(belief, oid, ob).ravel()]
-            self.pub_pose[oid].publish(msg)
-        if transforms:
-            self.tf_broadcaster.sendTransform(transforms)
-        self.pub_markers.publish(self._markers(belief, stamp, world))
-        self.pub_estimate.publish(ros.std_msgs.String(data=json.dumps(line)))
+        self.publishers.estimate(step, t0_ns)
         self.estimates += 1
         self.latencies.append(step.latency)
         if len(self.latencies) > 10000:
             del self.latencies[:5000]
-
-    @staticmethod
-    def _covariance(belief, oid: str, ob) -> np.ndarray:
-        parts = weights = None
-        if belief.particles is not None and oid in belief.object_ids and ob.hypotheses:
-            m = belief.object_ids.index(oid)
-            parts, weights = belief.particles[:, m], belief.weights
-        return pose_covariance(ob.position_cov, ob.orientation, parts, weights)
-
-    def _markers(self, belief, stamp, world: str):
-        vm, gm = self.ros.visualization_msgs, self.ros.geometry_msgs
-        M = vm.Marker
-        out = vm.MarkerArray()
-        clear = M()
-        clear.header.stamp, clear.header.frame_id, clear.action = stamp, world, 3  # DELETEALL
-        out.markers.append(clear)
-        for m, oid in enumerate(belief.object_ids):
-            ob = belief.objects.get(oid)
-            if ob is None or not ob.hypotheses:
-                continue  # static objects: no region, no hypotheses
-            color = _COLORS[m % len(_COLORS)]
-            quat, scale = region_ellipsoid(ob.position_cov, ob.region(REGION_LEVEL))
-            region = M()
-            region.header.stamp, region.header.frame_id = stamp, world
-            region.ns, region.id, region.type, region.action = "region_90", m, M.SPHERE, M.ADD
-            region.pose.position = gm.Point(*[float(v) for v in ob.position])
-            region.pose.orientation = gm.Quaternion(*[float(v) for v in quat])
-            region.scale = gm.Vector3(*[float(v) for v in scale])
-            region.color.r, region.color.g, region.color.b, region.color.a = *color, 0.35
-            region.text = oid
-            out.markers.append(region)
-            for h_i, h in enumerate(ob.hypotheses):
-                dot = M()
-                dot.header.stamp, dot.header.frame_id = stamp, world
-                dot.ns, dot.id, dot.type, dot.action = "hypotheses", 100 * m + h_i, M.SPHERE, M.ADD
-                dot.pose.position = gm.Point(*[float(v) for v in h.position])
-                dot.pose.orientation.w = 1.0
-                dot.scale = gm.Vector3(0.02, 0.02, 0.02)
-                dot.color.r, dot.color.g, dot.color.b, dot.color.a = *color, max(0.15, float(h.p))
-                label = f"{oid}: {h.relation}" + (f" {h.support}" if h.support else "") + f" {h.p:.2f}"
-                dot.text = label
-                text = M()
-                text.header.stamp, text.header.frame_id = stamp, world
-                text.ns, text.id, text.type, text.action = "labels", 100 * m + h_i, M.TEXT_VIEW_FACING, M.ADD
-                text.pose.position = gm.Point(float(h.position[0]), float(h.position[1]), float(h.position[2]) + 0.04)
-                text.pose.orientation.w = 1.0
-                text.scale.z = 0.025
-                text.color.r = text.color.g = text.color.b = text.color.a = 1.0
-                text.text = label
-                out.markers.extend([dot, text])
-        return out
-
-
-_COLORS = [(0.12, 0.47, 0.71), (1.0, 0.5, 0.05), (0.17, 0.63, 0.17), (0.84, 0.15, 0.16), (0.58, 0.4, 0.74),
-           (0.55, 0.34, 0.29), (0.89, 0.47, 0.76), (0.5, 0.5, 0.5), (0.74, 0.74, 0.13), (0.09, 0.75, 0.81)]
-
-
-def _time(rospy, ns: int):
-    return rospy.Time(secs=ns // 1_000_000_000, nsecs=ns % 1_000_000_000)
 
 
 # -- the command ------------------------------------------------------------------------------------
