@@ -9,7 +9,8 @@ import pytest
 from estimator.config import default_config
 from estimator.filter import SceneEstimator
 from estimator.observations import parse_frame
-from experiments.independent import RECORDINGS, TABLE_TOP, record
+from experiments.independent import record
+from experiments.independent_recordings import RECORDINGS, TABLE_TOP
 from physics.penetration import INVARIANT_DEPTH, StaticGeometry
 from physics.scene import scene_from_dict
 

@@ -217,7 +217,7 @@ def test_demo_files_are_shipped_and_consistent():
 def _push_scenario(obj: dict, hand_z: float, contents: list | None = None):
     """A box (or container) on the table at x = 0, and a hand that comes from +x with ``collide: true``
     and pushes it 20 cm towards -x along the table, then leaves."""
-    from experiments.scenarios import scenario_from_dict
+    from experiments.scenarios.parsing import scenario_from_dict
 
     return scenario_from_dict({
         "name": "push_test", "duration": 3.0,
@@ -260,7 +260,7 @@ def test_a_box_knocked_off_the_table_is_no_push():
     # the hand sweeps a light box off the table edge: it falls, it was not pushed along its support
     box = {"id": "box", "box": {"size": [0.06, 0.06, 0.06]}, "mass": 0.1,
            "pose": {"position": [-0.6, 0.0, 0.656]}}
-    from experiments.scenarios import scenario_from_dict
+    from experiments.scenarios.parsing import scenario_from_dict
 
     sc = scenario_from_dict({
         "name": "knock", "duration": 2.5,

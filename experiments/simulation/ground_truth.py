@@ -1,7 +1,8 @@
 """The ground-truth world of a scenario's variant: the scene's objects, a scripted hand (a dynamic
-sphere pulled along its script by a constraint), an optional torso and the synthetic camera,
-stepped at 240 Hz; it records the truth and what the faulty tracker reports (see
-:mod:`experiments.simulation.simulator` for the whole run and the truth's events)."""
+sphere pulled along its script by a constraint, :mod:`experiments.simulation.scripted_hand`), an
+optional torso and the synthetic camera, stepped at 240 Hz; it records the truth and what the
+faulty tracker reports (see :mod:`experiments.simulation.simulator` for the whole run and the
+truth's events)."""
 from __future__ import annotations
 
 import math
@@ -12,24 +13,18 @@ import pybullet as pb
 
 from estimator.relations import relation_list, relation_masks
 from estimator.worlds.resting import REST_SPEED, REST_SPIN
-from experiments.scenarios import HandTarget
 from experiments.simulation.camera import SyntheticCamera
 from experiments.simulation.files import SimulationResult, _r, _rl
-from experiments.simulation.hand_path import _quat_from_rpy, _Segment
 from experiments.simulation.perception import PerceptionModel
 from experiments.simulation.pushes import PUSH_GAP, PushTracker
+from experiments.simulation.scripted_hand import ScriptedHand
 from experiments.simulation.variants import Variant
 from physics.bodies import bullet_rolling_friction, support_friction
-from physics.errors import InputError
 from physics.scene import CameraSpec
-from physics.transforms import pose_compose, pose_inverse, quat_angle
+from physics.transforms import quat_angle
 from physics.world import PhysicsSettings, World
 
 HAND_ID = "human/right"
-GRASP_REACH = 0.04
-"""A grasp needs the object's bounding box within hand radius + this distance (m) of the hand centre."""
-CONTACT_DISTANCE = 0.003
-"""At a release, an object with a contact closer than this (m) rests on a support (a Place)."""
 SETTLE_WINDOW = 0.05
 """s: after the scenario's ``settle`` time the truth goes on settling, by windows of this length,
 until no dynamic object moved faster than the particle worlds' at-rest speed and spin
@@ -53,8 +48,10 @@ def at_rest(before: np.ndarray, after: np.ndarray, dt: float) -> bool:
     return bool(np.all(speed < REST_SPEED) and np.all(spin < REST_SPIN))
 
 
-class GroundTruth:
-    """The true world of a variant: scene objects, hand, torso and camera, stepped at 240 Hz.
+class GroundTruth(ScriptedHand):
+    """The true world of a variant: scene objects, hand, torso and camera, stepped at 240 Hz (the
+    hand's building, driving, grasps, releases and pushes:
+    :class:`~experiments.simulation.scripted_hand.ScriptedHand`).
 
     Use as a context manager (it owns a pybullet client). :meth:`run` simulates the whole scenario.
     """
@@ -137,27 +134,6 @@ class GroundTruth:
             out.extend((uid, link) for link in range(-1, pb.getNumJoints(uid, physicsClientId=c)))
         return out
 
-    def _build_hand(self) -> None:
-        hand = self.scenario.hand
-        if hand is None:
-            return
-        c = self.world.client
-        shape = pb.createCollisionShape(pb.GEOM_SPHERE, radius=hand.radius, physicsClientId=c)
-        q = _quat_from_rpy(hand.rpy_deg)
-        start = np.asarray(hand.start, dtype=float)
-        self.hand_uid = pb.createMultiBody(hand.mass, shape, -1, start.tolist(), q.tolist(), physicsClientId=c)
-        pb.changeDynamics(self.hand_uid, -1, activationState=pb.ACTIVATION_STATE_DISABLE_SLEEPING,
-                          linearDamping=0.0, angularDamping=0.0, physicsClientId=c)
-        self.hand_constraint = pb.createConstraint(self.hand_uid, -1, -1, -1, pb.JOINT_FIXED, [0, 0, 0],
-                                                   [0, 0, 0], start.tolist(), childFrameOrientation=q.tolist(),
-                                                   physicsClientId=c)
-        pb.changeConstraint(self.hand_constraint, maxForce=hand.max_force, physicsClientId=c)
-        self._set_collide(hand.collide)
-        self.segment = _Segment(0.0, 0.0, start, start, q, q)
-        self.next_waypoint = 0
-        if hand.holding is not None:
-            self._grasp(self.world.index(hand.holding), step=0, event=False)
-
     def _build_torso(self) -> None:
         torso = self.scenario.torso
         if torso is None:
@@ -170,148 +146,10 @@ class GroundTruth:
         for uid, link in bodies:
             pb.setCollisionFilterPair(self.torso_uid, uid, -1, link, 0, physicsClientId=c)
 
-    def _set_collide(self, on: bool) -> None:
-        c = self.world.client
-        held_uids = {self.world.uids[i] for i in self.held}
-        for uid, link in self._all_bodies():
-            enable = int(on and uid not in held_uids)
-            pb.setCollisionFilterPair(self.hand_uid, uid, -1, link, enable, physicsClientId=c)
-        self.collide = on
-
-    # -- hand actions -------------------------------------------------------------------------------
-    def hand_position(self) -> np.ndarray | None:
-        if self.hand_uid < 0:
-            return None
-        self._sync()
-        p, _q = pb.getBasePositionAndOrientation(self.hand_uid, physicsClientId=self.world.client)
-        return np.array(p, dtype=float)
-
-    def _grasp(self, index: int, step: int, event: bool = True, where: str = "hand.holding") -> None:
-        self._sync()
-        c = self.world.client
-        uid = self.world.uids[index]
-        hp, hq = pb.getBasePositionAndOrientation(self.hand_uid, physicsClientId=c)
-        box = self.world.aabbs([index])[0]
-        gap = float(np.linalg.norm(np.asarray(hp) - np.clip(hp, box[0], box[1])))
-        if gap > self.scenario.hand.radius + GRASP_REACH:
-            raise InputError(f"the hand is {gap:.3f} m away from {self.world.object_ids[index]!r} "
-                             f"when grasping it (at t = {step * self.dt:.3f} s)",
-                             path=self.scenario.source, field=where)
-        op, oq = pb.getBasePositionAndOrientation(uid, physicsClientId=c)  # centre-of-mass frames
-        rel = pose_compose(pose_inverse(np.array([*hp, *hq])), np.array([*op, *oq]))
-        rel_p, rel_q = rel[:3].tolist(), rel[3:].tolist()
-        cid = pb.createConstraint(self.hand_uid, -1, uid, -1, pb.JOINT_FIXED, [0, 0, 0], rel_p, [0, 0, 0],
-                                  parentFrameOrientation=rel_q, childFrameOrientation=[0, 0, 0, 1],
-                                  physicsClientId=c)
-        pb.changeConstraint(cid, maxForce=self.scenario.hand.max_force, physicsClientId=c)
-        pb.setCollisionFilterPair(self.hand_uid, uid, -1, -1, 0, physicsClientId=c)
-        self.held[index] = cid
-        self.pushes.cancel(index)  # grasped: a Pick, not a push
-        if event:
-            self._event(step, "Pick", index)
-
-    def _release(self, index: int, step: int) -> None:
-        self._sync()
-        c = self.world.client
-        uid = self.world.uids[index]
-        pb.removeConstraint(self.held.pop(index), physicsClientId=c)
-        pb.setCollisionFilterPair(self.hand_uid, uid, -1, -1, int(self.collide), physicsClientId=c)
-        self._event(step, "Place" if self.supported(index) else "Release", index)
-
-    def supported(self, index: int) -> bool:
-        """Whether object ``index`` rests on a support: it touches a body other than the hand, or the
-        bounding-box relations put it on top of something (the floor included) or inside a
-        container (so a cup let go a few millimetres above the table is placed, not dropped)."""
-        c = self.world.client
-        uid = self.world.uids[index]
-        contacts = [p for p in pb.getContactPoints(bodyA=uid, physicsClientId=c)
-                    if p[2] != self.hand_uid and p[8] < CONTACT_DISTANCE]
-        if contacts:
-            return True
-        on_top, is_in = relation_masks(self.world.aabbs(), static=self.world.static,
-                                       floor=self.world.scene.floor, hollow=self.world.scene.hollow)
-        return bool(on_top[index].any() or is_in[index].any())
-
-    def _track_pushes(self, step: int) -> None:
-        """Follow the objects the pushing hand touches (:class:`~experiments.simulation.pushes.PushTracker`)
-        and record a ``Push`` for each episode that ends as one. Held objects, static ones and
-        contents of a container the hand holds or touches start no episode."""
-        if self.hand_uid < 0 or (not self.collide and not self.pushes.active):
-            return
-        self._sync()
-        touched: set[int] = set()
-        if self.collide:
-            world = self.world
-            for p in pb.getContactPoints(bodyA=self.hand_uid, physicsClientId=world.client):
-                i = world.index_of_uid(p[2])
-                if i >= 0 and not world.static[i] and i not in self.held:
-                    touched.add(i)
-            new = [i for i in touched if i not in self.pushes.active]
-            if new:
-                touched -= self._carried(new, touched)
-        idx = sorted(touched | set(self.pushes.active))
-        if not idx:
-            return
-        poses = self.world.get_poses(idx)
-        ended = self.pushes.step(step, touched, {i: poses[j, :3] for j, i in enumerate(idx)})
-        for i, start in ended:
-            self._event(start, "Push", i)
-
-    def _carried(self, indices: list[int], touched: set[int]) -> set[int]:
-        """The objects of ``indices`` inside a container (isIn) that the hand holds, touches or is
-        pushing: carried with it, not pushed themselves."""
-        moving = set(self.held) | touched | set(self.pushes.active)
-        _on_top, is_in = relation_masks(self.world.aabbs(), static=self.world.static,
-                                        floor=self.world.scene.floor, hollow=self.world.scene.hollow)
-        return {i for i in indices if any(is_in[i, j] for j in moving if j != i)}
-
+    # -- events and perturbations (the hand's actions: ScriptedHand) -------------------------------
     def _event(self, step: int, action: str, index: int) -> None:
         self.events.append((step, {"t": _r(step * self.dt), "action": action,
                                    "subject": self.world.object_ids[index], "p": 1.0}))
-
-    def _resolve(self, target: HandTarget | None, previous: np.ndarray) -> np.ndarray:
-        if target is None:
-            return previous
-        if target.position is not None:
-            return np.asarray(target.position, dtype=float)
-        if target.by is not None:
-            return previous + np.asarray(target.by, dtype=float)
-        self._sync()
-        pos = self.world.get_poses([self.world.index(target.object)])[0, :3]
-        return pos + np.asarray(target.offset, dtype=float)
-
-    def _start_segment(self, t0: float) -> None:
-        script = self.variant.script
-        k = self.next_waypoint
-        p0, q0 = self.segment.p1, self.segment.q1
-        if k >= len(script):
-            self.segment = _Segment(t0, t0, p0, p0, q0, q0)
-            return
-        wp = script[k]
-        p1 = self._resolve(wp.to, p0)
-        q1 = _quat_from_rpy(wp.rpy_deg) if wp.rpy_deg is not None else q0
-        self.segment = _Segment(t0, wp.t, p0, p1, q0, q1)
-
-    def _advance_script(self, t: float, step: int) -> None:
-        script = self.variant.script
-        while self.next_waypoint < len(script) and script[self.next_waypoint].t <= t + 1e-9:
-            k = self.next_waypoint
-            wp = script[k]
-            if wp.release is not None:
-                self._release(self.world.index(wp.release), step)
-            if wp.grasp is not None:
-                self._grasp(self.world.index(wp.grasp), step, where=f"hand.script[{k}].grasp")
-            if wp.collide is not None:
-                self._set_collide(wp.collide)
-            self.next_waypoint += 1
-            self._start_segment(wp.t)
-
-    def _drive_hand(self, t: float) -> None:
-        p, q = self.segment.at(t)
-        p = p + self.hand_shift
-        pb.changeConstraint(self.hand_constraint, jointChildPivot=p.tolist(),
-                            jointChildFrameOrientation=q.tolist(), maxForce=self.scenario.hand.max_force,
-                            physicsClientId=self.world.client)
 
     def perturb(self, index: int, offset, params: dict[str, float] | None = None) -> None:
         """Move object ``index`` by ``offset (3,)`` m now, its velocity kept; an object in the hand
@@ -334,6 +172,7 @@ class GroundTruth:
         pose = self.world.get_poses([index])
         pose[0, :3] += offset
         self.world.set_poses(pose, [index])
+
 
     # -- the run ------------------------------------------------------------------------------------
     def settle(self) -> None:

@@ -4,7 +4,7 @@ a faulty pose tracker, and the files an experiment runs on.
 The ground truth runs in its own pybullet world (a :class:`physics.world.World` built from the
 scenario's scene, plus a hand and an optional torso), never in the estimator's. One run:
 
-1. :func:`~experiments.simulation.variants.sample_variant` draws the seeded variant of a :class:`~experiments.scenarios.Scenario`
+1. :func:`~experiments.simulation.variants.sample_variant` draws the seeded variant of a :class:`~experiments.scenarios.specs.Scenario`
    (geometry, masses, frictions, timing) with ``numpy.random.default_rng(seed)``;
 2. :class:`~experiments.simulation.ground_truth.GroundTruth` builds the world, lets it settle for ``scenario.settle`` seconds (the settled
    poses are the true initial poses), then steps it at 240 Hz while the hand follows its script;
@@ -44,7 +44,8 @@ from typing import Iterator
 
 import numpy as np
 
-from experiments.scenarios import Scenario, load_scenario
+from experiments.scenarios import load_scenario
+from experiments.scenarios.specs import Scenario
 from experiments.simulation.files import FORMAT_VERSION, SimulationResult, _r, _round_tree, write_outputs
 from experiments.simulation.ground_truth import HAND_ID, GroundTruth  # noqa: F401  (HAND_ID re-exported)
 from experiments.simulation.variants import Variant, sample_variant

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from experiments.scenarios import Scenario, Waypoint
+from experiments.scenarios.specs import Scenario, Waypoint
 from experiments.simulation.files import DECIMALS, _r
 from physics.bodies import DEFAULT_PRIMITIVE_MASS
 from physics.scene import Scene
