@@ -109,3 +109,9 @@ def test_modes_are_asked_through_the_registry():
     found = [f"{name}:{i}" for name, path in MODULES.items() if name != "actions.modes"
              for i, line in enumerate(path.read_text().splitlines(), 1) if compared.search(line)]
     assert found == []
+
+
+def test_nothing_imports_the_command_line():
+    found = [(m, d) for m, deps in GRAPH.items() if not m.startswith("experiments.cli")
+             for d in deps if d.startswith("experiments.cli")]
+    assert found == []
