@@ -15,10 +15,12 @@ import numpy as np
 import pytest
 
 from experiments.cli import evaluate as evaluate_cli
-from experiments.evaluation.methods import MethodRun, StepEstimate
+from experiments.evaluation.method_steps import MethodRun, StepEstimate
 from experiments.evaluation.metrics import truth_supports
-from experiments.evaluation.report import markdown_event_section, paired_tests, pooled_event_counts, summarize
+from experiments.evaluation.report import markdown_event_section, pooled_event_counts
 from experiments.evaluation.scoring import score_run
+from experiments.evaluation.significance import paired_tests
+from experiments.evaluation.summary import summarize
 from experiments.evaluation.sweep import SweepConfig, read_rows, run_sweep
 from experiments.evaluation.trials import TrialSpec, deterministic_part, run_trial, trial_rng
 from experiments.simulation.simulator import simulate
@@ -362,22 +364,3 @@ def test_truth_conditions_are_trials_of_their_own_reported_side_by_side(tmp_path
     summary = list(csv.DictReader(open(tmp_path / "summary.csv")))
     assert {(r["engine"], r["param_scale"]) for r in summary} == {("bullet", "1.0"), ("bullet", "2.0"),
                                                                   ("mujoco", "1.0"), ("mujoco", "2.0")}
-
-
-def test_the_adaptive_count_is_tested_against_each_fixed_k_of_the_same_method(reference):
-    from experiments.evaluation.methods import AUTO
-    from experiments.evaluation.report import adaptive_tests, markdown_adaptive_section
-
-    rows, _ = reference
-    fixed = [r for r in rows if r["method"] == "particles"]
-    # the same trials relabelled as an adaptive run whose hidden error is 1 cm larger in every pair
-    auto = [dict(r, particles=AUTO, mean_particles=20.0,
-                 err_hidden_median=(r["err_hidden_median"] + 0.01) if r.get("err_hidden_median") is not None
-                 else None) for r in fixed]
-    tests = adaptive_tests(rows + auto)
-    assert len(tests) == 1 and tests[0]["baseline"] == f"particles K={K}" and tests[0]["mean_particles"] == 20.0
-    t = tests[0]
-    assert t["err_end_mean.median_diff"] == 0.0
-    assert t["err_hidden_median.n"] > 0 and t["err_hidden_median.median_diff"] == pytest.approx(0.01)
-    assert "particles (K=auto)" in markdown_adaptive_section(rows + auto)
-    assert adaptive_tests(rows) == [] and markdown_adaptive_section(rows) == ""

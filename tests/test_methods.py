@@ -1,4 +1,4 @@
-"""The method registry of experiments.evaluation.methods and the last-seen baseline."""
+"""The method registry of experiments.evaluation.methods and running the methods on a stream."""
 from __future__ import annotations
 
 import numpy as np
@@ -7,12 +7,10 @@ import pytest
 from estimator.config import EstimatorConfig, NoiseConfig
 from experiments.evaluation.methods import (
     METHODS,
-    LastSeenBaseline,
     effective_particles,
     get_method,
     method_config,
     run_method,
-    top_from_relations,
 )
 from helpers import TABLE_TOP, frames, table_scene
 
@@ -50,13 +48,6 @@ def test_configs_of_the_methods():
         assert cfg is None or isinstance(cfg, EstimatorConfig)
 
 
-def test_top_from_relations_priority():
-    rels = {("ball", "isOnTop", "table"): 1.0, ("ball", "isIn", "box"): 0.7, ("cup", "isIn", "box"): 0.3}
-    assert top_from_relations(rels, "ball") == ("isIn", "box")
-    assert top_from_relations(rels, "cup") == ("none", None)
-    assert top_from_relations(rels, "cup", held=True) == ("held", None)
-
-
 def _cup_vanishes(t):
     """The cup is seen at rest until 0.5 s, then at 0.3 m to the side until 1.0 s, then never."""
     if t < 0.5:
@@ -64,21 +55,6 @@ def _cup_vanishes(t):
     if t < 1.0:
         return {"cup": [0.1, 0.3, TABLE_TOP + 0.05], "ball": [-0.2, 0.1, TABLE_TOP + 0.03]}
     return {"ball": [-0.2, 0.1, TABLE_TOP + 0.03]}
-
-
-def test_last_seen_keeps_an_unperceived_object_where_it_was_last_seen():
-    scene = table_scene(CUP, BALL)
-    frs = frames(np.arange(1, 60) / 30.0, _cup_vanishes)
-    with LastSeenBaseline(scene) as base:
-        steps = [s for s in (base.update(f) for f in frs) if s is not None]
-    cup = scene.index("cup")
-    late = [s for s in steps if s.t > 1.0]
-    assert late
-    for s in late:
-        np.testing.assert_allclose(s.positions[cup], [0.1, 0.3, TABLE_TOP + 0.05])
-        assert np.all(s.covariances == 0) and np.all(s.p_plausible == 1) and np.all(s.p_held == 0)
-        assert s.top[cup] == ("isOnTop", "table")
-        assert s.relations[("cup", "isOnTop", "table")] == 1.0
 
 
 def test_all_methods_reason_at_the_same_instants():

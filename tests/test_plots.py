@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from experiments.evaluation import plots
-from experiments.evaluation.report import summarize
+from experiments.evaluation.summary import summarize
 from experiments.evaluation.trials import TrialSpec, run_trial
 
 

@@ -47,7 +47,8 @@ def add_predictability_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run_predictability(args) -> int:
-    from experiments.evaluation.predictability import TwinConfig, run_twins, write_report
+    from experiments.evaluation.predictability import TwinConfig, run_twins
+    from experiments.evaluation.predictability_report import write_report
     from experiments.evaluation.sweep import read_rows
     from experiments.scenarios import resolve_scenarios
 

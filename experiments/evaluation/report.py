@@ -1,86 +1,20 @@
 """The evaluation's report: per scenario and method, the mean and 95 % bootstrap interval of each
-metric over seeds; paired tests against the paper's reasoner; ``summary.md``, ``summary.csv``,
-``tests.csv`` and the figures."""
+metric over seeds (:mod:`experiments.evaluation.summary`); paired tests against the paper's reasoner
+(:mod:`experiments.evaluation.significance`); the events by action pooled over trials; the truth
+conditions (engine, parameter scale) side by side; ``summary.md``, ``summary.csv``, ``tests.csv`` and
+the figures."""
 from __future__ import annotations
 
 import csv
 import io
 import math
 import os
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable
 
-import numpy as np
-
-from experiments.evaluation.methods import AUTO, METHODS, get_method, method_label
+from experiments.evaluation.methods import method_label
 from experiments.evaluation.metrics import ACTIONS, precision_recall_f1
-from experiments.evaluation.stats import bootstrap_ci, group_rng, paired_wilcoxon
-
-# --------------------------------------------------------------------------------------------------
-# the summary
-
-
-@dataclass(frozen=True)
-class Column:
-    """A summarised metric: row field (``timing.x`` for timing), header, scale factor and format."""
-
-    field: str
-    header: str
-    scale: float = 1.0
-    fmt: str = "{:.2f}"
-
-
-SUMMARY_COLUMNS: tuple[Column, ...] = (
-    Column("err_hidden_median", "hidden err. median (cm)", 100.0, "{:.1f}"),
-    Column("err_hidden_p90", "hidden err. p90 (cm)", 100.0, "{:.1f}"),
-    Column("err_end_mean", "final err. (cm)", 100.0, "{:.1f}"),
-    Column("success_end", "success (%)", 100.0, "{:.0f}"),
-    Column("success_end_hidden", "success, hidden objects (%)", 100.0, "{:.0f}"),
-    Column("ontop_f1", "isOnTop F1", 1.0, "{:.2f}"),
-    Column("isin_f1", "isIn F1", 1.0, "{:.2f}"),
-    Column("event_f1", "event F1", 1.0, "{:.2f}"),
-    Column("event_latency", "event latency (s)", 1.0, "{:.2f}"),
-    Column("nll_hidden_median", "NLL hidden (median)", 1.0, "{:.1f}"),
-    Column("cover90_hidden", "90% coverage hidden", 1.0, "{:.2f}"),
-    Column("timing.update_ms_median", "update (ms)", 1.0, "{:.1f}"),
-)
-"""Columns of the main table of ``summary.md`` (mean and 95 % bootstrap interval over seeds)."""
-
-EXTRA_COLUMNS: tuple[Column, ...] = (
-    Column("err_median", "err. median (cm)", 100.0), Column("err_p90", "err. p90 (cm)", 100.0),
-    Column("err_end_max", "final err. max (cm)", 100.0),
-    Column("ontop_acc", "isOnTop acc."), Column("isin_acc", "isIn acc."),
-    Column("event_precision", "event precision"), Column("event_recall", "event recall"),
-    Column("event_f1_loose", "event F1 (1.5 s window)"),
-    Column("event_latency_loose", "event latency (1.5 s window, s)"),
-    *(Column(f"{a.lower()}_{m}", f"{a} {h}") for a in ACTIONS
-      for m, h in (("f1", "F1"), ("precision", "precision"), ("recall", "recall"), ("latency", "latency (s)"))),
-    Column("nll", "NLL"), Column("nll_median", "NLL median"), Column("nll_hidden", "NLL hidden"),
-    Column("cover50", "50% coverage"), Column("cover90", "90% coverage"),
-    Column("cover50_hidden", "50% coverage hidden"),
-    Column("brier_plausible", "Brier P(plausible)"), Column("ece_plausible", "ECE P(plausible)"),
-    Column("brier_isin", "Brier P(isIn)"), Column("ece_isin", "ECE P(isIn)"),
-    Column("brier_isontop", "Brier P(isOnTop)"), Column("ece_isontop", "ECE P(isOnTop)"),
-    Column("err_reappear_median", "err. at re-appearance (cm)", 100.0),
-    Column("gate_rate_reappear", "re-appearance in 99% gate"),
-    Column("nees_seen_median", "NEES seen (median; 2.37)"), Column("nees_hidden_median", "NEES hidden (median; 2.37)"),
-    Column("nees_hidden_mean", "NEES hidden (mean; 3)"),
-    Column("invariant_violations", "particles inside static geometry (count)", 1.0, "{:.1f}"),
-    Column("invariant_depth_max", "deepest inside static geometry (mm)", 1000.0, "{:.1f}"),
-    Column("timing.update_ms_p95", "update p95 (ms)"), Column("timing.peak_rss_mb", "peak memory (MB)"),
-    Column("timing.trial_s", "trial (s)"), Column("mean_particles", "mean K", 1.0, "{:.0f}"),
-)
-
-TEST_METRICS: tuple[tuple[str, str, float], ...] = (
-    ("err_hidden_median", "hidden err. median (cm)", 100.0),
-    ("err_end_mean", "final err. (cm)", 100.0),
-    ("success_end", "success (%)", 100.0),
-    ("event_f1", "event F1", 1.0),
-)
-"""Metrics of the paired tests (particle methods against the paper's reasoner, paired by seed)."""
-
-ALL = "all scenarios"
+from experiments.evaluation.significance import TEST_METRICS, _test_cells, markdown_adaptive_section, paired_tests
+from experiments.evaluation.summary import ALL, SUMMARY_COLUMNS, Column, _method_order, summarize
 
 CONDITION_COLUMNS: tuple[Column, ...] = (
     Column("success_end", "success (%)", 100.0, "{:.0f}"),
@@ -109,132 +43,6 @@ def _conditions(rows) -> list[tuple[str, float]]:
     """The conditions of ``rows``: MuJoCo first (the headline truth), then Bullet; scales ascending."""
     rank = {"mujoco": 0, "bullet": 1}
     return sorted({condition(r) for r in rows}, key=lambda c: (rank.get(c[0], 2), c[0], c[1]))
-
-
-def _value(row: dict, name: str) -> float:
-    src = row
-    if name.startswith("timing."):
-        src, name = row.get("timing") or {}, name[len("timing."):]
-    v = src.get(name)
-    return math.nan if v is None else float(v)
-
-
-def _method_order(rows) -> list[tuple[str, int]]:
-    order = {m: i for i, m in enumerate(METHODS)}
-    pairs = sorted({(r["method"], r["particles"]) for r in rows}, key=lambda p: (order.get(p[0], 99), p[1]))
-    return pairs
-
-
-def summarize(rows: list[dict], columns: Iterable[Column] = SUMMARY_COLUMNS + EXTRA_COLUMNS) -> list[dict]:
-    """One summary record per (scenario, method, K), plus per (method, K) over all scenarios: the
-    number of trials ``n`` and, per column, ``<field>`` (mean), ``<field>.lo`` and ``<field>.hi``
-    (95 % percentile-bootstrap interval over the trials; seeds within a scenario), in raw units.
-
-    Deterministic: values are ordered by (scenario, seed) and every group has its own generator."""
-    columns = tuple(columns)
-    scenarios = sorted({r["scenario"] for r in rows})
-    out = []
-    groups = [(sc, m, k) for sc in scenarios for (m, k) in _method_order(rows)]
-    if len(scenarios) > 1:
-        groups += [(ALL, m, k) for (m, k) in _method_order(rows)]
-    for sc, m, k in groups:
-        sel = sorted((r for r in rows if r["method"] == m and r["particles"] == k
-                      and (sc == ALL or r["scenario"] == sc)), key=lambda r: (r["scenario"], r["seed"]))
-        if not sel:
-            continue
-        rec = {"scenario": sc, "method": m, "particles": k, "n": len(sel)}
-        if sel[0].get("config"):
-            rec["config"] = sel[0]["config"]
-        for c in columns:
-            ci = bootstrap_ci([_value(r, c.field) for r in sel], group_rng(sc, m, k, c.field))
-            rec[c.field], rec[c.field + ".lo"], rec[c.field + ".hi"] = ci.estimate, ci.low, ci.high
-        out.append(rec)
-    return out
-
-
-def _paired(rec: dict, mine: dict, base: dict, keys: list, metrics) -> dict:
-    """``rec`` with, for each ``(field, heading, scale)`` of ``metrics``, the Wilcoxon signed-rank
-    test of the rows ``mine`` against ``base`` (both by (scenario, seed)) over ``keys``:
-    ``<field>.n``, ``<field>.median_diff`` (mine - base) and ``<field>.p``."""
-    for fieldname, _h, _s in metrics:
-        t = paired_wilcoxon([_value(mine[x], fieldname) for x in keys], [_value(base[x], fieldname) for x in keys])
-        rec[fieldname + ".n"], rec[fieldname + ".median_diff"], rec[fieldname + ".p"] = t.n, t.median_diff, t.p_value
-    return rec
-
-
-def _test_cells(t: dict, metrics) -> list[str]:
-    """The cells of one test record (:func:`_paired`): median difference, p-value and pairs."""
-    cells = []
-    for f, _h, s in metrics:
-        d, p, n = t[f + ".median_diff"], t[f + ".p"], t[f + ".n"]
-        cells.append("–" if not (n and math.isfinite(d)) else
-                     f"{d * s:+.2f} (p={p:.3g}, n={n})" if math.isfinite(p) else f"{d * s:+.2f} (n={n})")
-    return cells
-
-
-def paired_tests(rows: list[dict], baseline: str = "paper") -> list[dict]:
-    """Wilcoxon signed-rank tests of every particle method against ``baseline``, per scenario and
-    over all scenarios, paired by (scenario, seed), for each of :data:`TEST_METRICS`."""
-    base = {(r["scenario"], r["seed"]): r for r in rows if r["method"] == baseline}
-    if not base:
-        return []
-    out = []
-    scenarios = sorted({r["scenario"] for r in rows})
-    for m, k in _method_order(rows):
-        if not get_method(m).uses_particles:
-            continue
-        mine = {(r["scenario"], r["seed"]): r for r in rows if r["method"] == m and r["particles"] == k}
-        for sc in scenarios + ([ALL] if len(scenarios) > 1 else []):
-            keys = sorted(x for x in mine if x in base and (sc == ALL or x[0] == sc))
-            if not keys:
-                continue
-            out.append(_paired({"scenario": sc, "method": m, "particles": k, "baseline": baseline},
-                               mine, base, keys, TEST_METRICS))
-    return out
-
-
-AUTO_TEST_METRICS = TEST_METRICS + (("cover90_hidden", "90% coverage hidden", 1.0),)
-"""Metrics of the paired tests of the adaptive particle count against each fixed K."""
-
-
-def adaptive_tests(rows: list[dict]) -> list[dict]:
-    """Wilcoxon signed-rank tests of each particle method run with the adaptive count (``particles``
-    :data:`~experiments.evaluation.methods.AUTO`) against the same method at each fixed K of the
-    rows, over all scenarios, paired by (scenario, seed), for each of :data:`AUTO_TEST_METRICS`
-    (the difference is auto - fixed)."""
-    out = []
-    for m, k in _method_order(rows):
-        if k != AUTO or not get_method(m).uses_particles:
-            continue
-        mine = {(r["scenario"], r["seed"]): r for r in rows if r["method"] == m and r["particles"] == AUTO}
-        for m2, k2 in _method_order(rows):
-            if m2 != m or k2 == AUTO:
-                continue
-            base = {(r["scenario"], r["seed"]): r for r in rows if r["method"] == m and r["particles"] == k2}
-            keys = sorted(x for x in mine if x in base)
-            if not keys:
-                continue
-            rec = {"scenario": ALL, "method": m, "particles": AUTO, "baseline": f"{m} K={k2}",
-                   "mean_particles": float(np.mean([mine[x].get("mean_particles", np.nan) for x in keys]))}
-            out.append(_paired(rec, mine, base, keys, AUTO_TEST_METRICS))
-    return out
-
-
-def markdown_adaptive_section(rows: list[dict]) -> str:
-    """The adaptive count against each fixed K (:func:`adaptive_tests`), or nothing."""
-    tests = adaptive_tests(rows)
-    if not tests:
-        return ""
-    buf = io.StringIO()
-    buf.write("\n## The adaptive particle count against fixed K (Wilcoxon signed-rank, by seed)\n\n"
-              "Cells: median difference (auto - fixed K) and two-sided p-value; n = pairs.\n\n")
-    head = ["method", "against", "mean K (auto)"] + [h for _f, h, _s in AUTO_TEST_METRICS]
-    buf.write("| " + " | ".join(head) + " |\n|" + "|".join(["---"] * len(head)) + "|\n")
-    for t in tests:
-        cells = [method_label(t["method"], t["particles"]), t["baseline"], f"{t['mean_particles']:.0f}"]
-        cells += _test_cells(t, AUTO_TEST_METRICS)
-        buf.write("| " + " | ".join(cells) + " |\n")
-    return buf.getvalue()
 
 
 def _cell(rec: dict, c: Column) -> str:

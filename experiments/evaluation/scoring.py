@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from experiments.evaluation import metrics as M
-from experiments.evaluation.methods import MethodRun
+from experiments.evaluation.method_steps import MethodRun
 
 LOOSE_EVENT_WINDOW = 1.5
 """A second, looser event-matching window (s): the paper's reasoner only notices that a vanished
@@ -33,7 +33,7 @@ def _truth_rows_at(truth: list[dict], times: list[float]) -> list[dict]:
 
 
 def position_arrays(scene, truth: list[dict], steps) -> tuple[np.ndarray, ...]:
-    """The positions a run's ``steps`` (:class:`~experiments.evaluation.methods.StepEstimate`) give
+    """The positions a run's ``steps`` (:class:`~experiments.evaluation.method_steps.StepEstimate`) give
     for the scene's dynamic objects, beside the truth at each step: ``est (T, D, 3)`` m (NaN where
     unknown), ``cov (T, D, 3, 3)`` m^2, ``dof (T, D)`` (inf: Gaussian), ``tru (T, D, 3)`` m,
     ``vis (T, D)`` and ``held (T, D)`` bool, and the truth rows ``(T,)`` themselves."""
@@ -160,7 +160,7 @@ def score_run(scene, truth: list[dict], true_events: list[dict], run: MethodRun,
 
 def _tracking_scores(dyn_ids, truth, frames, steps, est, cov, tru, vis, gate_actions=None) -> dict:
     """Re-appearance and NEES metrics (:mod:`experiments.evaluation.tracking_metrics`) of a run; with the Kalman
-    tracker's ``gate_actions`` (see :class:`~experiments.evaluation.methods.MethodRun`), a re-appearance is
+    tracker's ``gate_actions`` (see :class:`~experiments.evaluation.method_steps.MethodRun`), a re-appearance is
     inside the gate when the tracker accepted it."""
     from experiments.evaluation.tracking_metrics import nees_scores, reappearance_scores
 

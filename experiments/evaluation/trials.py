@@ -19,7 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from experiments.evaluation.methods import MethodRun, particles_label, run_method
+from experiments.evaluation.method_steps import MethodRun
+from experiments.evaluation.methods import particles_label, run_method
 from experiments.evaluation.scoring import dynamic_objects, score_run
 
 ROW_VERSION = 1
