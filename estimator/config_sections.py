@@ -147,7 +147,7 @@ class NoiseConfig:
       keep theirs. None: not perturbed.
     * ``velocity_slack`` (m/s): an object seen moving along its support at two updates running is
       weighed on its perceived velocity against the velocity the particle's physics had given it
-      (:class:`~estimator.model.terms.VelocityTerm`: how fast a rolled ball slows down tells its
+      (:class:`~estimator.model.mechanisms.velocity.VelocityTerm`: how fast a rolled ball slows down tells its
       rolling friction, which a teleport at every update hides from the position); this is added in
       quadrature to the perceived velocity's standard error. 0: not weighed.
     * ``decel_error``: an object seen rolling or sliding along its support, teleported in motion, is
@@ -165,7 +165,7 @@ class NoiseConfig:
       something else does not fix a parameter for good before the evidence about it arrives.
     * ``param_widen``: the floor of the frictions' kernel (log units) of an object whose motion
       surprises every particle the same way (its perceived velocity consistently two standard
-      deviations from theirs: :func:`~estimator.model.weighing.note_surprise`): the evidence says
+      deviations from theirs: :meth:`~estimator.model.mechanisms.velocity.VelocityEvidence.after_weighing`): the evidence says
       its friction is not where the particles have it; 0.35 is about the spread of a factor-two
       prior.
     * ``param_reach``: evidence may carry a parameter beyond its prior range by this factor (a

@@ -11,8 +11,7 @@ from estimator.model.mechanisms.deceleration import DecelerationTerm
 from estimator.model.mechanisms.flick import LetGoMoving
 from estimator.model.mechanisms.rest_fusion import FusionAtRest
 from estimator.model.mechanisms.teleport import Teleports
-from estimator.model.mechanisms.velocity import VelocityEvidence
-from estimator.model.terms import VelocityTerm
+from estimator.model.mechanisms.velocity import VelocityEvidence, VelocityTerm
 from estimator.observations import Frame
 from helpers import TABLE_TOP, det, table_scene
 from model_helpers import make

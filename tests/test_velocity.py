@@ -32,7 +32,7 @@ def test_a_ball_seen_rolling_along_is_checked_against_each_particles_velocity_be
     model, mv = _rolling_ball_moves(EstimatorConfig(particles=3, noise=NoiseConfig(position_std=0.0,
                                                                                    velocity_slack=0.05)))
     assert any(isinstance(m, VelocityEvidence) for m in model.mechanisms)
-    mask, predicted, seen, std = mv.speed_check
+    mask, predicted, seen, std = model.mechanism(VelocityEvidence).checked
     assert mask[:, BALL].tolist() == [True, True, True] and not mask[:, :BALL].any()
     assert np.allclose(predicted[:, BALL], [[0.3, 0.0], [0.3, 0.0], [0.0, 0.0]])  # before the teleport
     assert np.allclose(seen[BALL], [0.9, 0.0], atol=1e-9) and std.shape == (5,)
@@ -42,4 +42,4 @@ def test_no_velocity_evidence_without_slack_or_in_the_papers_mode():
     for config in (EstimatorConfig(particles=3, noise=NoiseConfig(position_std=0.0, velocity_slack=0.0)),
                    EstimatorConfig.paper()):
         model, mv = _rolling_ball_moves(config)
-        assert not any(isinstance(m, VelocityEvidence) for m in model.mechanisms) and mv.speed_check is None
+        assert not any(isinstance(m, VelocityEvidence) for m in model.mechanisms)

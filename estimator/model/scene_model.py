@@ -112,7 +112,7 @@ class SceneModel:
         self.base_params = base_params
         self.param_bounds = param_bounds(config)
         self.perturbed = np.zeros((self.M, 5), dtype=bool)  # parameters the prior spreads (initial_state)
-        self.surprise = np.zeros(self.M)  # how far the objects' motion is from the particles' (note_surprise)
+        self.surprise = np.zeros(self.M)  # how far the objects' motion is from the particles' (the velocity evidence's after_weighing)
         hr = config.reasoner
         self.episode_rule = EpisodeRule(hr.push_lift, hr.push_smoothing, hr.place_wait)
         self._just_initialised = np.zeros(self.M, dtype=bool)
@@ -300,7 +300,7 @@ class SceneModel:
                     check=u.check, depenetrate=depen, vis_query=vis_query, hold_error=u.hold_error,
                     let_go_unseen=u.let_go, cameras=cameras, cover_t=u.cover_t, proposal_log_weight=u.proposal,
                     fused=u.nudged, jitter=u.jitter, out_of_reach=u.far, fall=u.fall, detections=u.detections,
-                    set_moving=set_moving, speed_check=u.speed_check, push_grip=u.grip)
+                    set_moving=set_moving, push_grip=u.grip)
 
     def roll_released(self, vel: np.ndarray, released: np.ndarray, supported: np.ndarray) -> None:
         """In place on ``vel (K, M, 6)``: balls let go now (``released (K, M)``) on a support

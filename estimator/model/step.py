@@ -51,10 +51,7 @@ class Move:
     their velocity (:meth:`~estimator.model.perception_memory.PerceptionMemory.detections_now`; None: as
     detected); ``set_moving (K, M)`` bool: objects at rest in their particle, seen starting to move
     along their support with no tracked hand within reach, that go on at their perceived velocity
-    (a Push by an agent nobody tracks, not a Pick; None: none); ``speed_check``: ``(mask (K, M),
-    velocities (K, M, 2), seen (M, 2), std (M,))`` for :class:`~estimator.model.terms.VelocityTerm`:
-    objects seen moving along their support, free in the particle before the update, with their
-    velocity in it then and the perceived velocity (None: none); ``push_grip (K, M)``: see
+    (a Push by an agent nobody tracks, not a Pick; None: none); ``push_grip (K, M)``: see
     :class:`~estimator.state.ParticleState` (None: all NaN).
     """
 
@@ -81,7 +78,6 @@ class Move:
     fall: Fall | None = None
     detections: np.ndarray | None = None
     set_moving: np.ndarray | None = None
-    speed_check: tuple | None = None
     push_grip: np.ndarray | None = None
 
     @property

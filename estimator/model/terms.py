@@ -24,7 +24,6 @@ from .likelihood import (
     hand_reach_log_likelihood,
     mode_switch_log_prior,
     negative_evidence_log_likelihood,
-    velocity_log_likelihood,
 )
 
 
@@ -64,14 +63,6 @@ class Evidence:
     * ``carried (M,)`` bool: objects whose tracked hand has moved more than ``carry_distance`` since
       they were last seen (the person may hide what they carry: ``NoiseConfig.hand_occlusion``
       applies to them only; None: to every held object).
-    * ``velocity_check (K, M)`` bool: objects seen moving along their support at this update and
-      the last, free in the particle at the last one, whose horizontal velocity then,
-      ``predicted_velocity (K, M, 2)`` (m/s, what the particle's physics had made of it, friction
-      included), is weighed against the one perceived now, ``seen_velocity (M, 2)`` with standard
-      deviation ``seen_velocity_std (M,)`` (the line fitted through the detections over 0.2 s,
-      whose slope is the velocity about 0.1 s back: where the particle's is). A teleport in motion
-      gives every particle the perceived velocity again at every update, so the position alone
-      says little about how fast the object slows down; this does (None: none).
     * ``fell (M,)`` bool: objects seen rolling along at the previous update and falling off their
       support in this one (:class:`~estimator.model.step.Fall`); in the particles where they are free after
       the update (free before, or let go by the Release rule) they are scored on their horizontal
@@ -104,10 +95,6 @@ class Evidence:
     diverged: np.ndarray | None = None
     fell: np.ndarray | None = None
     carried: np.ndarray | None = None
-    velocity_check: np.ndarray | None = None
-    predicted_velocity: np.ndarray | None = None
-    seen_velocity: np.ndarray | None = None
-    seen_velocity_std: np.ndarray | None = None
 
 
 LogWeightTerm = Callable[[Evidence], np.ndarray]
@@ -170,24 +157,6 @@ class NegativeEvidenceTerm:
         return negative_evidence_log_likelihood(ev.visible, ev.modes, ev.queried, ev.in_tracked_hand,
                                                 self.miss_prob, self.visibility_threshold, h,
                                                 ev.unseen_in_view, ev.perceived, ev.fell_unseen)
-
-
-@dataclass(frozen=True)
-class VelocityTerm:
-    """Perceived velocities of objects moving on their support against what the particles' physics
-    made of their velocity over the last update (:func:`velocity_log_likelihood`; ``Evidence
-    .velocity_check``): how fast a rolled ball slows down is its rolling friction. ``slack`` (m/s)
-    is added in quadrature to each perceived velocity's standard error (the model's own error)."""
-
-    slack: float
-    outlier_prob: float
-
-    def __call__(self, ev: Evidence) -> np.ndarray:
-        if ev.velocity_check is None or not np.any(ev.velocity_check):
-            return np.zeros(len(ev.poses))
-        std = np.sqrt(np.asarray(ev.seen_velocity_std, dtype=float) ** 2 + self.slack ** 2)
-        return velocity_log_likelihood(ev.predicted_velocity, ev.seen_velocity, std, ev.velocity_check,
-                                       self.outlier_prob)
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,7 @@ from .terms import (
 )
 
 SURPRISE = 4.0
-"""An object whose perceived velocity has been, on average (:func:`note_surprise`), more
+"""An object whose perceived velocity has been, on average (:meth:`~estimator.model.mechanisms.velocity.VelocityEvidence.after_weighing`), more
 than two of its standard deviations away from what the particles predicted (squared, per axis, over
 two axes: 4) has its frictions' kernel widened to ``NoiseConfig.param_widen`` at the next
 resampling: every particle is wrong about how it slows down."""
@@ -78,11 +78,7 @@ def evidence(model, move: Move, settled: Settled, out: BatchOutput, frame: Frame
                     proposal_log_weight=move.proposal_log_weight, fused=move.fused,
                     out_of_reach=move.out_of_reach, diverged=diverged_by(move, out),
                     fell=None if move.fall is None else move.fall.mask,
-                    carried=carried,
-                    **({} if move.speed_check is None else dict(
-                        velocity_check=move.speed_check[0] & is_free(settled.modes),
-                        predicted_velocity=move.speed_check[1], seen_velocity=move.speed_check[2],
-                        seen_velocity_std=move.speed_check[3])))
+                    carried=carried)
 
 
 def behind_hands(model, visible: np.ndarray, poses: np.ndarray, aabbs: np.ndarray, frame: Frame,
@@ -116,24 +112,9 @@ def log_weight(model, previous: np.ndarray, ev: Evidence) -> np.ndarray:
     has nothing to be weighed against: no terms), and -inf for exploded particles."""
     logw = add_terms(previous, model.terms, ev) if model.K > 1 else previous.copy()
     logw = logw + exploded_log_likelihood(ev.finite)
-    note_surprise(model, ev, logw)
+    for mechanism in model.mechanisms:
+        mechanism.after_weighing(ev, logw)
     return logw
-
-
-def note_surprise(model, ev: Evidence, logw: np.ndarray) -> None:
-    """Track, per object, how far the perceived velocity of an object moving on its support is
-    from what the particles' physics predicted (``Evidence.velocity_check``), in units of its
-    standard deviation, under the new weights ``logw (K,)``: an exponential average (half of the
-    old, half of the new) of the squared mean innovation (:attr:`surprise` ``(M,)``). Calibrated,
-    it stays near 1; a value over :data:`SURPRISE` says every particle gets the object's motion
-    wrong the same way (its friction is outside what the particles hold), and its parameters
-    are widened at the next resampling (:meth:`regularise`)."""
-    if ev.velocity_check is None or model.K < 2 or not np.any(np.isfinite(logw)):
-        return
-    std = np.sqrt(np.asarray(ev.seen_velocity_std, float) ** 2 + model.config.noise.velocity_slack ** 2)
-    new = mean_innovation(logw, ev.velocity_check, ev.predicted_velocity, ev.seen_velocity, std)
-    seen = np.isfinite(new)
-    model.surprise[seen] = 0.5 * model.surprise[seen] + 0.5 * new[seen]
 
 
 def mean_innovation(logw: np.ndarray, mask: np.ndarray, predicted: np.ndarray, seen: np.ndarray,

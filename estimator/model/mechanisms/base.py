@@ -29,7 +29,7 @@ class Draft:
     Working arrays (see :class:`~estimator.model.step.Move` for their meaning): ``poses``, ``vel``,
     ``prev_modes``, ``modes``, ``release_codes``, ``predicted``, ``jitter``, ``tele``, ``newly_known``,
     ``moving``, ``falling`` and ``spinning (M,)``, ``start (M, 3)``, ``fall`` (:class:`~estimator.model.step.Fall`),
-    ``set_moving``, ``speed_check``, ``left_view (M,)``, ``cover_t``, ``proposal (K,)``, ``grip``,
+    ``set_moving``, ``left_view (M,)``, ``cover_t``, ``proposal (K,)``, ``grip``,
     ``let_go``, ``resting``, ``nudged``, ``detections``, ``target``, ``target_vel``,
     ``hold_error``, ``jolted``, ``check``."""
 
@@ -56,7 +56,6 @@ class Draft:
     start: np.ndarray | None = None
     fall: object = None
     set_moving: np.ndarray | None = None
-    speed_check: tuple | None = None
     modes: np.ndarray | None = None
     release_codes: np.ndarray | None = None
     left_view: np.ndarray | None = None
@@ -109,6 +108,11 @@ class Mechanism:
         """The mechanism's own terms of the log-weight (callables ``term(evidence) -> (K,)``,
         :mod:`estimator.model.terms`), added after those of every model."""
         return ()
+
+    def after_weighing(self, ev, log_weights: np.ndarray) -> None:
+        """Once the terms are summed: the update's evidence ``ev``
+        (:class:`~estimator.model.terms.Evidence`) and the new log-weights ``log_weights (K,)`` (-inf
+        for exploded particles), e.g. to track how far the particles are from what was perceived."""
 
     def after_physics(self, poses: np.ndarray, aabbs: np.ndarray) -> np.ndarray:
         """The particles' poses ``(K, M, 7)`` after physics (``aabbs (K, M, 2, 3)``), corrected (the
