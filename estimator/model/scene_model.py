@@ -273,7 +273,7 @@ class SceneModel:
                   predicted=poses.copy(),  # before teleports: what each particle expected
                   jitter=np.zeros((K, M, 3)), newly_known=newly_known,
                   tele=perceived & (~mem.perceived_prev | mem.jumped() | newly_known),  # teleports, first sightings
-                  moving=np.zeros(M, dtype=bool), falling=np.zeros(M, dtype=bool), spinning=np.zeros(M, dtype=bool),
+                  moving=np.zeros(M, dtype=bool), falling=np.zeros(M, dtype=bool),
                    cover_t=np.full((K, M), np.nan), proposal=np.zeros(K),
                   # at rest in the particle (on a support, slower than rest_speed) before this update
                   resting=state.supported & (np.linalg.norm(state.velocities[..., :3], axis=-1) < cfg.noise.rest_speed),

@@ -28,8 +28,8 @@ class Draft:
 
     Working arrays (see :class:`~estimator.model.step.Move` for their meaning): ``poses``, ``vel``,
     ``prev_modes``, ``modes``, ``release_codes``, ``predicted``, ``jitter``, ``tele``, ``newly_known``,
-    ``moving``, ``falling`` and ``spinning (M,)``, ``start (M, 3)``, ``fall`` (:class:`~estimator.model.step.Fall`),
-    ``set_moving``, ``left_view (M,)``, ``cover_t``, ``proposal (K,)``, ``grip``,
+    ``moving`` and ``falling (M,)``, ``start (M, 3)``, ``fall`` (:class:`~estimator.model.step.Fall`),
+    ``set_moving``, ``cover_t``, ``proposal (K,)``, ``grip``,
     ``let_go``, ``resting``, ``nudged``, ``detections``, ``target``, ``target_vel``,
     ``hold_error``, ``jolted``, ``check``."""
 
@@ -52,13 +52,11 @@ class Draft:
     tele: np.ndarray
     moving: np.ndarray
     falling: np.ndarray
-    spinning: np.ndarray
     start: np.ndarray | None = None
     fall: object = None
     set_moving: np.ndarray | None = None
     modes: np.ndarray | None = None
     release_codes: np.ndarray | None = None
-    left_view: np.ndarray | None = None
     cover_t: np.ndarray | None = None
     proposal: np.ndarray | None = None
     grip: np.ndarray | None = None

@@ -74,6 +74,7 @@ class ReleaseOnLoss(Mechanism):
     def __init__(self, model, left_view: bool = True):
         super().__init__(model)
         self.left_view = left_view
+        self._gone_moving: np.ndarray | None = None  # (M,): this update's objects that left view moving
         """Whether an object seen moving along its support when it left view is let go in motion."""
 
     def commit(self, state, p, w, rng) -> dict:
@@ -81,14 +82,15 @@ class ReleaseOnLoss(Mechanism):
 
     def release(self, u: Draft) -> None:
         mem = self.model.memory
+        self._gone_moving = None
         if self.left_view:  # seen moving along at the last update (its last two detections, or the line
             # fitted since it started moving: one noisy pair may read a 0.25 m/s roll as 0.18), not now,
             # no tracked hand
             along = rolled_along(mem.previous_tick_velocity()) | (np.isfinite(mem.moving_since)
                                                                    & rolled_along(mem.perc_vel[:, :3]))
-            u.left_view = u.perceived & ~u.detected & along & ~u.following
+            self._gone_moving = u.perceived & ~u.detected & along & ~u.following
         u.modes, u.release_codes = self.releases(u.prev_modes, u.perceived, u.state.supported, u.rng, u.following,
-                                                 u.left_view)
+                                                 self._gone_moving)
 
     def releases(self, modes: np.ndarray, perceived: np.ndarray, supported: np.ndarray, rng: np.random.Generator,
                  tracked: np.ndarray | None = None, left_view: np.ndarray | None = None
@@ -100,10 +102,10 @@ class ReleaseOnLoss(Mechanism):
     def let_go(self, u: Draft) -> None:
         model, mem = self.model, self.model.memory
         let_go_now = u.let_go_now
-        if u.left_view is not None and np.any(u.left_view):  # let go as it left view: at the velocity of
+        if self._gone_moving is not None and np.any(self._gone_moving):  # let go as it left view: at the velocity of
             # the line through its detections since it started moving (one noisy pair is no velocity),
             # with that velocity's standard error per particle
-            gone = let_go_now & u.left_view[None, :]
+            gone = let_go_now & self._gone_moving[None, :]
             idx = np.flatnonzero(gone.any(axis=0))
             drawn = velocity_draws(mem.perc_vel, mem.velocity_std(model.config.noise.position_std), idx, model.K,
                                    u.rng)

@@ -56,7 +56,7 @@ class Teleports(Mechanism):
             u.tele = u.tele | (falling & ~u.following)
             u.moving, u.falling = moving & u.tele, falling & u.tele
         tele, falling = u.tele, u.falling
-        u.spinning = spinning = u.moving | falling
+        spinning = u.moving | falling
         # teleported in motion, an object keeps the detections' fitted velocity (falling, its
         # horizontal part, and the vertical one of a free fall, below); at rest, none
         mem.teleported(tele & ~spinning, falling)
@@ -86,7 +86,7 @@ class Teleports(Mechanism):
         tracked hand); with none, it was set moving (flicked, knocked) and physics takes it on at its
         velocity (:attr:`Draft.set_moving`)."""
         model, mem, cfg, state = self.model, self.model.memory, self.model.config, u.state
-        started = (u.spinning[None, :] & is_free(u.prev_modes) & (np.linalg.norm(
+        started = ((u.moving | u.falling)[None, :] & is_free(u.prev_modes) & (np.linalg.norm(
             state.velocities[..., :2], axis=-1) < MOVING_MAX_VERTICAL_SPEED))
         unreached = np.ones(model.M, dtype=bool) if u.far is None else u.far
         # seen moving beyond what the detection noise makes of a still object (a horizontal speed past
