@@ -41,5 +41,5 @@ def test_a_ball_seen_rolling_along_is_checked_against_each_particles_velocity_be
 def test_no_velocity_evidence_without_slack_or_in_the_papers_mode():
     for config in (EstimatorConfig(particles=3, noise=NoiseConfig(position_std=0.0, velocity_slack=0.0)),
                    EstimatorConfig.paper()):
-        model, mv = _rolling_ball_moves(config)
+        model, _ = _rolling_ball_moves(config)
         assert not any(isinstance(m, VelocityEvidence) for m in model.mechanisms)

@@ -4,9 +4,10 @@ The scene model (:class:`~estimator.model.SceneModel`) weighs a particle with a 
 callables ``term(evidence) -> (K,)`` that read what they need from one :class:`Evidence` (the
 per-update arrays) and call one of the pure functions of :mod:`estimator.model.likelihood`. A new
 term (a search look, a tracker pseudo-measurement) is a new function there, a term object here
-calling it, and one entry in the tuple :func:`~estimator.model.weighing.log_weight_terms` returns;
-data it needs that :class:`Evidence` does not hold yet becomes a new field of it (filled in
-:func:`~estimator.model.weighing.evidence`). Terms are added one after the other to the previous
+calling it, and one entry in the tuple :func:`~estimator.model.weighing.log_weight_terms` returns.
+A mechanism's own term lives in the mechanism's module (:meth:`Mechanism.terms
+<estimator.model.mechanisms.base.Mechanism.terms>`) and reads what that mechanism kept of the
+update (the velocity and deceleration evidence do so), not a new field of :class:`Evidence`. Terms are added one after the other to the previous
 log-weights, in the order of that tuple; exploded particles get -inf whatever the terms say.
 K particles, M objects.
 """

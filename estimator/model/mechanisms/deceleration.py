@@ -56,7 +56,7 @@ class DecelerationEvidence(Mechanism):
         self.weighed: tuple | None = None
         # (M,): :func:`~estimator.model.weighing.mean_innovation` of this update's check (NaN: none).
         # Every particle slowing a ball down the same wrong way widens its frictions' kernel at the
-        # next resampling (:meth:`commit` hands it to the model's surprise)
+        # next resampling (:meth:`after_weighing` hands it to the model's surprise)
         self.surprise = np.full(M, np.nan)
 
     def terms(self) -> tuple:
@@ -112,10 +112,14 @@ class DecelerationEvidence(Mechanism):
                 return half
         return fit
 
-    def commit(self, state, p, w, rng) -> dict:
-        if self.weighed is not None:  # the model's surprise is the larger of the velocities' and this
+    def after_weighing(self, ev, log_weights: np.ndarray) -> None:
+        """The model's surprise is the larger of the velocities' (the velocity evidence's, before this
+        in the list) and this update's deceleration check's."""
+        if self.weighed is not None:
             checked = self.weighed[0].any(axis=0) & np.isfinite(self.surprise)
             self.model.surprise[checked] = np.maximum(self.model.surprise[checked], self.surprise[checked])
+
+    def commit(self, state, p, w, rng) -> dict:
         self._dt_prev = float(p.dt)
         return {"roll_v0": np.asarray(p.move.velocities[..., :2], dtype=float).copy()}
 

@@ -74,8 +74,8 @@ class ReleaseOnLoss(Mechanism):
     def __init__(self, model, left_view: bool = True):
         super().__init__(model)
         self.left_view = left_view
-        self._gone_moving: np.ndarray | None = None  # (M,): this update's objects that left view moving
         """Whether an object seen moving along its support when it left view is let go in motion."""
+        self._gone_moving: np.ndarray | None = None  # (M,): this update's objects that left view moving
 
     def commit(self, state, p, w, rng) -> dict:
         return {"let_go_unseen": p.move.let_go_unseen}

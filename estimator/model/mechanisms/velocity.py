@@ -55,7 +55,7 @@ class VelocityEvidence(Mechanism):
         wrong the same way (its friction is outside what the particles hold), and its parameters are
         widened at the next resampling (:func:`~estimator.model.regularisation.regularise`)."""
         model = self.model
-        if self.checked is None or model.K < 2 or not np.any(np.isfinite(log_weights)):
+        if self.checked is None:
             return
         mask, predicted, seen, seen_std = self.checked
         std = np.sqrt(np.asarray(seen_std, float) ** 2 + model.config.noise.velocity_slack ** 2)
@@ -82,8 +82,5 @@ class VelocityTerm:
         if checked is None:
             return np.zeros(len(ev.poses))
         mask, predicted, seen, seen_std = checked
-        mask = mask & is_free(ev.modes)
-        if not np.any(mask):
-            return np.zeros(len(ev.poses))
         std = np.sqrt(np.asarray(seen_std, dtype=float) ** 2 + self.slack ** 2)
-        return velocity_log_likelihood(predicted, seen, std, mask, self.outlier_prob)
+        return velocity_log_likelihood(predicted, seen, std, mask & is_free(ev.modes), self.outlier_prob)
