@@ -70,6 +70,28 @@ def test_saved_worlds_come_back_after_bare_stepping():
             assert np.array_equal(after.poses, before.poses) and np.array_equal(after.velocities, before.velocities)
 
 
+def test_bare_stepping_without_the_resting_objects_puts_them_back_in_collision():
+    k, m = 3, 2
+    poses = np.zeros((k, m, 7))
+    poses[..., 6] = 1
+    poses[:, 1, 2] = TABLE_TOP + 0.05  # resting on the table
+    for workers in (0, 2):
+        with WorldPool(SCENE, k, workers) as pool:
+            b = batch(k, m, poses)
+            pool.run(b, 48, 0.045)
+            pool.run(b, 24, 0.045)  # at rest at both ends: put to sleep
+            pool.bare_step(24, resting=False)
+            assert len(pool.last_worker_seconds) == max(1, workers)
+            assert all(s >= 0 for s in pool.last_worker_seconds)
+            keep = batch(k, m, poses)
+            keep.reset = np.zeros((k, m), bool)
+            assert np.allclose(pool.run(keep, 0, 0.045).poses[:, 1, 2], TABLE_TOP + 0.05, atol=2e-3)
+            lift = poses.copy()
+            lift[:, 1, 2] += 0.2  # dropped again: the table stops it, so it collides once more
+            out = pool.run(batch(k, m, lift), 120, 0.045)
+            assert np.allclose(out.poses[:, 1, 2], TABLE_TOP + 0.05, atol=2e-3)
+
+
 def test_a_dead_worker_is_restarted_and_its_particles_reported_lost():
     k, m = 4, 2
     poses = np.zeros((k, m, 7))

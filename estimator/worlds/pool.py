@@ -267,15 +267,16 @@ class WorldPool:
             conn.send(("look", poses[lo:hi], place, targets, tuple(cameras), threshold, only[lo:hi]))
         return np.concatenate([self._receive(conn) for conn in self._conns], axis=1)[:, rows][:, first]
 
-    def bare_step(self, n_steps: int) -> None:
-        """Step every world ``n_steps`` times, with the same sharding and nothing else."""
-        t0 = time.perf_counter()
+    def bare_step(self, n_steps: int, resting: bool = True) -> None:
+        """Step every world ``n_steps`` times, with the same sharding and nothing else;
+        ``last_worker_seconds`` is then each shard's stepping time. ``resting=False``: with the
+        objects at rest out of collision detection (:meth:`_Shard.bare_step
+        <estimator.worlds.shard._Shard.bare_step>`; save and restore the worlds around it)."""
         if self._local is not None:
-            self._local.bare_step(n_steps)
-            self.last_worker_seconds = [time.perf_counter() - t0]
+            self.last_worker_seconds = [self._local.bare_step(n_steps, resting)]
             return
         for conn in self._conns:
-            conn.send(("bare", n_steps))
+            conn.send(("bare", n_steps, resting))
         self.last_worker_seconds = [self._receive(conn) for conn in self._conns]
 
     def save(self) -> None:

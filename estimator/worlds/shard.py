@@ -13,6 +13,7 @@ import numpy as np
 from physics.group import WorldGroup
 from physics.scene import CameraSpec, Scene
 from physics.sightlines import Solids
+from physics.sleep import asleep, set_colliding
 from physics.transforms import quat_rotate
 from physics.visibility import (
     Camera,
@@ -262,10 +263,27 @@ class _Shard:
             cache[slots[k]] = (poses[k].copy(), row, now[k])
         return vis
 
-    def bare_step(self, n_steps: int) -> None:
-        """Step every client ``n_steps`` times and nothing else (the benchmark's reference)."""
+    def bare_step(self, n_steps: int, resting: bool = True) -> float:
+        """Step every client ``n_steps`` times and nothing else (the benchmark's reference); returns
+        the seconds the stepping took. ``resting=False``: with every object asleep taken out of
+        collision detection for these steps and put back after (:func:`~physics.sleep.set_colliding`):
+        what stepping would cost if objects at rest cost nothing (a bound: what a moving object
+        would have hit among them is gone too). Bullet drops their contacts, so the worlds do not
+        come back exactly; the benchmark saves and restores them around the call."""
+        out = []
+        if not resting:
+            for g in self.groups:
+                for w in g.worlds:
+                    rows = asleep(w, [i for i in w.dynamic_indices.tolist() if not w.is_parked(i)])
+                    set_colliding(w, rows, False)
+                    out.append((w, rows))
+        t0 = time.perf_counter()
         for g in self.groups:
             g.step(n_steps)
+        seconds = time.perf_counter() - t0
+        for w, rows in out:
+            set_colliding(w, rows, True)
+        return seconds
 
     def save(self) -> None:
         """Save every client's state in memory (replacing any state saved before)."""
@@ -306,11 +324,11 @@ def _worker_main(conn, scene, settings, groups, buffer, n_particles, active):
                 except Exception:
                     conn.send(("error", traceback.format_exc()))
                 continue
-            if msg[0] in ("bare", "save", "restore"):
-                if msg[0] == "bare":
-                    shard.bare_step(msg[1])
-                else:
-                    getattr(shard, msg[0])()
+            if msg[0] == "bare":  # the reply carries the stepping's time
+                conn.send(("ok", shard.bare_step(*msg[1:])))
+                continue
+            if msg[0] in ("save", "restore"):
+                getattr(shard, msg[0])()
                 conn.send(("ok", time.perf_counter() - t0))
                 continue
             _, used, n_steps, d, lazy, moving, cameras = msg

@@ -57,15 +57,18 @@ def bag_table(names: list[str], configs: list[tuple[int, EstimatorConfig]]) -> I
 
 
 def scenario_rows(names: list[str], configs: list[tuple[int, EstimatorConfig]],
-                  max_updates: int | None = None) -> Iterator[dict]:
+                  max_updates: int | None = None, resting: bool = False) -> Iterator[dict]:
     """One row (:data:`SCENARIO_COLUMNS` and more) per scenario and ``(K, configuration)``, as each
-    is measured; progress on stderr. ``max_updates``: stop each stream after that many timed updates."""
+    is measured; progress on stderr. ``max_updates``: stop each stream after that many timed updates;
+    ``resting``: measure the resting objects' share of bare stepping too
+    (:func:`~experiments.bench.timing.time_stream`)."""
     for name in names:
         print(f"bench: simulating {name} (seed {SEED})", file=sys.stderr, flush=True)
         with scenario_stream(name) as (scene, frames):
             for k, cfg in configs:
                 print(f"bench: {name}, K={k}: {len(frames)} frames", file=sys.stderr, flush=True)
-                st = time_stream(scene, cfg, frames, np.random.default_rng(SEED), max_updates=max_updates)
+                st = time_stream(scene, cfg, frames, np.random.default_rng(SEED), max_updates=max_updates,
+                                 resting=resting)
                 shown = f"auto ({np.mean(st.particles):.0f}, max {max(st.particles)})" if k == "auto" and \
                     st.particles else k
                 yield {"scenario": name, "particles": shown, "workers": cfg.workers,

@@ -34,12 +34,13 @@ def bench_frames(scene: Scene, n: int, horizon: float, rng: np.random.Generator)
 
 
 def bench_one(k: int, n_objects: int, workers: int, updates: int = 20, warmup: int = 3,
-              seed: int = 0, config: EstimatorConfig | None = None) -> dict:
+              seed: int = 0, config: EstimatorConfig | None = None, resting: bool = False) -> dict:
     """Figures for one (K, N) configuration; ``config`` replaces the particle filter's defaults
-    (its particle count and workers are set to ``k`` and ``workers``)."""
+    (its particle count and workers are set to ``k`` and ``workers``); ``resting``: measure the
+    resting objects' share of bare stepping too (:func:`~experiments.bench.timing.time_stream`)."""
     scene = bench_scene(n_objects)
     cfg = bench_config(k, workers, config)
     rng = np.random.default_rng(seed)
     frames = bench_frames(scene, warmup + updates, cfg.reasoner.horizon, rng)
-    st = time_stream(scene, cfg, frames, rng, warmup=warmup)
+    st = time_stream(scene, cfg, frames, rng, warmup=warmup, resting=resting)
     return {"particles": k, "objects": n_objects, "workers": workers, **timing_row(st)}

@@ -13,6 +13,7 @@ slowest shard, messages, shared arrays), and each worker's time over its bare st
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import time
 from typing import Iterable
@@ -58,6 +59,7 @@ class StreamTiming:
     shard_s: list[float] = dataclasses.field(default_factory=list)
     over_s: list[float] = dataclasses.field(default_factory=list)
     parts_s: list[dict] = dataclasses.field(default_factory=list)  # the scene model's parts, per update
+    resting_s: list[tuple[float, float]] = dataclasses.field(default_factory=list)  # see time_stream
 
     @property
     def stream_s(self) -> float:
@@ -67,12 +69,18 @@ class StreamTiming:
 
 
 def time_stream(scene: Scene, cfg: EstimatorConfig, frames: Iterable[Frame], rng: np.random.Generator,
-                warmup: int = 0, max_updates: int | None = None) -> StreamTiming:
+                warmup: int = 0, max_updates: int | None = None, resting: bool = False) -> StreamTiming:
     """Build a :class:`SceneEstimator` (timed) and feed it ``frames`` (each ``update`` timed). After each
     reasoning step that simulated, the same worlds are stepped bare as many steps as it simulated
     (saved before and restored after, untimed). The first ``warmup`` reasoning steps are not recorded;
     it stops after ``max_updates`` recorded ones. Memory is sampled after construction and after every
-    update."""
+    update. ``resting``: the worlds are also stepped bare with their objects at rest out of collision
+    (:meth:`~estimator.worlds.pool.WorldPool.bare_step`), and ``resting_s`` gets the slowest shard's
+    stepping time with and without them, per update.
+
+    Saving and restoring puts every position and velocity back, but not all of Bullet's state (its
+    contacts' warm start, its sleep timers): the run goes on from worlds a little different from
+    those of a run that is not timed, as a run on another machine would."""
     t0 = time.perf_counter()
     est = SceneEstimator(scene, cfg, rng)
     st = StreamTiming(startup_s=time.perf_counter() - t0)
@@ -105,7 +113,14 @@ def time_stream(scene: Scene, cfg: EstimatorConfig, frames: Iterable[Frame], rng
                 dt_bare = time.perf_counter() - t0
                 bare_worker_s = list(pool.last_worker_seconds)
                 pool.restore()
+                if resting:
+                    pool.save()
+                    pool.bare_step(n_steps, resting=False)
+                    rest_worker_s = list(pool.last_worker_seconds)
+                    pool.restore()
                 if reasoning > warmup:
+                    if resting:
+                        st.resting_s.append((max(bare_worker_s), max(rest_worker_s)))
                     st.update_s.append(dt)
                     st.bare_s.append(dt_bare)
                     st.steps.append(n_steps)
@@ -138,7 +153,9 @@ def timing_row(st: StreamTiming) -> dict:
             "worker_overhead_us_per_particle": 1e6 * float(np.median(st.over_s)),
             "model_parts_ms_median": parts, "model_parts_slowest": slowest_parts(parts),
             **({"mean_particles": float(np.mean(st.particles)), "max_particles": int(np.max(st.particles))}
-               if st.particles else {})}
+               if st.particles else {}),
+            # the share of bare stepping that objects at rest cost (NaN where not measured)
+            "resting_share": float(np.median([1.0 - r / b for b, r in st.resting_s])) if st.resting_s else math.nan}
 
 
 def bench_config(k: int | str, workers: int, config: EstimatorConfig | None = None) -> EstimatorConfig:
@@ -173,4 +190,5 @@ BREAKDOWN_COLUMNS = [("main_ms_median", "main process (ms)", "{:.2f}"),
                      ("slowest_shard_ms_median", "slowest shard (ms)", "{:.1f}"),
                      ("exchange_ms_median", "exchange (ms)", "{:.2f}"),
                      ("worker_overhead_us_per_particle", "worker over bare (us/particle)", "{:.0f}"),
+                     ("resting_share", "resting share of bare", "{:.2f}"),
                      ("model_parts_slowest", "slowest model parts (ms)", "{}")]

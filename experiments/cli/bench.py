@@ -92,7 +92,8 @@ def add_bench_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--breakdown", action="store_true",
                    help="also print where an update's time goes: the main process's own work, the slowest "
                         "shard in its worker, the exchange (waiting for it, messages, shared arrays), and "
-                        "each worker's time over bare stepping per particle")
+                        "each worker's time over bare stepping per particle, and the share of bare stepping that "
+                        "objects at rest cost (the worlds stepped again with them out of collision)")
     p.add_argument("--rerun-overhead", action="store_true",
                    help="measure the cost of --rerun recording instead (e.g. --particles 64)")
     p.add_argument("--live", action="store_true",
@@ -134,7 +135,7 @@ def run_bench(args) -> int:
         for k, cfg in configs:
             for n in objects:
                 print(f"bench: K={k}, {n} objects", file=sys.stderr, flush=True)
-                yield bench_one(k, n, args.workers, updates, config=cfg)
+                yield bench_one(k, n, args.workers, updates, config=cfg, resting=args.breakdown)
 
     columns = (SYNTHETIC_COLUMNS + TIMING_COLUMNS + [("updates_per_s", "updates/s", "{:.1f}")]
                + RESOURCE_COLUMNS)
@@ -157,4 +158,4 @@ def _scenario_bench(args) -> int:
         from experiments.bench.live import LIVE_COLUMNS, live_rows
         meta.update(mode="live", load_average_at_start=list(os.getloadavg()))
         return report(args, LIVE_COLUMNS, live_rows(names, configs), meta)
-    return report(args, SCENARIO_COLUMNS, scenario_rows(names, configs, args.updates), meta)
+    return report(args, SCENARIO_COLUMNS, scenario_rows(names, configs, args.updates, args.breakdown), meta)
