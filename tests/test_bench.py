@@ -41,11 +41,16 @@ def test_bench_command_prints_json(capsys):
     parts = out["results"][0]["model_parts_ms_median"]  # the scene model's parts, the slowest first
     assert "Teleports.perceive" in parts and {"settle", "weigh", "commit"} <= set(parts)
     assert all(v >= 0 for v in parts.values()) and list(parts.values()) == sorted(parts.values(), reverse=True)
+    r = out["results"][0]  # dynamic objects per particle the updates moved, and those still moving
+    assert 0 <= r["moving_per_particle"] <= 2 and 0 <= r["moved_per_particle"] <= 2  # two boxes
+    shard = out["results"][0]["shard_parts_ms_median"]  # where the slowest shard's time went
+    assert {"step", "load", "read", "held and tests", "visibility"} <= set(shard)
+    assert all(v >= 0 for v in shard.values()) and list(shard.values()) == sorted(shard.values(), reverse=True)
     assert main(["bench", "--particles", "2", "--objects", "2", "--updates", "2", "--workers", "0",
                  "--breakdown"]) == 0
     out = capsys.readouterr().out.splitlines()
     assert out[0].startswith("| K | objects |") and "worker over bare (us/particle)" in out[0]
-    assert "slowest model parts (ms)" in out[0]
+    assert "slowest model parts (ms)" in out[0] and "slowest shard's parts (ms)" in out[0]
     assert out[1].startswith("|---|") and len(out) == 3 and out[2].startswith("| 2 | 2 |")
 
 

@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 
 from estimator.worlds.pool import BatchInput, WorldPool, shard_bounds
+from estimator.worlds.propagate import PARTS
 from helpers import TABLE_TOP, table_scene
 from physics.visibility import first_copies, visible_fractions
 
@@ -36,6 +37,29 @@ def test_in_process_and_worker_pools_agree_bit_for_bit():
         c = local.run(batch(k, m, poses), 24, 0.045)
         d = remote.run(batch(k, m, poses), 24, 0.045)
         assert np.array_equal(c.poses, d.poses)
+
+
+def test_each_shard_says_where_its_time_went():
+    k, m = 4, 2
+    poses = np.zeros((k, m, 7))
+    poses[..., 6] = 1
+    poses[:, 1, 2] = TABLE_TOP + 0.2  # falling: Bullet has work to do
+    for workers in (0, 2):
+        with WorldPool(SCENE, k, workers) as pool:
+            pool.run(batch(k, m, poses), 12, 0.045)
+            assert len(pool.last_worker_parts) == len(pool.last_worker_seconds) == max(1, workers)
+            for parts, seconds in zip(pool.last_worker_parts, pool.last_worker_seconds):
+                assert set(parts) == set(PARTS) | {"visibility"}
+                assert all(v >= 0 for v in parts.values()) and parts["step"] > 0
+                assert sum(parts.values()) <= seconds  # parts of the shard's time, nothing counted twice
+            # what the update moved: every world's box, loaded and still falling after 12 steps (5 cm)
+            total = {n: sum(c[n] for c in pool.last_worker_counts) for n in ("entries", "moved", "moving")}
+            assert total == {"entries": k, "moved": k, "moving": k}
+            keep = batch(k, m, poses)
+            keep.reset = np.zeros((k, m), bool)
+            pool.run(keep, 240, 0.045)  # nothing loaded: it falls onto the table and comes to rest
+            total = {n: sum(c[n] for c in pool.last_worker_counts) for n in ("entries", "moved", "moving")}
+            assert total == {"entries": k, "moved": 0, "moving": 0}
 
 
 def test_worker_errors_are_reported_and_the_pool_keeps_serving():

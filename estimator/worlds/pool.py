@@ -62,11 +62,13 @@ class WorldPool:
     contiguous run of clients. Use as a context manager or call :meth:`close`.
 
     After :meth:`run` (and :meth:`bare_step`), ``last_run_seconds`` is the wall time of the call in
-    this process and ``last_worker_seconds`` the time each shard took in its worker (the benchmark's
-    breakdown). A worker process that dies (killed, out of memory) is restarted by the next
-    :meth:`run`, which reports its particles as not finite (the caller re-seeds them) and counts it
-    in ``restarts``; an exception inside a live worker is a ``RuntimeError``. ``scene_boxes (M, 2,
-    3)``: the objects' world AABBs (m) at the scene's poses, read when the worlds were built.
+    this process and ``last_worker_seconds`` the time each shard took in its worker, and after
+    :meth:`run` ``last_worker_parts`` where each shard's time went and ``last_worker_counts`` what
+    it moved (``_Shard.run``'s ``last_parts`` and ``last_counts``; the benchmark's breakdown). A
+    worker process that dies (killed, out of memory) is restarted by the next :meth:`run`, which
+    reports its particles as not finite (the caller re-seeds them) and counts it in ``restarts``;
+    an exception inside a live worker is a ``RuntimeError``. ``scene_boxes (M, 2, 3)``: the
+    objects' world AABBs (m) at the scene's poses, read when the worlds were built.
 
     ``max_particles`` (default: ``n_particles``, a fixed count): the pool holds slots for that many
     particles, and :meth:`run` takes any number of particles up to it. Particle ``i`` lives in slot
@@ -93,6 +95,8 @@ class WorldPool:
         self._local: _Shard | None = None
         self.last_run_seconds = 0.0
         self.last_worker_seconds: list[float] = []
+        self.last_worker_parts: list[dict[str, float]] = []
+        self.last_worker_counts: list[dict[str, int]] = []
         self._procs, self._conns, self._bounds = [], [], []
         self.restarts = 0
         if workers <= 0:
@@ -162,6 +166,8 @@ class WorldPool:
                                                           lazy, moving, cameras), slots)
             self.last_run_seconds = time.perf_counter() - t0
             self.last_worker_seconds = [self.last_run_seconds]
+            self.last_worker_parts = [dict(self._local.last_parts)]
+            self.last_worker_counts = [dict(self._local.last_counts)]
             return out
         self._shared.write_inputs(batch, slots)
         for conn, (lo, hi) in zip(self._conns, self._bounds):
@@ -187,7 +193,9 @@ class WorldPool:
                 self._receive(self._conns[j])
                 self.restarts += 1
         self.last_run_seconds = time.perf_counter() - t0
-        self.last_worker_seconds = [payload if status == "ok" else 0.0 for status, payload in replies]
+        self.last_worker_seconds = [payload[0] if status == "ok" else 0.0 for status, payload in replies]
+        self.last_worker_parts = [payload[1] if status == "ok" else {} for status, payload in replies]
+        self.last_worker_counts = [payload[2] if status == "ok" else {} for status, payload in replies]
         return out
 
     def advance(self, batch: BatchInput, n_steps: int, d_sim_perc: float, lazy: bool = False,

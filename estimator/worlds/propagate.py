@@ -14,6 +14,7 @@ step:
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import pybullet as pb
@@ -24,7 +25,7 @@ from physics.world import World
 
 from .batch import PER_PARTICLE, BatchInput, BatchOutput, ParticleWorld, StepInput, StepOutput
 from .held import HeldObjects, depenetrate, glide_paths
-from .resting import SETTLED_REACH, restart_after_wake, sleep_resting
+from .resting import SETTLED_REACH, restart_after_wake, sleep_resting, slow
 
 MAX_SPEED = 50.0  # m/s: anything faster is a simulation that exploded
 
@@ -46,6 +47,15 @@ def propagate(pw: ParticleWorld, inp: StepInput, n_steps: int, d_sim_perc: float
                       bool(out.finite[0]))
 
 
+PARTS = ("prepare", "load", "step", "held and tests", "read", "finish")
+"""The parts of :func:`propagate_batch`'s time: the array work before the worlds (``prepare``);
+per client, setting parameters, loading states, waking what they touch, pushing out of penetration
+and setting up the held objects (``load``); Bullet's steps (``step``); the rest of the step loop:
+moving held objects, divergence tests (``held and tests``); reading the state back (``read``);
+assembling the output, the tests after the last step, putting resting objects to sleep
+(``finish``)."""
+
+
 LAST_STEPS = 2
 """With lazy tests, a test that falls due in the last this many steps of an update is left to the
 test after the last step (at most this many steps late)."""
@@ -60,7 +70,8 @@ def _due_steps(d: np.ndarray, v: np.ndarray, d_sim_perc: float, dt: float) -> np
 
 
 def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d_sim_perc: float,
-                    lazy: bool = False, moving: bool = False) -> BatchOutput:
+                    lazy: bool = False, moving: bool = False, parts: dict[str, float] | None = None,
+                    counts: dict[str, int] | None = None) -> BatchOutput:
     """Run Algorithm 1 for ``n_steps`` steps in each of the K worlds ``pws`` (all built from the same
     scene), particle ``k`` from the state in row ``k`` of ``batch``.
 
@@ -89,7 +100,14 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     only on its own row of ``batch`` and its own history, so that sharding whole clients over
     processes does not change any output. Returns a :class:`BatchOutput` whose ``visible`` is all
     zeros.
+
+    ``parts``: where the call's time goes is added to it (seconds, :data:`PARTS`). ``counts``: what
+    the update moved is added to it: ``entries`` (worlds times dynamic objects), ``moved`` (the
+    entries it loaded awake, held or pushed out of penetration) and ``moving`` (those not at rest at
+    its end, :func:`~estimator.worlds.resting.slow`).
     """
+    clock = time.perf_counter
+    t_part = clock()
     K = len(pws)
     if K == 0:
         raise ValueError("propagate_batch needs at least one world")
@@ -137,7 +155,10 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     switched_at: list[tuple[int, int, float]] = []
     read: list[tuple[list, list, list]] = [([], [], [])] * K
     speed_l = np.any(com_v != 0.0, axis=-1).tolist()
+    took = dict.fromkeys(PARTS, 0.0)
+    took["prepare"] = clock() - t_part
     for client, ks in clients.items():
+        t_part = clock()
         helds, watches, restart = [], [], []
         for k in ks:
             pw = pws[k]
@@ -165,11 +186,19 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
             # divergence, position of the world in ks, velocity of the target x, y, z]
             watches += [[i, w.uids[i], *target_l[k][i], due_l[k][i], 0.0, len(helds) - 1, *tvel_l[k][i]]
                         for i in dyn if checked_l[k][i]]
-        switched = _simulate(client, dt, helds, watches, n_steps, d_sim_perc, lazy, restart)
+        stepping = [0.0]
+        t_sim = clock()
+        took["load"] += t_sim - t_part
+        switched = _simulate(client, dt, helds, watches, n_steps, d_sim_perc, lazy, restart, stepping)
+        t_part = clock()
+        took["step"] += stepping[0]
+        took["held and tests"] += t_part - t_sim - stepping[0]
         switched_at += [(ks[j], i, d) for j, i, d in switched]
         tested += [(ks[item[7]], item[0], item[6]) for item in watches if item[6]]
         for k in ks:
             read[k] = pws[k].world.read_raw(dyn)
+        took["read"] += clock() - t_part
+    t_part = clock()
     poses, vel, aabbs = _assemble(w0, dyn, read, origins)
     # largest divergences: from the tests in the loop and, lazily, the test after the last step on
     # the state read back (an object that diverged during the last steps is held, at the
@@ -202,6 +231,14 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     poses[..., :3] -= origins
     aabbs -= origins[:, None]
     poses, vel = w0.link_frame(poses, vel)
+    took["finish"] = clock() - t_part
+    if counts is not None:
+        for name, n in (("entries", K * len(dyn)), ("moved", int(moved.sum())),
+                        ("moving", int((~slow(vel[:, dyn]) & finite[:, None]).sum()))):
+            counts[name] = counts.get(name, 0) + n
+    if parts is not None:
+        for name, seconds in took.items():
+            parts[name] = parts.get(name, 0.0) + seconds
     return BatchOutput(poses, vel, modes_out, max_d, aabbs, finite, np.zeros((K, M)))
 
 
@@ -247,16 +284,25 @@ def _assemble(w0: World, dyn: list[int], read: list[tuple[list, list, list]],
 
 
 def _simulate(client: int, dt: float, helds: list["HeldObjects"], watch: list[list], n_steps: int,
-              d_sim_perc: float, lazy: bool, restart: list[tuple] = ()) -> list[tuple[int, int, float]]:
+              d_sim_perc: float, lazy: bool, restart: list[tuple] = (),
+              stepping: list[float] | None = None) -> list[tuple[int, int, float]]:
     """The step loop of one client (the hot path, plain Python), for its worlds' held objects
     ``helds`` (one per world) and divergence tests ``watch`` (items updated in place); ``restart``
     (see :func:`~estimator.worlds.resting.restart_after_wake`) is applied after the first step. Returns the objects that switched to
     HELD during the loop as ``(world position, object, largest divergence)`` (lazily, the test
-    after the last step is left to the caller, on the state read back)."""
+    after the last step is left to the caller, on the state read back). ``stepping``: Bullet's
+    stepping time is added to its one entry (seconds)."""
     c = client
     get = pb.getBasePositionAndOrientation
     get_vel = pb.getBaseVelocity
     step = pb.stepSimulation
+    if stepping is not None:
+        clock, bullet_step = time.perf_counter, pb.stepSimulation
+
+        def step(physicsClientId: int) -> None:
+            t0 = clock()
+            bullet_step(physicsClientId=physicsClientId)
+            stepping[0] += clock() - t0
     out: list[tuple[int, int, float]] = []
     moving = [h for h in helds if h.items]
     s = 0

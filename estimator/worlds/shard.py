@@ -88,6 +88,8 @@ class _Shard:
         self._vis_caches: OrderedDict[tuple, dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]] = OrderedDict()
         self._cameras: dict[tuple, Camera] = {}
         self.scene, self.settings = scene, settings
+        self.last_parts: dict[str, float] = {}
+        self.last_counts: dict[str, int] = {}
         self.camera = Camera(scene.camera) if scene.camera is not None else None
         self.points = None
         if self.camera is not None:
@@ -158,7 +160,10 @@ class _Shard:
             moving: bool = False, cameras: tuple[CameraSpec, ...] | None = None) -> BatchOutput:
         """Propagate the worlds of the slots ``active (n,)`` bool from their rows of ``batch`` (one
         row per slot of the shard); the output has one row per slot in use, in increasing order of
-        slot."""
+        slot. ``last_parts`` then says where the time went (seconds: the parts of
+        :data:`~estimator.worlds.propagate.PARTS` and ``visibility``), ``last_counts`` what the
+        update moved (:func:`~estimator.worlds.propagate.propagate_batch`'s ``counts``)."""
+        self.last_parts, self.last_counts = {}, {}
         slots = self.use(active)
         if len(slots) < len(self.worlds):
             batch = BatchInput(*(getattr(batch, f)[slots] if getattr(batch, f) is not None else None
@@ -167,7 +172,10 @@ class _Shard:
             M = batch.poses.shape[1]
             return BatchOutput(np.zeros((0, M, 7)), np.zeros((0, M, 6)), np.zeros((0, M), np.int8), np.zeros((0, M)),
                                np.zeros((0, M, 2, 3)), np.zeros(0, bool), np.zeros((0, M)))
-        out = propagate_batch([self.worlds[k] for k in slots], batch, n_steps, d_sim_perc, lazy, moving)
+        self.last_parts = parts = {}
+        out = propagate_batch([self.worlds[k] for k in slots], batch, n_steps, d_sim_perc, lazy, moving, parts,
+                              self.last_counts)
+        t0 = time.perf_counter()
         q = np.flatnonzero(batch.vis_query) if batch.vis_query is not None else np.zeros(0, int)
         if cameras is None:
             cams = [self.camera] if self.camera is not None else []
@@ -176,6 +184,7 @@ class _Shard:
         if cams and len(q):  # several cameras: an object is as visible as the best of them shows it
             out.visible[:, q] = np.max([self._visibility(c, out.poses, out.finite, q, slots, out.aabbs)
                                         for c in cams], axis=0)
+        parts["visibility"] = time.perf_counter() - t0
         return out
 
     def look(self, poses: np.ndarray, place: np.ndarray, targets: np.ndarray, cameras: tuple[CameraSpec, ...],
@@ -335,7 +344,8 @@ def _worker_main(conn, scene, settings, groups, buffer, n_particles, active):
             try:
                 out = shard.run(shared.inputs(lo, hi), used, n_steps, d, lazy, moving, cameras)
                 shared.write_outputs(lo + np.flatnonzero(used), out)
-                conn.send(("ok", time.perf_counter() - t0))  # the reply carries the worker's time
+                # the worker's time, its parts, what it moved
+                conn.send(("ok", (time.perf_counter() - t0, shard.last_parts, shard.last_counts)))
             except Exception:  # report, keep serving
                 conn.send(("error", traceback.format_exc()))
     except (EOFError, KeyboardInterrupt):

@@ -60,6 +60,8 @@ class StreamTiming:
     over_s: list[float] = dataclasses.field(default_factory=list)
     parts_s: list[dict] = dataclasses.field(default_factory=list)  # the scene model's parts, per update
     resting_s: list[tuple[float, float]] = dataclasses.field(default_factory=list)  # see time_stream
+    shard_parts_s: list[dict] = dataclasses.field(default_factory=list)  # the slowest shard's parts, per update
+    moved: list[tuple[float, float]] = dataclasses.field(default_factory=list)  # per particle: moved, moving
 
     @property
     def stream_s(self) -> float:
@@ -104,6 +106,7 @@ def time_stream(scene: Scene, cfg: EstimatorConfig, frames: Iterable[Frame], rng
                 reasoning += 1
             if n_steps > 0:
                 run_s, worker_s = pool.last_run_seconds, list(pool.last_worker_seconds)
+                shard_parts = dict(pool.last_worker_parts[int(np.argmax(worker_s))]) if pool.last_worker_parts else {}
                 sizes = pool.shard_sizes  # the particles in use (they change with an adaptive count)
                 # right after the update, so that load on the machine affects both alike: the same
                 # worlds, the same number of steps, nothing else; then the worlds are put back
@@ -131,6 +134,12 @@ def time_stream(scene: Scene, cfg: EstimatorConfig, frames: Iterable[Frame], rng
                                                     in zip(worker_s, bare_worker_s, sizes) if n > 0])))
                     st.particles.append(est.K)
                     st.parts_s.append({k: v - before.get(k, 0.0) for k, v in est.model.seconds.items()})
+                    st.shard_parts_s.append(shard_parts)
+                    counts = {k: sum(c.get(k, 0) for c in pool.last_worker_counts)
+                              for k in ("entries", "moved", "moving")}
+                    if counts["entries"]:
+                        n = est.K
+                        st.moved.append((counts["moved"] / n, counts["moving"] / n))
             st.peak_memory_mb = max(st.peak_memory_mb, _rss_mb(pids))
             if max_updates is not None and len(st.update_s) >= max_updates:
                 break
@@ -143,6 +152,7 @@ def timing_row(st: StreamTiming) -> dict:
     """The figures of one measurement (times in ms unless named ``_s``)."""
     med, bare_med = float(np.median(st.update_s)), float(np.median(st.bare_s))
     parts = model_parts_ms(st.parts_s)
+    shard_parts = model_parts_ms(st.shard_parts_s)
     return {"updates": len(st.update_s), "steps_per_update": int(np.median(st.steps)),
             "update_ms_median": 1e3 * med, "update_ms_p95": 1e3 * float(np.percentile(st.update_s, 95)),
             "bare_step_ms_median": 1e3 * bare_med, "ratio": med / bare_med, "updates_per_s": 1.0 / med,
@@ -152,8 +162,13 @@ def timing_row(st: StreamTiming) -> dict:
             "slowest_shard_ms_median": 1e3 * float(np.median(st.shard_s)),
             "worker_overhead_us_per_particle": 1e6 * float(np.median(st.over_s)),
             "model_parts_ms_median": parts, "model_parts_slowest": slowest_parts(parts),
+            "shard_parts_ms_median": shard_parts, "shard_parts": slowest_parts(shard_parts, len(shard_parts)),
             **({"mean_particles": float(np.mean(st.particles)), "max_particles": int(np.max(st.particles))}
                if st.particles else {}),
+            # dynamic objects per particle the update moved (loaded awake, held, pushed out), and
+            # those not at rest at its end (medians over the updates)
+            "moved_per_particle": float(np.median([m for m, _ in st.moved])) if st.moved else math.nan,
+            "moving_per_particle": float(np.median([m for _, m in st.moved])) if st.moved else math.nan,
             # the share of bare stepping that objects at rest cost (NaN where not measured)
             "resting_share": float(np.median([1.0 - r / b for b, r in st.resting_s])) if st.resting_s else math.nan}
 
@@ -173,9 +188,10 @@ TIMING_COLUMNS = [("update_ms_median", "median (ms)", "{:.1f}"), ("update_ms_p95
                   ("bare_step_ms_median", "bare stepping (ms)", "{:.1f}"), ("ratio", "ratio", "{:.2f}")]
 RESOURCE_COLUMNS = [("startup_s", "startup (s)", "{:.2f}"), ("peak_memory_mb", "peak memory (MB)", "{:.0f}")]
 def model_parts_ms(parts: list[dict]) -> dict[str, float]:
-    """The median time (ms) per update of each part of the scene model (its mechanisms' hooks,
-    ``settle``, ``weigh``, ``commit``: :attr:`~estimator.model.SceneModel.seconds`) over the timed
-    updates ``parts``, the slowest first."""
+    """The median time (ms) per update of each part over the timed updates ``parts`` (seconds per
+    part, one dict per update), the slowest first: the scene model's parts (its mechanisms' hooks,
+    ``settle``, ``weigh``, ``commit``: :attr:`~estimator.model.SceneModel.seconds`) or the slowest
+    shard's (:attr:`~estimator.worlds.pool.WorldPool.last_worker_parts`)."""
     names = {k for p in parts for k in p}
     med = {k: 1e3 * float(np.median([p.get(k, 0.0) for p in parts])) for k in names}
     return dict(sorted(med.items(), key=lambda kv: (-kv[1], kv[0])))
@@ -191,4 +207,7 @@ BREAKDOWN_COLUMNS = [("main_ms_median", "main process (ms)", "{:.2f}"),
                      ("exchange_ms_median", "exchange (ms)", "{:.2f}"),
                      ("worker_overhead_us_per_particle", "worker over bare (us/particle)", "{:.0f}"),
                      ("resting_share", "resting share of bare", "{:.2f}"),
-                     ("model_parts_slowest", "slowest model parts (ms)", "{}")]
+                     ("moved_per_particle", "objects moved per particle", "{:.2f}"),
+                     ("moving_per_particle", "moving at the end per particle", "{:.2f}"),
+                     ("model_parts_slowest", "slowest model parts (ms)", "{}"),
+                     ("shard_parts", "slowest shard's parts (ms)", "{}")]
