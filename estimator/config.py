@@ -92,6 +92,13 @@ class EstimatorConfig:
       held still in the air), was moved by that particle's physics (knocked by something the
       particle let fall), not by an agent: its held episode is silent, no Pick and no Place or Push
       at its end (the paper reports a Pick for every divergence: off in paper mode).
+    * ``noise_aware_jumps``: a detection that jumped by more than ``d_perc_prev`` since the previous
+      update teleports its object (Algorithm 1) only if two detections of a still object would be
+      that far apart less than once in a thousand times, by the tracker's measured noise
+      (:meth:`~estimator.model.perception_memory.PerceptionMemory.jumped`): a 1 cm tracker's
+      detections of a resting object are more than 3.2 cm apart at one update in five, and every
+      such jump would put the object on a noisy detection and wake what it touches. Below 5.6 mm of
+      noise the threshold is ``d_perc_prev``, as in the paper (off in paper mode).
     * ``physics``: the particle worlds' engine settings; the solver stops at a residual of
       :data:`SOLVER_RESIDUAL` (the ground-truth simulator keeps pybullet's 1e-7); URDFs are
       loaded without their visual meshes and textures (much less memory and start-up); objects at
@@ -125,6 +132,7 @@ class EstimatorConfig:
     fresh_checks: bool = True
     moving_teleports: bool = True
     still_unacted: bool = True
+    noise_aware_jumps: bool = True
     static_clip: bool = True
     visibility_threshold: float = 0.3
     hypothesis_min_p: float = 0.02
@@ -169,7 +177,7 @@ class EstimatorConfig:
                    priors=ModePriors(release_on_loss=1.0, release_on_loss_carried=1.0, release_on_loss_still=1.0,
                                      let_go_moving=0.0),
                    negative_evidence=False, follow_hands=False, lazy_checks=False, fresh_checks=False,
-                   moving_teleports=False, still_unacted=False, static_clip=False)
+                   moving_teleports=False, still_unacted=False, static_clip=False, noise_aware_jumps=False)
 
 
 def with_adaptive_count(config: EstimatorConfig, min_particles: int | None = None,

@@ -3,6 +3,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy.stats import chi2
 
 from estimator.config import HandConfig, ReasonerConfig
 from estimator.model import initial_poses
@@ -415,3 +416,37 @@ def test_a_still_object_under_a_noisy_tracker_is_rarely_set_moving():
     moved = sum(bool(_still_then_lifted(0.01, rng, still_frames=90, lift_frames=0)[2]) for _ in range(runs))
     p = 1 - (1 - ONSET_FALSE_ALARM) ** 90
     assert moved <= runs * p + 3 * math.sqrt(runs * p * (1 - p)) + 1
+
+
+def test_a_jump_is_judged_against_the_trackers_noise():
+    # two detections of a still cup through a 1 cm tracker differ by N(0, 2 sigma^2) per axis: they
+    # are more than d_perc_prev = 3.2 cm apart at P(chi2_3 > 5.12) = 16 % of the updates; measured
+    # against the noise (the 1e-3 quantile of that difference) almost never
+    rng = np.random.default_rng(8)
+    rest = np.array([0.3, 0.3, 0.14])
+    mem = memory()
+    plain, aware, ticks = 0, 0, 0
+    for i in range(330):
+        t = i / 30.0
+        mem.record(Frame(t, {"cup": det(rest + rng.normal(0.0, 0.01, 3))}))
+        if i % 3 == 2:  # an update every third frame, as the filter reads them
+            mem.perc_vel
+            if t >= 1.0:  # the noise is measured by then
+                ticks += 1
+                plain += bool(mem.jumped()[CUP])
+                aware += bool(mem.jumped(noise_aware=True)[CUP])
+            mem.end_tick(mem.perceived(t), np.array([False, True, False]), np.zeros((3, 3)))
+    assert mem.noise.std == pytest.approx(0.01, rel=0.2)
+    p_plain = 0.16
+    assert plain >= ticks * p_plain - 3 * math.sqrt(ticks * p_plain * (1 - p_plain))
+    # at most the false-alarm rate of a noise measured 20 % low (the band asserted just above)
+    p_aware = float(chi2.sf((0.8 * ONSET_SIGMAS) ** 2, 3))
+    assert aware <= ticks * p_aware + 3 * math.sqrt(ticks * p_aware) + 1
+    # a real jump of 8 cm is one under the same noise
+    mem.record(Frame(11.0, {"cup": det(rest + [0.08, 0.0, 0.0])}))
+    assert mem.jumped(noise_aware=True)[CUP]
+    # a 3 mm tracker keeps the paper's threshold: a 4 cm move is a jump
+    mem3, _, _ = _still_then_lifted(0.003, rng, lift_frames=0)
+    mem3.end_tick(mem3.perceived(3.0), np.array([False, True, False]), np.zeros((3, 3)))
+    mem3.record(Frame(3.1, {"cup": det(rest + [0.04, 0.0, 0.0])}))
+    assert mem3.jumped(noise_aware=True)[CUP] and mem3.jumped()[CUP]

@@ -272,7 +272,7 @@ class SceneModel:
                   far=self._out_of_reach(frame, detected), poses=poses, vel=vel, prev_modes=state.modes.copy(),
                   predicted=poses.copy(),  # before teleports: what each particle expected
                   jitter=np.zeros((K, M, 3)), newly_known=newly_known,
-                  tele=perceived & (~mem.perceived_prev | mem.jumped() | newly_known),  # teleports, first sightings
+                  tele=perceived & (~mem.perceived_prev | mem.jumped(cfg.noise_aware_jumps) | newly_known),  # teleports, first sightings
                   moving=np.zeros(M, dtype=bool), falling=np.zeros(M, dtype=bool),
                    cover_t=np.full((K, M), np.nan), proposal=np.zeros(K),
                   # at rest in the particle (on a support, slower than rest_speed) before this update
