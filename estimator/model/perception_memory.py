@@ -298,12 +298,9 @@ class PerceptionMemory(HandsInMemory):
     def jumped(self, noise_aware: bool = False) -> np.ndarray:
         """Objects ``(M,)`` whose perceived position moved by more than ``d_perc_prev`` since the
         previous reasoning step (Algorithm 1); ``noise_aware``: and further than two detections of a
-        still object lie apart by noise alone but once in a thousand times
-        (:func:`~estimator.model.detection_noise.onset_distance` of sqrt(2) times the noise of the
-        latest detection, as :meth:`onset` takes it: the detector's ``position_std`` where it gave
-        one, else the tracker's noise measured so far; ``d_perc_prev`` until it is measured)."""
-        d = np.linalg.norm(self.last_pose[:, :3] - self.pose_at_tick[:, :3], axis=1)
-        floor = self.reasoner.d_perc_prev
+        still object lie apart by noise but once in a thousand times (``onset_distance`` of sqrt(2)
+        times the noise :meth:`onset` takes: the detector's, else the tracker's measured so far)."""
+        d, floor = np.linalg.norm(self.last_pose[:, :3] - self.pose_at_tick[:, :3], axis=1), self.reasoner.d_perc_prev
         if not noise_aware:
             return d > floor
         std = np.where(np.isfinite(self.last_std), self.last_std, self.noise.std)
