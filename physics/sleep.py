@@ -32,20 +32,6 @@ def sleep(world: World, indices) -> None:
         change(world.uids[i], -1, activationState=pb.ACTIVATION_STATE_SLEEP, physicsClientId=c)
 
 
-def set_colliding(world: World, indices, on: bool) -> None:
-    """Take objects ``indices`` (all their links) out of collision detection (``on=False``: filter
-    group and mask 0, no contact and no broadphase pair with anything, rays miss them) or put them
-    back (``on=True``: pybullet's filter of a dynamic body, group 1, mask all). A body out of
-    collision that is asleep stays where it is and costs almost nothing to step; Bullet drops its
-    contacts, so that putting it back is not an exact return to its former state."""
-    c = world.client
-    group, mask = (1, -1) if on else (0, 0)
-    for i in indices:
-        uid = world.uids[i]
-        for link in range(-1, pb.getNumJoints(uid, physicsClientId=c)):
-            pb.setCollisionFilterGroupMask(uid, link, group, mask, physicsClientId=c)
-
-
 def asleep(world: World, indices) -> list[int]:
     """Those of objects ``indices`` that are asleep (a sleeping body reads back exactly zero
     velocity; so does an awake one at exact rest, which is then taken as asleep)."""

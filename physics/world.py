@@ -65,8 +65,7 @@ class World:
 
     # -- life cycle ---------------------------------------------------------------------------------
     def close(self) -> None:
-        """Disconnect the pybullet client (a copy in a shared client leaves it to its group). Safe
-        to call twice."""
+        """Disconnect the pybullet client (a copy in a shared client leaves it to its group). Safe to call twice."""
         if getattr(self, "client", -1) >= 0:
             if self._owns_client:
                 try:
@@ -170,8 +169,7 @@ class World:
         get = pb.getBasePositionAndOrientation
         for i in idx:
             p, q = get(self.uids[i], physicsClientId=c)
-            flat.extend(p)
-            flat.extend(q)
+            flat.extend(p + q)
         raw = np.array(flat, dtype=float).reshape(len(idx), 7)
         raw[:, :3] -= self.origin
         return self.link_frame(raw, None, idx)[0]
@@ -216,8 +214,7 @@ class World:
             pb.resetBaseVelocity(self.uids[i], row[:3], row[3:], physicsClientId=c)
 
     def read_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Poses ``(M, 7)``, velocities ``(M, 6)`` and AABBs ``(M, 2, 3)`` of all objects, read in one
-        pass."""
+        """Poses ``(M, 7)``, velocities ``(M, 6)`` and AABBs ``(M, 2, 3)`` of all objects, read in one pass."""
         m = len(self.uids)
         flat_p, flat_v, flat_b = self.read_raw(range(m))
         raw = np.array(flat_p).reshape(m, 7)
@@ -244,6 +241,14 @@ class World:
         """Whether object ``index`` is parked (see the class docstring)."""
         return index in self._parked
 
+    def set_colliding(self, indices, on: bool) -> None:
+        """Put objects ``indices`` (all links) in collision detection (``on``: group 1, mask all, pybullet's for a
+        dynamic body) or out of it (group and mask 0: no contact, no pair, rays miss it; Bullet drops its contacts)."""
+        group, mask = (1, -1) if on else (0, 0)
+        for i in indices:
+            for link in range(-1, self._num_links[i]):
+                pb.setCollisionFilterGroupMask(self.uids[i], link, group, mask, physicsClientId=self.client)
+
     def _park(self, indices, heights) -> None:
         """Park dynamic objects ``indices`` set at ``heights`` (m, scene frame) below
         :data:`PARK_DEPTH` (no collisions, asleep, at rest) and un-park the others."""
@@ -255,9 +260,7 @@ class World:
             if parked == (i in self._parked):
                 continue
             uid = self.uids[i]
-            group, mask = (0, 0) if parked else (1, -1)  # pybullet's defaults for dynamic bodies
-            for link in range(-1, self._num_links[i]):
-                pb.setCollisionFilterGroupMask(uid, link, group, mask, physicsClientId=c)
+            self.set_colliding([i], not parked)
             if parked:
                 self._parked.add(i)
                 pb.resetBaseVelocity(uid, [0, 0, 0], [0, 0, 0], physicsClientId=c)
@@ -270,8 +273,7 @@ class World:
 
     def static_raw(self) -> tuple[np.ndarray, np.ndarray]:
         """Centre-of-mass poses ``(M, 7)`` and AABBs ``(M, 2, 3)`` of all objects in the scene frame,
-        as read when first asked (valid for the static objects, which never move; the other rows
-        are NaN)."""
+        as read when first asked (valid for the static objects, which never move; the other rows are NaN)."""
         if self._static_raw is None:
             m = len(self.uids)
             st = [int(i) for i in np.flatnonzero(self.static)]
@@ -368,8 +370,7 @@ class World:
         multi = []
         for k, i in enumerate(idx):
             lo, hi = get(self.uids[i], -1, physicsClientId=c)
-            flat.extend(lo)
-            flat.extend(hi)
+            flat.extend(lo + hi)
             if self._num_links[i]:
                 multi.append((k, i))
         out = np.array(flat, dtype=float).reshape(len(idx), 2, 3)

@@ -3,7 +3,7 @@ import pytest
 
 from helpers import TABLE_TOP, table_scene
 from physics.settings import PhysicsSettings
-from physics.sleep import asleep, near, set_colliding, sleep, touching, wake
+from physics.sleep import asleep, near, sleep, touching, wake
 from physics.world import World
 
 SCENE = table_scene({"id": "a", "box": {"size": [0.05, 0.05, 0.05]}, "pose": {"position": [0, 0, TABLE_TOP + 0.025]}},
@@ -35,24 +35,3 @@ def test_without_sleeping_nothing_sleeps():
         w.step(240)
         assert asleep(w, [1, 2, 3]) == []
         assert np.all(w.get_velocities([1, 2, 3]) != 0.0, axis=1).any()
-
-
-def test_bodies_out_of_collision_stay_asleep_in_place_and_collide_again_once_put_back():
-    with World(SCENE, PhysicsSettings(sleeping=True)) as w:
-        w.step(60)
-        sleep(w, [1, 2, 3])
-        w.step(5)
-        rest = w.get_poses([1, 2, 3])
-        set_colliding(w, [1, 2], False)
-        w.step(24)
-        assert np.array_equal(w.get_poses([1, 2, 3]), rest)  # asleep: nothing moves them
-        assert touching(w, [1]) == [] and touching(w, [3]) == [0]  # a has no contact left; c has
-        set_colliding(w, [1, 2], True)
-        wake(w, [1, 2])
-        w.step(60)
-        assert touching(w, [1]) == [0, 2]  # on the table again, carrying b
-        assert np.allclose(w.get_poses([1, 2])[:, :3], rest[:2, :3], atol=2e-3)
-        set_colliding(w, [2], False)
-        wake(w, [2])  # awake and out of collision: b falls through a and the table
-        w.step(60)
-        assert w.get_poses([2])[0, 2] < TABLE_TOP - 0.1

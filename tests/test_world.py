@@ -4,6 +4,8 @@ import pytest
 from helpers import TABLE_TOP, table_scene
 from physics.errors import SceneError
 from physics.scene import scene_from_dict
+from physics.settings import PhysicsSettings
+from physics.sleep import sleep, touching, wake
 from physics.world import FLOOR, World
 
 
@@ -172,3 +174,30 @@ def test_a_stated_rolling_friction_is_the_only_rolling_resistance():
     # unstated, Bullet's default damping stays: the ball slows, the faster the more
     silent = _rolling_speeds(None)
     assert silent[-1] < 0.9
+
+
+STACK = table_scene(
+    {"id": "a", "box": {"size": [0.05, 0.05, 0.05]}, "pose": {"position": [0, 0, TABLE_TOP + 0.025]}},
+    {"id": "b", "box": {"size": [0.05, 0.05, 0.05]}, "pose": {"position": [0, 0, TABLE_TOP + 0.075]}},
+    {"id": "c", "box": {"size": [0.05, 0.05, 0.05]}, "pose": {"position": [0.3, 0, TABLE_TOP + 0.025]}})
+
+
+def test_bodies_out_of_collision_stay_asleep_in_place_and_collide_again_once_put_back():
+    with World(STACK, PhysicsSettings(sleeping=True)) as w:
+        w.step(60)
+        sleep(w, [1, 2, 3])
+        w.step(5)
+        rest = w.get_poses([1, 2, 3])
+        w.set_colliding([1, 2], False)
+        w.step(24)
+        assert np.array_equal(w.get_poses([1, 2, 3]), rest)  # asleep: nothing moves them
+        assert touching(w, [1]) == [] and touching(w, [3]) == [0]  # a has no contact left; c has
+        w.set_colliding([1, 2], True)
+        wake(w, [1, 2])
+        w.step(60)
+        assert touching(w, [1]) == [0, 2]  # on the table again, carrying b
+        assert np.allclose(w.get_poses([1, 2])[:, :3], rest[:2, :3], atol=2e-3)
+        w.set_colliding([2], False)
+        wake(w, [2])  # awake and out of collision: b falls through a and the table
+        w.step(60)
+        assert w.get_poses([2])[0, 2] < TABLE_TOP - 0.1

@@ -13,7 +13,7 @@ import numpy as np
 from physics.group import WorldGroup
 from physics.scene import CameraSpec, Scene
 from physics.sightlines import Solids
-from physics.sleep import asleep, set_colliding
+from physics.sleep import asleep
 from physics.transforms import quat_rotate
 from physics.visibility import (
     Camera,
@@ -275,7 +275,7 @@ class _Shard:
     def bare_step(self, n_steps: int, resting: bool = True) -> float:
         """Step every client ``n_steps`` times and nothing else (the benchmark's reference); returns
         the seconds the stepping took. ``resting=False``: with every object asleep taken out of
-        collision detection for these steps and put back after (:func:`~physics.sleep.set_colliding`):
+        collision detection for these steps and put back after (:meth:`~physics.world.World.set_colliding`):
         what stepping would cost if objects at rest cost nothing (a bound: what a moving object
         would have hit among them is gone too). Bullet drops their contacts, so the worlds do not
         come back exactly; the benchmark saves and restores them around the call."""
@@ -284,14 +284,14 @@ class _Shard:
             for g in self.groups:
                 for w in g.worlds:
                     rows = asleep(w, [i for i in w.dynamic_indices.tolist() if not w.is_parked(i)])
-                    set_colliding(w, rows, False)
+                    w.set_colliding(rows, False)
                     out.append((w, rows))
         t0 = time.perf_counter()
         for g in self.groups:
             g.step(n_steps)
         seconds = time.perf_counter() - t0
         for w, rows in out:
-            set_colliding(w, rows, True)
+            w.set_colliding(rows, True)
         return seconds
 
     def save(self) -> None:
