@@ -99,6 +99,11 @@ class EstimatorConfig:
       detections of a resting object are more than 3.2 cm apart at one update in five, and every
       such jump would put the object on a noisy detection and wake what it touches. Below 5.6 mm of
       noise the threshold is ``d_perc_prev``, as in the paper (off in paper mode).
+    * ``freeze_unreachable``: with sleeping physics, objects at rest that nothing awake in their
+      particle can reach within the update (:func:`~estimator.worlds.frozen.unreachable`: a bound on
+      how far anything moves in it) are out of collision detection while the worlds step: a resting
+      object costs Bullet nearly as much as a moving one otherwise. Exact while the bound holds
+      (off in paper mode, whose worlds do not sleep).
     * ``physics``: the particle worlds' engine settings; the solver stops at a residual of
       :data:`SOLVER_RESIDUAL` (the ground-truth simulator keeps pybullet's 1e-7); URDFs are
       loaded without their visual meshes and textures (much less memory and start-up); objects at
@@ -133,6 +138,7 @@ class EstimatorConfig:
     moving_teleports: bool = True
     still_unacted: bool = True
     noise_aware_jumps: bool = True
+    freeze_unreachable: bool = True
     static_clip: bool = True
     visibility_threshold: float = 0.3
     hypothesis_min_p: float = 0.02
@@ -177,7 +183,8 @@ class EstimatorConfig:
                    priors=ModePriors(release_on_loss=1.0, release_on_loss_carried=1.0, release_on_loss_still=1.0,
                                      let_go_moving=0.0),
                    negative_evidence=False, follow_hands=False, lazy_checks=False, fresh_checks=False,
-                   moving_teleports=False, still_unacted=False, static_clip=False, noise_aware_jumps=False)
+                   moving_teleports=False, still_unacted=False, static_clip=False, noise_aware_jumps=False,
+                   freeze_unreachable=False)
 
 
 def with_adaptive_count(config: EstimatorConfig, min_particles: int | None = None,

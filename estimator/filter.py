@@ -194,7 +194,8 @@ class SceneEstimator:
         dt = 0.0 if self.t_tick is None else min(t - self.t_tick, cfg.reasoner.max_gap)
         proposal = model.propose(self.state, dt, self.rng)
         out = self.pool.advance(proposal.batch, int(round(dt / cfg.physics.time_step)), cfg.reasoner.d_sim_perc,
-                                cfg.lazy_checks, proposal.moving_targets, proposal.cameras, proposal.move.fused)
+                                cfg.lazy_checks, proposal.moving_targets, proposal.cameras, proposal.move.fused,
+                                cfg.freeze_unreachable)
         bad = ~out.finite  # exploded, or lost with their worker: weighed zero, then re-seeded
         if np.any(bad):
             log.warning("t=%.3f: %d particle simulation(s) exploded or lost; they are re-seeded from the "

@@ -150,58 +150,60 @@ def _settled(w):
 
 
 def _both(event):
-    """Run ``event(pw, out) -> output`` in a world that sleeps and in one that never does."""
+    """Run ``event(pw, w, out, freeze) -> output`` in a world that sleeps, freezing what nothing can
+    reach (as the estimator does) and not, and in one that never sleeps."""
     res = []
-    for sleeping in (True, False):
+    for sleeping, freeze in ((True, True), (True, False), (False, False)):
         with World(STACK, PhysicsSettings(sleeping=sleeping)) as w:
             pw, out = _settled(w)
             if sleeping:  # the resting objects are asleep: they read back exactly zero velocity
                 assert np.all(out.velocities[:, 1:] == 0.0)
-            res.append(event(pw, w, out))
-    return res
+            res.append(event(pw, w, out, freeze))
+    assert np.allclose(res[0][:, :3], res[1][:, :3], atol=1e-3)  # freezing changes nothing that matters
+    return res[1:]
 
 
 def test_a_sleeping_object_that_is_reset_falls():
-    def event(pw, w, out):
+    def event(pw, w, out, freeze):
         poses = out.poses.copy()
         poses[3, 2] += 0.05  # the ball, 5 cm up
         reset = np.array([False, False, False, True])
-        return propagate(pw, inputs(w, poses=poses, velocities=out.velocities, reset=reset), 48, 0.045).poses
+        return propagate(pw, inputs(w, poses=poses, velocities=out.velocities, reset=reset), 48, 0.045, freeze=freeze).poses
     slept, awake = _both(event)
     assert slept[3, 2] == pytest.approx(TABLE_TOP + 0.03, abs=2e-3)  # not left floating
     assert np.allclose(slept[:, :3], awake[:, :3], atol=1e-3)
 
 
 def test_a_sleeping_object_whose_support_is_removed_falls():
-    def event(pw, w, out):
+    def event(pw, w, out, freeze):
         poses = out.poses.copy()
         poses[1, :3] = [0.5, -0.2, TABLE_TOP + 0.025]  # the bottom block is taken away
         reset = np.array([False, True, False, False])
-        return propagate(pw, inputs(w, poses=poses, velocities=out.velocities, reset=reset), 48, 0.045).poses
+        return propagate(pw, inputs(w, poses=poses, velocities=out.velocities, reset=reset), 48, 0.045, freeze=freeze).poses
     slept, awake = _both(event)
     assert slept[2, 2] == pytest.approx(TABLE_TOP + 0.025, abs=2e-3)  # the top block fell onto the table
     assert np.allclose(slept[:, :3], awake[:, :3], atol=1e-3)
 
 
 def test_a_sleeping_object_that_is_hit_moves():
-    def event(pw, w, out):
+    def event(pw, w, out, freeze):
         poses, vel = out.poses.copy(), out.velocities.copy()
         poses[3, :3] = [0.15, 0.0, TABLE_TOP + 0.03]  # the ball, rolling at 1.5 m/s into the stack
         vel[3, :3] = [-1.5, 0, 0]
         reset = np.array([False, False, False, True])
-        return propagate(pw, inputs(w, poses=poses, velocities=vel, reset=reset), 48, 0.045).poses
+        return propagate(pw, inputs(w, poses=poses, velocities=vel, reset=reset), 48, 0.045, freeze=freeze).poses
     slept, awake = _both(event)
     assert np.linalg.norm(slept[1:3, :2], axis=1).min() > 0.01  # the blocks were pushed
     assert np.allclose(slept[:, :3], awake[:, :3], atol=5e-3)
 
 
 def test_a_sleeping_object_on_a_held_object_moves_with_it():
-    def event(pw, w, out):
+    def event(pw, w, out, freeze):
         target = out.poses.copy()
         target[1, 0] += 0.03  # the bottom block is held and slid 3 cm
         modes = np.array([FREE, HELD, FREE, FREE], np.int8)
         return propagate(pw, inputs(w, poses=out.poses, velocities=out.velocities, modes=modes, target=target,
-                                    reset=np.zeros(4, bool)), 24, 0.045).poses
+                                    reset=np.zeros(4, bool)), 24, 0.045, freeze=freeze).poses
     slept, awake = _both(event)
     assert slept[2, 0] > 0.01  # the top block rode along (dragged by friction: a millimetre either way)
     assert np.allclose(slept[:, :3], awake[:, :3], atol=2e-3)

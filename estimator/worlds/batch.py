@@ -11,6 +11,8 @@ import numpy as np
 
 from physics.world import World
 
+from .frozen import local_boxes
+
 PARAM_NAMES = ("lateral_friction", "rolling_friction", "spinning_friction", "restitution", "mass")
 """Columns of the per-object physical parameter arrays ``(..., M, 5)`` (mass in kg)."""
 
@@ -84,13 +86,26 @@ class BatchOutput(StepOutput):
 
 
 class ParticleWorld:
-    """A persistent world for one particle slot, remembering the parameters last applied."""
+    """A persistent world for one particle slot, remembering the parameters last applied.
+
+    ``contactless``: objects an update took out of collision (:mod:`~estimator.worlds.frozen`) and
+    that have not been awake since: Bullet has forgotten their contacts. ``boxes``: the objects'
+    body-frame boxes (:func:`~estimator.worlds.frozen.local_boxes`), measured when first asked."""
 
     def __init__(self, world: World):
         self.world = world
         self.dynamic = [int(i) for i in world.dynamic_indices]
+        self.contactless: set[int] = set()
+        self.stepped = False  # stepped since its last loads (else what it holds is awake at zero velocity)
+        self._boxes: tuple[np.ndarray, np.ndarray] | None = None
         self._params: np.ndarray | None = None
         self._params_key: bytes = b""
+
+    @property
+    def boxes(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._boxes is None:
+            self._boxes = local_boxes(self.world)
+        return self._boxes
 
     def apply_params(self, params: np.ndarray) -> None:
         key = params.tobytes()

@@ -20,10 +20,11 @@ import numpy as np
 import pybullet as pb
 
 from actions.modes import HELD, is_free, is_held
-from physics.sleep import asleep, near, touching, wake
+from physics.sleep import asleep, near, sleep, touching, wake
 from physics.world import World
 
 from .batch import PER_PARTICLE, BatchInput, BatchOutput, ParticleWorld, StepInput, StepOutput
+from .frozen import to_freeze
 from .held import HeldObjects, depenetrate, glide_paths
 from .resting import SETTLED_REACH, restart_after_wake, sleep_resting, slow
 
@@ -38,11 +39,11 @@ few steps late, at the latest after the last step)."""
 
 
 def propagate(pw: ParticleWorld, inp: StepInput, n_steps: int, d_sim_perc: float,
-              lazy: bool = False, moving: bool = False) -> StepOutput:
+              lazy: bool = False, moving: bool = False, freeze: bool = False) -> StepOutput:
     """Run Algorithm 1 for ``n_steps`` steps in one particle's world (see :func:`propagate_batch`)."""
     batch = BatchInput(*(None if getattr(inp, f) is None else np.asarray(getattr(inp, f))[None]
                          for f in PER_PARTICLE))
-    out = propagate_batch([pw], batch, n_steps, d_sim_perc, lazy, moving)
+    out = propagate_batch([pw], batch, n_steps, d_sim_perc, lazy, moving, freeze=freeze)
     return StepOutput(out.poses[0], out.velocities[0], out.modes[0], out.max_divergence[0], out.aabbs[0],
                       bool(out.finite[0]))
 
@@ -71,7 +72,7 @@ def _due_steps(d: np.ndarray, v: np.ndarray, d_sim_perc: float, dt: float) -> np
 
 def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d_sim_perc: float,
                     lazy: bool = False, moving: bool = False, parts: dict[str, float] | None = None,
-                    counts: dict[str, int] | None = None) -> BatchOutput:
+                    counts: dict[str, int] | None = None, freeze: bool = False) -> BatchOutput:
     """Run Algorithm 1 for ``n_steps`` steps in each of the K worlds ``pws`` (all built from the same
     scene), particle ``k`` from the state in row ``k`` of ``batch``.
 
@@ -101,10 +102,14 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     processes does not change any output. Returns a :class:`BatchOutput` whose ``visible`` is all
     zeros.
 
+    With ``freeze=True`` (and sleeping), objects at rest that nothing awake can reach during the
+    update (:func:`~estimator.worlds.frozen.unreachable`) are out of collision detection while the
+    worlds step, and back in it before the state is read.
+
     ``parts``: where the call's time goes is added to it (seconds, :data:`PARTS`). ``counts``: what
     the update moved is added to it: ``entries`` (worlds times dynamic objects), ``moved`` (the
-    entries it loaded awake, held or pushed out of penetration) and ``moving`` (those not at rest at
-    its end, :func:`~estimator.worlds.resting.slow`).
+    entries it loaded awake, held or pushed out of penetration), ``moving`` (those not at rest at
+    its end, :func:`~estimator.worlds.resting.slow`) and ``frozen``.
     """
     clock = time.perf_counter
     t_part = clock()
@@ -136,17 +141,26 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
         settled = batch.settled & moved & ~held_mask & ~depen_mask
         moved &= ~settled
     reset_l, depen_l, moved_l = reset.tolist(), depen_mask.tolist(), moved.tolist()
+    reset_any = reset.any(axis=1).tolist()
     settled_l = settled.tolist()
     # watched objects and the first step at which each one needs testing
     checked = batch.check & is_free(batch.modes) & dyn_mask
     tvel = np.where(checked[..., None], batch.target_vel[..., :3], 0.0) if moving else np.zeros((K, M, 3))
     # where each target is at the update's start: a moving target reaches its pose at the end
-    target_com = w0.com_frame(batch.target)[0][..., :3] + origins - tvel * (n_steps * dt)
+    target_com, target_orn = np.split(w0.com_frame(batch.target)[0], [3], axis=-1)
+    target_com = target_com + origins - tvel * (n_steps * dt)
     due = np.ones((K, M), dtype=np.int64)
     if lazy:
         d0 = np.linalg.norm(com_p[..., :3] - target_com, axis=-1)
         due = _due_steps(d0, np.linalg.norm(com_v[..., :3] - tvel, axis=-1), d_sim_perc, dt)
     checked_l, target_l, due_l, tvel_l = checked.tolist(), target_com.tolist(), due.tolist(), tvel.tolist()
+    frozen = np.zeros((K, M), dtype=bool)
+    if freeze and sleeping and n_steps > 0:
+        stepped = np.array([pw.stepped for pw in pws])[:, None]  # loaded at rest and never stepped: awake
+        frozen = to_freeze(pws[0].boxes, com_p, com_v, target_com, tvel, target_orn, checked, held_mask,
+                              moved | (reset & ~settled) | ~stepped, dyn_mask, n_steps * dt, d_sim_perc,
+                              w0.settings.gravity)
+    frozen_l = frozen.tolist()
     glides = _glides(pws, batch, held_mask, n_steps)
     clients: dict[int, list[int]] = {}
     for k, pw in enumerate(pws):
@@ -159,13 +173,16 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     took["prepare"] = clock() - t_part
     for client, ks in clients.items():
         t_part = clock()
-        helds, watches, restart = [], [], []
+        helds, watches, restart, thawed = [], [], [], []
         for k in ks:
             pw = pws[k]
             w = pw.world
             pw.apply_params(batch.params[k])
             rows = [i for i in dyn if moved_l[k][i]] if True in moved_l[k] else []
             woken = rows + touching(w, rows) if sleeping and rows else []  # contacts before the reset
+            if woken and pw.contactless:  # contacts a freeze made Bullet forget: the boxes that touch
+                stale = pw.contactless if pw.contactless.isdisjoint(rows) else None
+                woken += [j for j in near(w, rows, 0.0) if (stale is None or j in stale) and j not in woken]
             if True in reset_l[k]:
                 loads = [i for i in dyn if reset_l[k][i]]
                 if sleeping and n_steps > 0:
@@ -177,7 +194,17 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
             if True in depen_l[k]:
                 depenetrate(w, [i for i in dyn if depen_l[k][i]])
             if rows and True in settled_l[k]:  # ...unless something moved is (or was) near it
-                wake(w, [i for i in near(w, rows, SETTLED_REACH) if settled_l[k][i]])
+                near_settled = [i for i in near(w, rows, SETTLED_REACH) if settled_l[k][i]]
+                wake(w, near_settled)
+                woken += near_settled
+            if True in frozen_l[k]:
+                fz = [i for i in dyn if frozen_l[k][i] and i not in woken and not w.is_parked(i)]
+                if True in reset_l[k]:  # a settled load (not woken by its load): asleep, for sure
+                    sleep(w, [i for i in fz if reset_l[k][i]])
+                w.set_colliding(fz, False)
+                pw.contactless.update(fz)
+                thawed.append((w, fz))
+            pw.contactless.difference_update(woken)
             held = HeldObjects(w, batch.target[k], batch.target_vel[k], batch.contents[k], n_steps, moving)
             for h in glides.get(k, ()):
                 held.glide(*h)
@@ -198,6 +225,10 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
         tested += [(ks[item[7]], item[0], item[6]) for item in watches if item[6]]
         for k in ks:
             read[k] = pws[k].world.read_raw(dyn)
+        for w, fz in thawed:
+            w.set_colliding(fz, True)
+        for k in ks:
+            pws[k].stepped = n_steps > 0 or (pws[k].stepped and not reset_any[k])
         took["read"] += clock() - t_part
     t_part = clock()
     poses, vel, aabbs = _assemble(w0, dyn, read, origins)
@@ -235,7 +266,7 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     took["finish"] = clock() - t_part
     if counts is not None:
         for name, n in (("entries", K * len(dyn)), ("moved", int(moved.sum())),
-                        ("moving", int((~slow(vel[:, dyn]) & finite[:, None]).sum()))):
+                        ("moving", int((~slow(vel[:, dyn]) & finite[:, None]).sum())), ("frozen", int(frozen.sum()))):
             counts[name] = counts.get(name, 0) + n
     if parts is not None:
         for name, seconds in took.items():

@@ -61,7 +61,7 @@ class StreamTiming:
     parts_s: list[dict] = dataclasses.field(default_factory=list)  # the scene model's parts, per update
     resting_s: list[tuple[float, float]] = dataclasses.field(default_factory=list)  # see time_stream
     shard_parts_s: list[dict] = dataclasses.field(default_factory=list)  # the slowest shard's parts, per update
-    moved: list[tuple[float, float]] = dataclasses.field(default_factory=list)  # per particle: moved, moving
+    moved: list[tuple[float, float, float]] = dataclasses.field(default_factory=list)  # per particle: moved, moving, frozen
 
     @property
     def stream_s(self) -> float:
@@ -136,10 +136,10 @@ def time_stream(scene: Scene, cfg: EstimatorConfig, frames: Iterable[Frame], rng
                     st.parts_s.append({k: v - before.get(k, 0.0) for k, v in est.model.seconds.items()})
                     st.shard_parts_s.append(shard_parts)
                     counts = {k: sum(c.get(k, 0) for c in pool.last_worker_counts)
-                              for k in ("entries", "moved", "moving")}
+                              for k in ("entries", "moved", "moving", "frozen")}
                     if counts["entries"]:
                         n = est.K
-                        st.moved.append((counts["moved"] / n, counts["moving"] / n))
+                        st.moved.append((counts["moved"] / n, counts["moving"] / n, counts["frozen"] / n))
             st.peak_memory_mb = max(st.peak_memory_mb, _rss_mb(pids))
             if max_updates is not None and len(st.update_s) >= max_updates:
                 break
@@ -166,9 +166,10 @@ def timing_row(st: StreamTiming) -> dict:
             **({"mean_particles": float(np.mean(st.particles)), "max_particles": int(np.max(st.particles))}
                if st.particles else {}),
             # dynamic objects per particle the update moved (loaded awake, held, pushed out), and
-            # those not at rest at its end (medians over the updates)
-            "moved_per_particle": float(np.median([m for m, _ in st.moved])) if st.moved else math.nan,
-            "moving_per_particle": float(np.median([m for _, m in st.moved])) if st.moved else math.nan,
+            # those not at rest at its end, and those frozen (out of collision) while it stepped
+            # (medians over the updates)
+            **{name: float(np.median([m[j] for m in st.moved])) if st.moved else math.nan
+               for j, name in enumerate(("moved_per_particle", "moving_per_particle", "frozen_per_particle"))},
             # the share of bare stepping that objects at rest cost (NaN where not measured)
             "resting_share": float(np.median([1.0 - r / b for b, r in st.resting_s])) if st.resting_s else math.nan}
 
@@ -209,5 +210,6 @@ BREAKDOWN_COLUMNS = [("main_ms_median", "main process (ms)", "{:.2f}"),
                      ("resting_share", "resting share of bare", "{:.2f}"),
                      ("moved_per_particle", "objects moved per particle", "{:.2f}"),
                      ("moving_per_particle", "moving at the end per particle", "{:.2f}"),
+                     ("frozen_per_particle", "frozen per particle", "{:.2f}"),
                      ("model_parts_slowest", "slowest model parts (ms)", "{}"),
                      ("shard_parts", "slowest shard's parts (ms)", "{}")]

@@ -1,0 +1,139 @@
+"""Objects that an update cannot reach: taken out of collision detection while it steps.
+
+A sleeping body still costs Bullet every step: its broadphase pairs with the table and its
+neighbours are found and filtered again, although no contact of a sleeping pair is solved (a body
+asleep costs nearly what an awake one at rest does; objects at rest are most of the stepping time
+on the cluttered scenes). Out of collision detection (collision group 0) it costs nothing. That
+is exact only for an object that nothing awake can touch during the update, because no contact
+with it can then be made. This module decides which objects are such, from the particles' arrays
+and a bound on how far anything can move in one update of ``T`` seconds:
+
+* an object *awake* at the update's start (loaded, held, pushed out of penetration, moving, or
+  tested against a perception it may be set to) stays in the box that holds its own box (its
+  body-frame box at a pose) where it is, where its velocity takes it in ``T`` and at its target
+  (held objects glide there; a tested one may be set there), widened by how far its spin or its
+  glide's turn moves its points and by ``g T^2 / 2 + margin`` (a fall, pushes out of
+  penetration, the contact distance);
+* an object at rest (its box exact: its body-frame box at its pose) that comes within that of
+  something awake may be hit. Its points then move at most ``4 v T + g T^2 / 2 + margin``, with
+  ``v`` the fastest point of anything awake in the particle (speed plus spin times bounding
+  radius, or the speed of a glide): an object at rest that is hit leaves with its contact point at
+  most twice as fast as what hit it, and its other points, turning, at most about twice that
+  again. Whatever comes within that reach of its box may be hit in turn, until nothing more is
+  reached.
+
+What is left is *frozen* for the update: :func:`~estimator.worlds.propagate.propagate_batch` takes
+it out of collision detection after loading and puts it back before reading the state out, so that
+rays (visibility) and the next update see it as always. Bullet forgets the contacts of a body it
+takes out of collision, and a sleeping pair does not make them again: the caller must not rely on
+a frozen object's old contacts (:attr:`~estimator.worlds.batch.ParticleWorld.contactless`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from physics.transforms import quat_angle, quat_to_matrix
+from physics.world import World
+
+FREEZE_MARGIN = 0.02
+"""m: added to the reach of an update: what pushing an object out of penetration and the
+regularisation jitter may move it by, and the contact distance of Bullet's pairs."""
+
+
+def local_boxes(world: World) -> tuple[np.ndarray, np.ndarray]:
+    """Body-frame boxes about each object's centre of mass: centres ``(M, 3)`` and half-extents
+    ``(M, 3)`` (m), from the bounding box the world holds now and the object's orientation (exact
+    for an object axis-aligned now, larger otherwise; zeros for static objects, never frozen)."""
+    M = world.num_objects
+    centre, half = np.zeros((M, 3)), np.zeros((M, 3))
+    dyn = [int(i) for i in world.dynamic_indices]
+    if dyn:
+        boxes = world.aabbs(dyn)  # (n, 2, 3), scene frame
+        com = world.com_frame(world.get_poses(dyn)[None], indices=dyn)[0][0]
+        rot_t = np.swapaxes(quat_to_matrix(com[:, 3:]), -1, -2)  # world -> body
+        centre[dyn] = np.einsum("nij,nj->ni", rot_t, boxes.mean(axis=1) - com[:, :3])
+        half[dyn] = np.einsum("nij,nj->ni", np.abs(rot_t), 0.5 * (boxes[:, 1] - boxes[:, 0]))
+    return centre, half
+
+
+def _within(lo: np.ndarray, hi: np.ndarray, lo2: np.ndarray, hi2: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """``(K, M, M)`` bool: whether boxes ``lo, hi (K, M, 3)`` (axis 1) and ``lo2, hi2 (K, M, 3)``
+    (axis 2) come closer than ``dist (K,)`` (m)."""
+    total = np.zeros(lo.shape[:2] + lo2.shape[1:2])
+    for a in range(3):  # one axis at a time: contiguous (K, M, M) arrays
+        lo_a, hi_a, lo2_a, hi2_a = (np.ascontiguousarray(x[..., a]) for x in (lo, hi, lo2, hi2))
+        sep = np.maximum(lo_a[:, :, None] - hi2_a[:, None], lo2_a[:, None] - hi_a[:, :, None])
+        np.maximum(sep, 0.0, out=sep)
+        total += sep * sep
+    return total < np.square(dist)[:, None, None]
+
+
+def _world_boxes(poses: np.ndarray, boxes: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned boxes ``lo, hi (..., M, 3)`` of the body-frame ``boxes`` at centre-of-mass
+    ``poses (..., M, 7)``."""
+    rot = quat_to_matrix(poses[..., 3:])
+    mid = poses[..., :3] + np.einsum("...mij,mj->...mi", rot, boxes[0])
+    ext = np.einsum("...mij,mj->...mi", np.abs(rot), boxes[1])
+    return mid - ext, mid + ext
+
+
+def unreachable(com_poses: np.ndarray, ends: np.ndarray, spread: np.ndarray, speeds: np.ndarray,
+                boxes: tuple[np.ndarray, np.ndarray], resting: np.ndarray, awake: np.ndarray, horizon: float,
+                gravity: float = 9.81, margin: float = FREEZE_MARGIN) -> np.ndarray:
+    """Which resting objects no awake object can touch during an update (see the module docstring).
+
+    com_poses ``(K, M, 7)``: centre-of-mass poses at the update's start (m, quaternions x, y, z, w).
+    ends ``(K, M, 2, 7)``: two more centre-of-mass poses each awake object may take during the
+    update (where its velocity takes it, its target). spread ``(K, M)`` (m): how far its points
+    may move by turning. speeds ``(K, M)`` (m/s): the fastest point of each awake
+    object. boxes: :func:`local_boxes`. resting ``(K, M)`` bool: the candidates (asleep, not moved,
+    not able to switch mode). awake ``(K, M)`` bool: everything that moves or may (static objects
+    and candidates excluded). horizon (s): the update's length. Returns ``(K, M)`` bool, a subset of
+    ``resting``."""
+    frozen = resting & ~awake
+    if not frozen.any():
+        return frozen
+    lo_r, hi_r = _world_boxes(com_poses, boxes)  # (K, M, 3) each
+    lo_e, hi_e = _world_boxes(ends.swapaxes(1, 2), boxes)  # (K, 2, M, 3)
+    fall = 0.5 * abs(gravity) * horizon ** 2 + margin
+    lo = np.minimum(lo_r, lo_e.min(axis=1)) - spread[..., None]
+    hi = np.maximum(hi_r, hi_e.max(axis=1)) + spread[..., None]
+    vmax = np.where(awake, speeds, 0.0).max(axis=1, initial=0.0)  # (K,)
+    reach = 4.0 * vmax * horizon + fall
+    # candidate (axis 1) within reach of an awake object's sweep, or of a hit one's box (axis 2)
+    moved = _within(lo_r, hi_r, lo, hi, np.full(len(reach), fall))
+    hit = (moved & awake[:, None, :]).any(axis=2) & frozen
+    if hit.any():
+        pushed = _within(lo_r, hi_r, lo_r, hi_r, reach)
+    while hit.any():
+        frozen &= ~hit
+        hit = (pushed & hit[:, None, :]).any(axis=2) & frozen
+    return frozen
+
+
+def to_freeze(boxes: tuple[np.ndarray, np.ndarray], com_p: np.ndarray, com_v: np.ndarray, target_com: np.ndarray,
+              tvel: np.ndarray, target_orn: np.ndarray, checked: np.ndarray, held: np.ndarray, moved: np.ndarray,
+              dyn: np.ndarray, horizon: float, d_sim_perc: float, gravity: float) -> np.ndarray:
+    """``(K, M)`` bool: the objects to freeze for an update of ``horizon`` seconds
+    (:func:`unreachable`), from the client-frame centre-of-mass state
+    ``com_p (K, M, 7)``, ``com_v (K, M, 6)`` and the tests' targets at the update's start
+    ``target_com (K, M, 3)`` moving at ``tvel (K, M, 3)``. A candidate is asleep: exactly zero
+    velocity, and not ``moved`` (loaded, held, pushed out of penetration: ``moved`` must also hold
+    what a world holds but never stepped, which reads zero velocity awake; a settled load is a
+    candidate, put to sleep if frozen); not held; and if tested, one that cannot diverge while it
+    stays still (its target fixed and nearer than ``d_sim_perc``). Held and tested objects may go
+    to their targets (orientations ``target_orn (K, M, 4)``); ``dyn (M,)`` bool: the dynamic objects."""
+    centres = com_p[..., :3]
+    goes = (checked | held)[..., None]
+    ends = np.stack([np.concatenate([centres + com_v[..., :3] * horizon, com_p[..., 3:]], axis=-1),
+                     np.where(goes, np.concatenate([target_com + tvel * horizon, target_orn], axis=-1), com_p)], axis=2)
+    still = ~np.any(com_v != 0.0, axis=-1)
+    steady = ~checked | ((np.linalg.norm(centres - target_com, axis=-1) < d_sim_perc) & ~np.any(tvel != 0.0, axis=-1))
+    resting = dyn & still & ~moved & ~held & steady
+    radius = np.linalg.norm(np.abs(boxes[0]) + boxes[1], axis=-1)  # (M,)
+    spin = np.linalg.norm(com_v[..., 3:], axis=-1) * radius
+    turn = np.where(held, np.minimum(quat_angle(com_p[..., 3:], target_orn), 2.0) * radius, 0.0)  # a glide's turn
+    speeds = np.maximum(np.linalg.norm(com_v[..., :3], axis=-1) + spin,
+                        np.linalg.norm(ends[:, :, 1, :3] - centres, axis=-1) / horizon + turn / horizon)
+    return unreachable(com_p, ends, np.minimum(spin * horizon, 2.0 * radius) + turn, speeds, boxes, resting,
+                       dyn & ~resting, horizon, gravity)

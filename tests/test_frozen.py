@@ -1,0 +1,125 @@
+import numpy as np
+import pytest
+
+from estimator.worlds.batch import PER_PARTICLE, BatchInput, ParticleWorld, StepInput
+from estimator.worlds.frozen import FREEZE_MARGIN, local_boxes, unreachable
+from estimator.worlds.propagate import propagate, propagate_batch
+from helpers import TABLE_TOP, table_scene
+from physics.world import PhysicsSettings, World
+
+T = 0.08  # s: the update's length in the array tests
+FALL = 0.5 * 9.81 * T ** 2 + FREEZE_MARGIN
+
+
+def _line(xs, halves, speed):
+    """One particle: a static table (0), a ball at x = 0 moving at ``speed`` m/s along x (1), and
+    boxes at rest at ``xs`` (2...) of half-size ``halves``; all at z = 0, axis-aligned."""
+    M = 2 + len(xs)
+    poses = np.zeros((1, M, 7))
+    poses[..., 6] = 1.0
+    poses[0, 2:, 0] = xs
+    ends = np.repeat(poses[:, :, None], 2, axis=2)
+    ends[0, 1, 0, 0] = speed * T  # where its velocity takes the ball
+    half = np.zeros((M, 3))
+    half[1] = 0.03
+    half[2:] = halves
+    resting = np.zeros((1, M), bool)
+    resting[0, 2:] = True
+    awake = np.zeros((1, M), bool)
+    awake[0, 1] = True
+    speeds = np.zeros((1, M))
+    speeds[0, 1] = speed
+    return poses, ends, np.zeros((1, M)), speeds, (np.zeros((M, 3)), half), resting, awake
+
+
+def test_what_the_ball_may_hit_and_what_that_may_hit_are_not_frozen_the_rest_is():
+    reach = 4 * 1.0 * T + FALL  # how far a box the ball hits may move
+    ball_hi = 1.0 * T + 0.03  # the ball's box where its velocity takes it
+    # box 2 in the ball's way; box 3 beyond the ball's sweep but within a hit box 2's reach; box 4 beyond both
+    x2 = ball_hi + FALL + 0.05 - 0.005
+    x3 = x2 + 0.05 + reach + 0.05 - 0.005
+    x4 = x3 + 0.05 + reach + 0.05 + 0.005
+    assert x3 - 0.05 > ball_hi + FALL  # box 3 is out of the ball's own reach
+    frozen = unreachable(*_line([x2, x3, x4], 0.05, 1.0), horizon=T)
+    assert frozen[0].tolist() == [False, False, False, False, True]
+    # a slower ball: a box in its way is reached, but what that box may then hit is nearer
+    x2s = 0.1 * T + 0.03 + FALL + 0.05 - 0.005
+    assert x3 - 0.05 > x2s + 0.05 + 4 * 0.1 * T + FALL
+    slow = unreachable(*_line([x2s, x3], 0.05, 0.1), horizon=T)
+    assert slow[0].tolist() == [False, False, False, True]
+    # nothing awake: everything at rest is frozen; what is not resting never is
+    poses, ends, spread, speeds, boxes, resting, awake = _line([x2, x3, x4], 0.05, 1.0)
+    assert unreachable(poses, ends, spread, speeds, boxes, resting, awake & False, T)[0, 2:].all()
+    resting[0, 4] = False
+    assert not unreachable(poses, ends, spread, speeds, boxes, resting, awake, T)[0, 4]
+
+
+def test_a_turned_box_is_judged_by_its_own_box_and_particles_apart():
+    """Box 2 is long (40 cm along its x axis): axis-aligned its end reaches the ball's sweep, turned
+    a quarter about z it does not; each particle is judged on its own row."""
+    poses, ends, spread, speeds, boxes, resting, awake = _line([0.25], [0.2, 0.02, 0.02], 0.1)
+    poses = np.repeat(poses, 2, axis=0)
+    poses[1, 2, 3:] = [0.0, 0.0, np.sin(np.pi / 4), np.cos(np.pi / 4)]
+    ends = np.repeat(ends, 2, axis=0)
+    args = [np.repeat(a, 2, axis=0) for a in (spread, speeds)]
+    frozen = unreachable(poses, ends, *args, boxes, np.repeat(resting, 2, 0), np.repeat(awake, 2, 0), T)
+    assert frozen[:, 2].tolist() == [False, True]
+
+
+def test_local_boxes_are_the_objects_own_whatever_their_pose():
+    scene = table_scene({"id": "a", "box": {"size": [0.1, 0.2, 0.3]}, "pose": {"position": [0, 0, 1.0]}},
+                        {"id": "b", "box": {"size": [0.1, 0.2, 0.3]},
+                         "pose": {"position": [0.5, 0, 1.0], "orientation": [0, 0, 0.7071068, 0.7071068]}})
+    with World(scene) as w:
+        w.set_poses(w.get_poses())  # loaded (not parked)
+        centre, half = local_boxes(w)
+    assert np.allclose(half[1:], [[0.05, 0.1, 0.15]] * 2, atol=0.005)  # Bullet's margin at most
+    assert np.allclose(centre[1:], 0.0, atol=1e-6) and np.all(half[0] == 0.0)  # the static table: none
+
+
+# -- in the worlds: a frozen object costs nothing and changes nothing ---------------------------------
+
+LINE = table_scene({"id": "near", "box": {"size": [0.05, 0.05, 0.05]}, "pose": {"position": [0, 0, TABLE_TOP + 0.025]}},
+                   {"id": "far", "box": {"size": [0.05, 0.05, 0.05]}, "pose": {"position": [-0.5, -0.3, TABLE_TOP + 0.025]}},
+                   {"id": "ball", "sphere": {"radius": 0.03}, "pose": {"position": [0.3, 0.0, TABLE_TOP + 0.03]}})
+
+
+def _inputs(w, poses, vel, reset):
+    m = w.num_objects
+    return StepInput(poses=poses, velocities=vel, params=np.array([[0.5, 0.0, 0.0, 0.0, 0.5]] * m),
+                     modes=np.zeros(m, np.int8), check=np.zeros(m, bool), target=poses.copy(),
+                     target_vel=np.zeros((m, 6)), contents=np.zeros((m, m), bool), depenetrate=np.zeros(m, bool),
+                     reset=reset)
+
+
+@pytest.mark.parametrize("freeze", [True, False])
+def test_a_ball_rolled_into_a_box_moves_it_while_the_box_it_cannot_reach_is_frozen(freeze):
+    with World(LINE, PhysicsSettings(sleeping=True)) as w:
+        pw = ParticleWorld(w)
+        out = propagate(pw, _inputs(w, w.get_poses(), np.zeros((4, 6)), None), 48, 0.045)
+        for _ in range(2):  # at rest at both ends of an update: asleep
+            out = propagate(pw, _inputs(w, out.poses, out.velocities, np.zeros(4, bool)), 19, 0.045)
+        assert np.all(out.velocities[1:] == 0.0)
+        poses, vel = out.poses.copy(), out.velocities.copy()
+        poses[3, :3] = [0.07, 0.0, TABLE_TOP + 0.03]  # the ball, rolling at 1 m/s into the near box
+        vel[3, :3] = [-1.0, 0, 0]
+        inp = _inputs(w, poses, vel, np.array([False, False, False, True]))
+        batch = BatchInput(*(None if getattr(inp, f) is None else np.asarray(getattr(inp, f))[None]
+                             for f in PER_PARTICLE))
+        counts: dict[str, int] = {}
+        res = propagate_batch([pw], batch, 19, 0.045, counts=counts, freeze=freeze)
+        # the far box, 58 cm away: further than a box the ball hits can go in 19 steps (4 x 1 m/s x 79 ms)
+        assert counts["frozen"] == (1 if freeze else 0)
+        assert np.linalg.norm(res.poses[0, 1, :2] - poses[1, :2]) > 0.01  # the near box was pushed
+        assert np.array_equal(res.poses[0, 2], poses[2])  # the far one did not move
+        # back in collision detection: a ray down onto the far box hits it
+        hit, _ = w.ray_test(np.array([[-0.5, -0.3, 1.5]]), np.array([[-0.5, -0.3, 0.0]]))
+        assert hit.tolist() == [2]
+        if freeze:
+            with World(LINE, PhysicsSettings(sleeping=True)) as w2:  # the same without freezing
+                pw2 = ParticleWorld(w2)
+                o2 = propagate(pw2, _inputs(w2, w2.get_poses(), np.zeros((4, 6)), None), 48, 0.045)
+                for _ in range(2):
+                    o2 = propagate(pw2, _inputs(w2, o2.poses, o2.velocities, np.zeros(4, bool)), 19, 0.045)
+                ref = propagate_batch([pw2], batch, 19, 0.045)
+            assert np.allclose(res.poses[0, :, :3], ref.poses[0, :, :3], atol=1e-6)
