@@ -100,6 +100,9 @@ def test_a_ball_rolled_into_a_box_moves_it_while_the_box_it_cannot_reach_is_froz
         for _ in range(2):  # at rest at both ends of an update: asleep
             out = propagate(pw, _inputs(w, out.poses, out.velocities, np.zeros(4, bool)), 19, 0.045)
         assert np.all(out.velocities[1:] == 0.0)
+        for _ in range(2):  # nothing awake: everything at rest is frozen, and stays so
+            out = propagate(pw, _inputs(w, out.poses, out.velocities, np.zeros(4, bool)), 19, 0.045, freeze=freeze)
+            assert pw.frozen == ([1, 2, 3] if freeze else [])
         poses, vel = out.poses.copy(), out.velocities.copy()
         poses[3, :3] = [0.07, 0.0, TABLE_TOP + 0.03]  # the ball, rolling at 1 m/s into the near box
         vel[3, :3] = [-1.0, 0, 0]
@@ -107,14 +110,16 @@ def test_a_ball_rolled_into_a_box_moves_it_while_the_box_it_cannot_reach_is_froz
         batch = BatchInput(*(None if getattr(inp, f) is None else np.asarray(getattr(inp, f))[None]
                              for f in PER_PARTICLE))
         counts: dict[str, int] = {}
-        res = propagate_batch([pw], batch, 19, 0.045, counts=counts, freeze=freeze)
+        res = propagate_batch([pw], batch, 19, 0.045, counts=counts, freeze=freeze)  # the ball thaws the near box
         # the far box, 58 cm away: further than a box the ball hits can go in 19 steps (4 x 1 m/s x 79 ms)
         assert counts["frozen"] == (1 if freeze else 0)
         assert np.linalg.norm(res.poses[0, 1, :2] - poses[1, :2]) > 0.01  # the near box was pushed
         assert np.array_equal(res.poses[0, 2], poses[2])  # the far one did not move
-        # back in collision detection: a ray down onto the far box hits it
-        hit, _ = w.ray_test(np.array([[-0.5, -0.3, 1.5]]), np.array([[-0.5, -0.3, 0.0]]))
-        assert hit.tolist() == [2]
+        # frozen, the far box stays out of collision detection until thawed: then a ray down onto it hits it
+        ray = (np.array([[-0.5, -0.3, 1.5]]), np.array([[-0.5, -0.3, 0.0]]))
+        assert pw.frozen == ([2] if freeze else []) and w.ray_test(*ray)[0].tolist() == ([0] if freeze else [2])
+        pw.thaw()
+        assert pw.frozen == [] and w.ray_test(*ray)[0].tolist() == [2]
         if freeze:
             with World(LINE, PhysicsSettings(sleeping=True)) as w2:  # the same without freezing
                 pw2 = ParticleWorld(w2)

@@ -88,6 +88,8 @@ class BatchOutput(StepOutput):
 class ParticleWorld:
     """A persistent world for one particle slot, remembering the parameters last applied.
 
+    ``frozen``: objects out of collision detection because nothing could reach them at the last
+    update (:mod:`~estimator.worlds.frozen`); :meth:`thaw` puts them back (before any ray test).
     ``contactless``: objects an update took out of collision (:mod:`~estimator.worlds.frozen`) and
     that have not been awake since: Bullet has forgotten their contacts. ``boxes``: the objects'
     body-frame boxes (:func:`~estimator.worlds.frozen.local_boxes`), measured when first asked."""
@@ -96,10 +98,17 @@ class ParticleWorld:
         self.world = world
         self.dynamic = [int(i) for i in world.dynamic_indices]
         self.contactless: set[int] = set()
+        self.frozen: list[int] = []
         self.stepped = False  # stepped since its last loads (else what it holds is awake at zero velocity)
         self._boxes: tuple[np.ndarray, np.ndarray] | None = None
         self._params: np.ndarray | None = None
         self._params_key: bytes = b""
+
+    def thaw(self) -> None:
+        """Put the objects frozen at the last update back in collision detection (rays then see them)."""
+        if self.frozen:
+            self.world.set_colliding(self.frozen, True)
+            self.frozen = []
 
     @property
     def boxes(self) -> tuple[np.ndarray, np.ndarray]:

@@ -154,8 +154,9 @@ class WorldPool:
             freeze: bool = False) -> BatchOutput:
         """Propagate all K particles by ``n_steps`` steps (see :func:`~estimator.worlds.propagate.propagate`;
         ``moving``: divergence tests of objects teleported in motion carry their target on at its
-        velocity; ``freeze``: objects nothing can reach are out of collision while stepping); visibility of ``batch.vis_query`` to ``cameras`` (None: the scene's camera;
-        several: the largest fraction any of them sees)."""
+        velocity; ``freeze``: objects nothing can reach are out of collision while stepping);
+        visibility of ``batch.vis_query`` to ``cameras`` (None: the scene's camera; several: the
+        largest fraction any of them sees)."""
         t0 = time.perf_counter()
         K = len(batch.poses)
         if K > self.n_slots:

@@ -104,7 +104,8 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
 
     With ``freeze=True`` (and sleeping), objects at rest that nothing awake can reach during the
     update (:func:`~estimator.worlds.frozen.unreachable`) are out of collision detection while the
-    worlds step, and back in it before the state is read.
+    worlds step, and stay out until an update may reach them or rays are cast
+    (:meth:`~estimator.worlds.batch.ParticleWorld.thaw`: the caller's duty before any ray test).
 
     ``parts``: where the call's time goes is added to it (seconds, :data:`PARTS`). ``counts``: what
     the update moved is added to it: ``entries`` (worlds times dynamic objects), ``moved`` (the
@@ -173,11 +174,15 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     took["prepare"] = clock() - t_part
     for client, ks in clients.items():
         t_part = clock()
-        helds, watches, restart, thawed = [], [], [], []
+        helds, watches, restart = [], [], []
         for k in ks:
             pw = pws[k]
             w = pw.world
             pw.apply_params(batch.params[k])
+            if pw.frozen:  # frozen at the last update: back in collision unless frozen again
+                thaw = [i for i in pw.frozen if not frozen_l[k][i]]
+                w.set_colliding(thaw, True)
+                pw.frozen = [i for i in pw.frozen if frozen_l[k][i]]
             rows = [i for i in dyn if moved_l[k][i]] if True in moved_l[k] else []
             woken = rows + touching(w, rows) if sleeping and rows else []  # contacts before the reset
             if woken and pw.contactless:  # contacts a freeze made Bullet forget: the boxes that touch
@@ -201,9 +206,11 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
                 fz = [i for i in dyn if frozen_l[k][i] and i not in woken and not w.is_parked(i)]
                 if True in reset_l[k]:  # a settled load (not woken by its load): asleep, for sure
                     sleep(w, [i for i in fz if reset_l[k][i]])
-                w.set_colliding(fz, False)
+                w.set_colliding([i for i in pw.frozen if i not in fz], True)  # woken since
+                was = set(pw.frozen)
+                w.set_colliding([i for i in fz if i not in was], False)
+                pw.frozen = fz
                 pw.contactless.update(fz)
-                thawed.append((w, fz))
             pw.contactless.difference_update(woken)
             held = HeldObjects(w, batch.target[k], batch.target_vel[k], batch.contents[k], n_steps, moving)
             for h in glides.get(k, ()):
@@ -225,8 +232,6 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
         tested += [(ks[item[7]], item[0], item[6]) for item in watches if item[6]]
         for k in ks:
             read[k] = pws[k].world.read_raw(dyn)
-        for w, fz in thawed:
-            w.set_colliding(fz, True)
         for k in ks:
             pws[k].stepped = n_steps > 0 or (pws[k].stepped and not reset_any[k])
         took["read"] += clock() - t_part

@@ -203,6 +203,8 @@ class _Shard:
         out = np.zeros((len(cams), len(self.worlds), len(targets)), bool if threshold is not None else float)
         if not slots:
             return out
+        for k in slots:
+            self.worlds[k].thaw()  # rays must see what nothing could reach
         worlds = [self.worlds[k].world for k in slots]
         now = [w.get_poses() for w in worlds]
         moved = [j for j, k in enumerate(slots) if place and not np.array_equal(now[j][place], poses[k, place])]
@@ -264,6 +266,8 @@ class _Shard:
             if boxes is not None:
                 convex = np.array([self.scene.objects[int(i)].shape in CONVEX_SHAPES for i in q])
                 shortcuts = dict(boxes=boxes[todo], convex=convex, solids=Solids.posed(self.solids, poses[todo]))
+            for k in todo:
+                self.worlds[slots[k]].thaw()  # rays must see what nothing could reach
             fresh = visible_fractions([self.worlds[slots[k]].world for k in todo], camera, q, self.points,
                                       poses[np.ix_(todo, q)], need[todo], **shortcuts)
             vis[todo] = np.where(need[todo], fresh, vis[todo])
@@ -278,13 +282,15 @@ class _Shard:
         the seconds the stepping took. ``resting=False``: with every object asleep taken out of
         collision detection for these steps and put back after (:meth:`~physics.world.World.set_colliding`):
         what stepping would cost if objects at rest cost nothing (a bound: what a moving object
-        would have hit among them is gone too). Bullet drops their contacts, so the worlds do not
-        come back exactly; the benchmark saves and restores them around the call."""
+        would have hit among them is gone too; those frozen stay out). Bullet drops their contacts,
+        so the worlds do not come back exactly; the benchmark saves and restores them around the call."""
         out = []
         if not resting:
+            frozen = {id(pw.world): set(pw.frozen) for pw in self.worlds if pw is not None}
             for g in self.groups:
                 for w in g.worlds:
-                    rows = asleep(w, [i for i in w.dynamic_indices.tolist() if not w.is_parked(i)])
+                    out_now = frozen.get(id(w), set())
+                    rows = asleep(w, [i for i in w.dynamic_indices.tolist() if not w.is_parked(i) and i not in out_now])
                     w.set_colliding(rows, False)
                     out.append((w, rows))
         t0 = time.perf_counter()
