@@ -23,8 +23,10 @@ and a bound on how far anything can move in one update of ``T`` seconds:
   reached.
 
 What is left is *frozen* for the update: :func:`~estimator.worlds.propagate.propagate_batch` takes
-it out of collision detection after loading and puts it back before reading the state out, so that
-rays (visibility) and the next update see it as always. Bullet forgets the contacts of a body it
+it out of collision detection after loading, and it stays out
+(:attr:`~estimator.worlds.batch.ParticleWorld.frozen`) until an update may reach it or rays are to
+be cast in its world (:meth:`~estimator.worlds.batch.ParticleWorld.thaw`: a body out of collision
+detection is invisible to rays). Bullet forgets the contacts of a body it
 takes out of collision, and a sleeping pair does not make them again: the caller must not rely on
 a frozen object's old contacts (:attr:`~estimator.worlds.batch.ParticleWorld.contactless`).
 """
