@@ -27,3 +27,29 @@ def test_a_particle_world_applies_only_the_parameters_that_changed():
         params[1, 0] = 0.9
         pw.apply_params(params)
         assert calls == [1]  # only the object whose row changed
+
+
+def test_thawing_puts_frozen_objects_back_in_collision_but_not_one_parked_since():
+    boxes = [{"id": f"b{j}", "box": {"size": [0.06, 0.06, 0.06]}, "pose": {"position": [0.3 * j, 0, TABLE_TOP + 0.03]}}
+             for j in range(2)]
+    with World(table_scene(*boxes)) as w:
+        w.set_poses(w.get_poses())  # loaded, not parked
+        pw = ParticleWorld(w)
+        w.set_colliding([1, 2], False)
+        pw.frozen = [1, 2]
+        poses = w.get_poses()
+        poses[2, 2] = -100.0  # box 2 parked while frozen
+        w.set_poses(poses)
+        assert w.is_parked(2)
+
+        def ray(x):
+            return w.ray_test(np.array([[x, 0, 1.5]]), np.array([[x, 0, 0.0]]))[0].tolist()
+        assert ray(0.0) == [0]  # frozen: the ray goes through box 1 to the table
+        pw.thaw([2])
+        assert pw.frozen == [1] and w.is_parked(2)
+        pw.thaw()
+        assert pw.frozen == [] and ray(0.0) == [1]
+        at = w.get_poses()[2, :3]  # where the parked box is: rays and bodies go through it
+        assert w.ray_test((at + [0, 0, 1.0])[None], (at - [0, 0, 1.0])[None])[0].tolist() == [-1]
+        w.set_colliding([2], True)  # (what an unguarded thaw would do: the ray would then hit it)
+        assert w.ray_test((at + [0, 0, 1.0])[None], (at - [0, 0, 1.0])[None])[0].tolist() == [2]

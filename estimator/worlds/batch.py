@@ -104,11 +104,13 @@ class ParticleWorld:
         self._params: np.ndarray | None = None
         self._params_key: bytes = b""
 
-    def thaw(self) -> None:
-        """Put the objects frozen at the last update back in collision detection (rays then see them)."""
+    def thaw(self, indices=None) -> None:
+        """Put the objects frozen at the last update (those of them in ``indices``; default all) back
+        in collision detection (rays then see them); one parked since stays out."""
         if self.frozen:
-            self.world.set_colliding(self.frozen, True)
-            self.frozen = []
+            back = self.frozen if indices is None else [i for i in self.frozen if i in indices]
+            self.world.set_colliding([i for i in back if not self.world.is_parked(i)], True)
+            self.frozen = [i for i in self.frozen if i not in back]
 
     @property
     def boxes(self) -> tuple[np.ndarray, np.ndarray]:

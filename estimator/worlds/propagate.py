@@ -159,8 +159,8 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     if freeze and sleeping and n_steps > 0:
         stepped = np.array([pw.stepped for pw in pws])[:, None]  # loaded at rest and never stepped: awake
         frozen = to_freeze(pws[0].boxes, com_p, com_v, target_com, tvel, target_orn, checked, held_mask,
-                              moved | (reset & ~settled) | ~stepped, dyn_mask, n_steps * dt, d_sim_perc,
-                              w0.settings.gravity)
+                           moved | (reset & ~settled) | ~stepped, dyn_mask, n_steps * dt, d_sim_perc,
+                           w0.settings.gravity)
     frozen_l = frozen.tolist()
     glides = _glides(pws, batch, held_mask, n_steps)
     clients: dict[int, list[int]] = {}
@@ -180,9 +180,7 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
             w = pw.world
             pw.apply_params(batch.params[k])
             if pw.frozen:  # frozen at the last update: back in collision unless frozen again
-                thaw = [i for i in pw.frozen if not frozen_l[k][i]]
-                w.set_colliding(thaw, True)
-                pw.frozen = [i for i in pw.frozen if frozen_l[k][i]]
+                pw.thaw([i for i in pw.frozen if not frozen_l[k][i]])
             rows = [i for i in dyn if moved_l[k][i]] if True in moved_l[k] else []
             woken = rows + touching(w, rows) if sleeping and rows else []  # contacts before the reset
             if woken and pw.contactless:  # contacts a freeze made Bullet forget: the boxes that touch
@@ -206,9 +204,8 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
                 fz = [i for i in dyn if frozen_l[k][i] and i not in woken and not w.is_parked(i)]
                 if True in reset_l[k]:  # a settled load (not woken by its load): asleep, for sure
                     sleep(w, [i for i in fz if reset_l[k][i]])
-                w.set_colliding([i for i in pw.frozen if i not in fz], True)  # woken since
-                was = set(pw.frozen)
-                w.set_colliding([i for i in fz if i not in was], False)
+                pw.thaw([i for i in pw.frozen if i not in fz])  # woken since
+                w.set_colliding([i for i in fz if i not in pw.frozen], False)
                 pw.frozen = fz
                 pw.contactless.update(fz)
             pw.contactless.difference_update(woken)
