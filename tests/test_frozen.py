@@ -52,6 +52,11 @@ def test_what_the_ball_may_hit_and_what_that_may_hit_are_not_frozen_the_rest_is(
     assert unreachable(poses, ends, spread, speeds, boxes, resting, awake & False, T)[0, 2:].all()
     resting[0, 4] = False
     assert not unreachable(poses, ends, spread, speeds, boxes, resting, awake, T)[0, 4]
+    # two particles, the ball awake in the first only: each is judged on its own row
+    resting[0, 4] = True
+    two = [np.concatenate([a, a]) for a in (poses, ends, spread, speeds, resting)]
+    both = unreachable(*two[:4], boxes, two[4], np.concatenate([awake, awake & False]), T)
+    assert both.tolist() == [[False, False, False, False, True], [False, False, True, True, True]]
 
 
 def test_a_turned_box_is_judged_by_its_own_box_and_particles_apart():

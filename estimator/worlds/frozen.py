@@ -93,23 +93,26 @@ def unreachable(com_poses: np.ndarray, ends: np.ndarray, spread: np.ndarray, spe
     and candidates excluded). horizon (s): the update's length. Returns ``(K, M)`` bool, a subset of
     ``resting``."""
     frozen = resting & ~awake
-    if not frozen.any():
+    rows = np.flatnonzero(frozen.any(axis=1) & awake.any(axis=1))  # particles where anything may be reached
+    if len(rows) == 0:
         return frozen
-    lo_r, hi_r = _world_boxes(com_poses, boxes)  # (K, M, 3) each
-    lo_e, hi_e = _world_boxes(ends.swapaxes(1, 2), boxes)  # (K, 2, M, 3)
+    com_poses, ends, spread, speeds, awake = com_poses[rows], ends[rows], spread[rows], speeds[rows], awake[rows]
+    lo_r, hi_r = _world_boxes(com_poses, boxes)  # (R, M, 3) each
+    lo_e, hi_e = _world_boxes(ends.swapaxes(1, 2), boxes)  # (R, 2, M, 3)
     fall = 0.5 * abs(gravity) * horizon ** 2 + margin
     lo = np.minimum(lo_r, lo_e.min(axis=1)) - spread[..., None]
     hi = np.maximum(hi_r, hi_e.max(axis=1)) + spread[..., None]
-    vmax = np.where(awake, speeds, 0.0).max(axis=1, initial=0.0)  # (K,)
+    vmax = np.where(awake, speeds, 0.0).max(axis=1, initial=0.0)  # (R,)
     reach = 4.0 * vmax * horizon + fall
     # candidate (axis 1) within reach of an awake object's sweep, or of a hit one's box (axis 2)
-    moved = _within(lo_r, hi_r, lo, hi, np.full(len(reach), fall))
-    hit = (moved & awake[:, None, :]).any(axis=2) & frozen
+    sub = frozen[rows]
+    hit = (_within(lo_r, hi_r, lo, hi, np.full(len(reach), fall)) & awake[:, None, :]).any(axis=2) & sub
     if hit.any():
         pushed = _within(lo_r, hi_r, lo_r, hi_r, reach)
     while hit.any():
-        frozen &= ~hit
-        hit = (pushed & hit[:, None, :]).any(axis=2) & frozen
+        sub &= ~hit
+        hit = (pushed & hit[:, None, :]).any(axis=2) & sub
+    frozen[rows] = sub
     return frozen
 
 
