@@ -18,8 +18,8 @@ def _line(xs, halves, speed):
     poses = np.zeros((1, M, 7))
     poses[..., 6] = 1.0
     poses[0, 2:, 0] = xs
-    ends = np.repeat(poses[:, :, None], 2, axis=2)
-    ends[0, 1, 0, 0] = speed * T  # where its velocity takes the ball
+    shift = np.zeros((1, M, 3))
+    shift[0, 1, 0] = speed * T  # where its velocity takes the ball
     half = np.zeros((M, 3))
     half[1] = 0.03
     half[2:] = halves
@@ -29,7 +29,7 @@ def _line(xs, halves, speed):
     awake[0, 1] = True
     speeds = np.zeros((1, M))
     speeds[0, 1] = speed
-    return poses, ends, np.zeros((1, M)), speeds, (np.zeros((M, 3)), half), resting, awake
+    return poses, shift, poses.copy(), np.zeros((1, M)), speeds, (np.zeros((M, 3)), half), resting, awake
 
 
 def test_what_the_ball_may_hit_and_what_that_may_hit_are_not_frozen_the_rest_is():
@@ -48,26 +48,25 @@ def test_what_the_ball_may_hit_and_what_that_may_hit_are_not_frozen_the_rest_is(
     slow = unreachable(*_line([x2s, x3], 0.05, 0.1), horizon=T)
     assert slow[0].tolist() == [False, False, False, True]
     # nothing awake: everything at rest is frozen; what is not resting never is
-    poses, ends, spread, speeds, boxes, resting, awake = _line([x2, x3, x4], 0.05, 1.0)
-    assert unreachable(poses, ends, spread, speeds, boxes, resting, awake & False, T)[0, 2:].all()
+    poses, shift, targets, spread, speeds, boxes, resting, awake = _line([x2, x3, x4], 0.05, 1.0)
+    assert unreachable(poses, shift, targets, spread, speeds, boxes, resting, awake & False, T)[0, 2:].all()
     resting[0, 4] = False
-    assert not unreachable(poses, ends, spread, speeds, boxes, resting, awake, T)[0, 4]
+    assert not unreachable(poses, shift, targets, spread, speeds, boxes, resting, awake, T)[0, 4]
     # two particles, the ball awake in the first only: each is judged on its own row
     resting[0, 4] = True
-    two = [np.concatenate([a, a]) for a in (poses, ends, spread, speeds, resting)]
-    both = unreachable(*two[:4], boxes, two[4], np.concatenate([awake, awake & False]), T)
+    two = [np.concatenate([a, a]) for a in (poses, shift, targets, spread, speeds, resting)]
+    both = unreachable(*two[:5], boxes, two[5], np.concatenate([awake, awake & False]), T)
     assert both.tolist() == [[False, False, False, False, True], [False, False, True, True, True]]
 
 
 def test_a_turned_box_is_judged_by_its_own_box_and_particles_apart():
     """Box 2 is long (40 cm along its x axis): axis-aligned its end reaches the ball's sweep, turned
     a quarter about z it does not; each particle is judged on its own row."""
-    poses, ends, spread, speeds, boxes, resting, awake = _line([0.25], [0.2, 0.02, 0.02], 0.1)
+    poses, shift, targets, spread, speeds, boxes, resting, awake = _line([0.25], [0.2, 0.02, 0.02], 0.1)
     poses = np.repeat(poses, 2, axis=0)
     poses[1, 2, 3:] = [0.0, 0.0, np.sin(np.pi / 4), np.cos(np.pi / 4)]
-    ends = np.repeat(ends, 2, axis=0)
-    args = [np.repeat(a, 2, axis=0) for a in (spread, speeds)]
-    frozen = unreachable(poses, ends, *args, boxes, np.repeat(resting, 2, 0), np.repeat(awake, 2, 0), T)
+    args = [np.repeat(a, 2, axis=0) for a in (shift, poses[:1], spread, speeds)]
+    frozen = unreachable(poses, *args, boxes, np.repeat(resting, 2, 0), np.repeat(awake, 2, 0), T)
     assert frozen[:, 2].tolist() == [False, True]
 
 

@@ -45,7 +45,10 @@ regularisation jitter may move it by, and the contact distance of Bullet's pairs
 def local_boxes(world: World) -> tuple[np.ndarray, np.ndarray]:
     """Body-frame boxes about each object's centre of mass: centres ``(M, 3)`` and half-extents
     ``(M, 3)`` (m), from the bounding box the world holds now and the object's orientation (exact
-    for an object axis-aligned now, larger otherwise; zeros for static objects, never frozen)."""
+    for an object axis-aligned now, larger otherwise; zeros for static objects, never frozen).
+    Read only: :func:`physics.visibility.local_box` is exact but turns the object to identity and
+    back, which would disturb a world in the middle of a run (its float round trip differs, and which
+    world is asked first depends on the sharding)."""
     M = world.num_objects
     centre, half = np.zeros((M, 3)), np.zeros((M, 3))
     dyn = [int(i) for i in world.dynamic_indices]
@@ -79,15 +82,15 @@ def _world_boxes(poses: np.ndarray, boxes: tuple[np.ndarray, np.ndarray]) -> tup
     return mid - ext, mid + ext
 
 
-def unreachable(com_poses: np.ndarray, ends: np.ndarray, spread: np.ndarray, speeds: np.ndarray,
-                boxes: tuple[np.ndarray, np.ndarray], resting: np.ndarray, awake: np.ndarray, horizon: float,
-                gravity: float = 9.81, margin: float = FREEZE_MARGIN) -> np.ndarray:
+def unreachable(com_poses: np.ndarray, shift: np.ndarray, targets: np.ndarray, spread: np.ndarray,
+                speeds: np.ndarray, boxes: tuple[np.ndarray, np.ndarray], resting: np.ndarray, awake: np.ndarray,
+                horizon: float, gravity: float = 9.81, margin: float = FREEZE_MARGIN) -> np.ndarray:
     """Which resting objects no awake object can touch during an update (see the module docstring).
 
     com_poses ``(K, M, 7)``: centre-of-mass poses at the update's start (m, quaternions x, y, z, w).
-    ends ``(K, M, 2, 7)``: two more centre-of-mass poses each awake object may take during the
-    update (where its velocity takes it, its target). spread ``(K, M)`` (m): how far its points
-    may move by turning. speeds ``(K, M)`` (m/s): the fastest point of each awake
+    shift ``(K, M, 3)`` (m): where each awake object's velocity takes it in ``horizon``. targets
+    ``(K, M, 7)``: the centre-of-mass pose it may be set or glide to (its own pose if none). spread
+    ``(K, M)`` (m): how far its points may move by turning. speeds ``(K, M)`` (m/s): the fastest point of each awake
     object. boxes: :func:`local_boxes`. resting ``(K, M)`` bool: the candidates (asleep, not moved,
     not able to switch mode). awake ``(K, M)`` bool: everything that moves or may (static objects
     and candidates excluded). horizon (s): the update's length. Returns ``(K, M)`` bool, a subset of
@@ -96,12 +99,12 @@ def unreachable(com_poses: np.ndarray, ends: np.ndarray, spread: np.ndarray, spe
     rows = np.flatnonzero(frozen.any(axis=1) & awake.any(axis=1))  # particles where anything may be reached
     if len(rows) == 0:
         return frozen
-    com_poses, ends, spread, speeds, awake = com_poses[rows], ends[rows], spread[rows], speeds[rows], awake[rows]
-    lo_r, hi_r = _world_boxes(com_poses, boxes)  # (R, M, 3) each
-    lo_e, hi_e = _world_boxes(ends.swapaxes(1, 2), boxes)  # (R, 2, M, 3)
+    shift, spread, speeds, awake = shift[rows], spread[rows], speeds[rows], awake[rows]
+    lo_r, hi_r = _world_boxes(com_poses[rows], boxes)  # (R, M, 3) each
+    lo_t, hi_t = _world_boxes(targets[rows], boxes)
     fall = 0.5 * abs(gravity) * horizon ** 2 + margin
-    lo = np.minimum(lo_r, lo_e.min(axis=1)) - spread[..., None]
-    hi = np.maximum(hi_r, hi_e.max(axis=1)) + spread[..., None]
+    lo = np.minimum(np.minimum(lo_r, lo_r + shift), lo_t) - spread[..., None]
+    hi = np.maximum(np.maximum(hi_r, hi_r + shift), hi_t) + spread[..., None]
     vmax = np.where(awake, speeds, 0.0).max(axis=1, initial=0.0)  # (R,)
     reach = 4.0 * vmax * horizon + fall
     # candidate (axis 1) within reach of an awake object's sweep, or of a hit one's box (axis 2)
@@ -130,8 +133,7 @@ def to_freeze(boxes: tuple[np.ndarray, np.ndarray], com_p: np.ndarray, com_v: np
     to their targets (orientations ``target_orn (K, M, 4)``); ``dyn (M,)`` bool: the dynamic objects."""
     centres = com_p[..., :3]
     goes = (checked | held)[..., None]
-    ends = np.stack([np.concatenate([centres + com_v[..., :3] * horizon, com_p[..., 3:]], axis=-1),
-                     np.where(goes, np.concatenate([target_com + tvel * horizon, target_orn], axis=-1), com_p)], axis=2)
+    targets = np.where(goes, np.concatenate([target_com + tvel * horizon, target_orn], axis=-1), com_p)
     still = ~np.any(com_v != 0.0, axis=-1)
     steady = ~checked | ((np.linalg.norm(centres - target_com, axis=-1) < d_sim_perc) & ~np.any(tvel != 0.0, axis=-1))
     resting = dyn & still & ~moved & ~held & steady
@@ -139,6 +141,6 @@ def to_freeze(boxes: tuple[np.ndarray, np.ndarray], com_p: np.ndarray, com_v: np
     spin = np.linalg.norm(com_v[..., 3:], axis=-1) * radius
     turn = np.where(held, np.minimum(quat_angle(com_p[..., 3:], target_orn), 2.0) * radius, 0.0)  # a glide's turn
     speeds = np.maximum(np.linalg.norm(com_v[..., :3], axis=-1) + spin,
-                        np.linalg.norm(ends[:, :, 1, :3] - centres, axis=-1) / horizon + turn / horizon)
-    return unreachable(com_p, ends, np.minimum(spin * horizon, 2.0 * radius) + turn, speeds, boxes, resting,
-                       dyn & ~resting, horizon, gravity)
+                        np.linalg.norm(targets[..., :3] - centres, axis=-1) / horizon + turn / horizon)
+    return unreachable(com_p, com_v[..., :3] * horizon, targets, np.minimum(spin * horizon, 2.0 * radius) + turn,
+                       speeds, boxes, resting, dyn & ~resting, horizon, gravity)

@@ -203,9 +203,7 @@ class _Shard:
         out = np.zeros((len(cams), len(self.worlds), len(targets)), bool if threshold is not None else float)
         if not slots:
             return out
-        for k in slots:
-            self.worlds[k].thaw()  # rays must see what nothing could reach
-        worlds = [self.worlds[k].world for k in slots]
+        worlds = self._ray_worlds(slots)
         now = [w.get_poses() for w in worlds]
         moved = [j for j, k in enumerate(slots) if place and not np.array_equal(now[j][place], poses[k, place])]
         ids = {g: self.groups[g].save_state() for g in sorted({self._group_of[slots[j]] for j in moved})}
@@ -227,6 +225,13 @@ class _Shard:
             for j, sid in ids.items():
                 self.groups[j].restore_state(sid)
                 self.groups[j].remove_state(sid)
+
+    def _ray_worlds(self, slots: list[int]) -> list[World]:
+        """The worlds of ``slots``, ready for ray tests: what was frozen there is back in collision
+        detection (:meth:`~estimator.worlds.batch.ParticleWorld.thaw`; rays miss a body out of it)."""
+        for k in slots:
+            self.worlds[k].thaw()
+        return [self.worlds[k].world for k in slots]
 
     def _visibility(self, camera: Camera, poses: np.ndarray, finite: np.ndarray, q: np.ndarray,
                     slots: list[int], boxes: np.ndarray | None = None) -> np.ndarray:
@@ -266,9 +271,7 @@ class _Shard:
             if boxes is not None:
                 convex = np.array([self.scene.objects[int(i)].shape in CONVEX_SHAPES for i in q])
                 shortcuts = dict(boxes=boxes[todo], convex=convex, solids=Solids.posed(self.solids, poses[todo]))
-            for k in todo:
-                self.worlds[slots[k]].thaw()  # rays must see what nothing could reach
-            fresh = visible_fractions([self.worlds[slots[k]].world for k in todo], camera, q, self.points,
+            fresh = visible_fractions(self._ray_worlds([slots[k] for k in todo]), camera, q, self.points,
                                       poses[np.ix_(todo, q)], need[todo], **shortcuts)
             vis[todo] = np.where(need[todo], fresh, vis[todo])
         for k in np.flatnonzero(finite).tolist():

@@ -61,7 +61,7 @@ class StreamTiming:
     parts_s: list[dict] = dataclasses.field(default_factory=list)  # the scene model's parts, per update
     resting_s: list[tuple[float, float]] = dataclasses.field(default_factory=list)  # see time_stream
     shard_parts_s: list[dict] = dataclasses.field(default_factory=list)  # the slowest shard's parts, per update
-    moved: list[tuple[float, float, float]] = dataclasses.field(default_factory=list)  # per particle: moved, moving, frozen
+    per_particle: list[tuple[float, float, float]] = dataclasses.field(default_factory=list)  # objects moved, moving, frozen
 
     @property
     def stream_s(self) -> float:
@@ -139,7 +139,7 @@ def time_stream(scene: Scene, cfg: EstimatorConfig, frames: Iterable[Frame], rng
                               for k in ("entries", "moved", "moving", "frozen")}
                     if counts["entries"]:
                         n = est.K
-                        st.moved.append((counts["moved"] / n, counts["moving"] / n, counts["frozen"] / n))
+                        st.per_particle.append((counts["moved"] / n, counts["moving"] / n, counts["frozen"] / n))
             st.peak_memory_mb = max(st.peak_memory_mb, _rss_mb(pids))
             if max_updates is not None and len(st.update_s) >= max_updates:
                 break
@@ -168,7 +168,7 @@ def timing_row(st: StreamTiming) -> dict:
             # dynamic objects per particle the update moved (loaded awake, held, pushed out), and
             # those not at rest at its end, and those frozen (out of collision) while it stepped
             # (medians over the updates)
-            **{name: float(np.median([m[j] for m in st.moved])) if st.moved else math.nan
+            **{name: float(np.median([m[j] for m in st.per_particle])) if st.per_particle else math.nan
                for j, name in enumerate(("moved_per_particle", "moving_per_particle", "frozen_per_particle"))},
             # the share of bare stepping that objects at rest cost (NaN where not measured)
             "resting_share": float(np.median([1.0 - r / b for b, r in st.resting_s])) if st.resting_s else math.nan}
