@@ -92,6 +92,11 @@ class EstimatorConfig:
       held still in the air), was moved by that particle's physics (knocked by something the
       particle let fall), not by an agent: its held episode is silent, no Pick and no Place or Push
       at its end (the paper reports a Pick for every divergence: off in paper mode).
+    * ``one_action_per_motion``: a particle that already has an event since its object was seen to
+      start moving has explained that motion; held again while the object is still seen moving
+      (never at rest in between), it is the same action going on, not a new one (a box dragged
+      along the table, which physics lets slide to rest before the hand stops, is held again to
+      follow it: one Push, not a Push and a Pick; off in paper mode, which reports each divergence).
     * ``noise_aware_jumps``: a detection that jumped by more than ``d_perc_prev`` since the previous
       update teleports its object (Algorithm 1) only if two detections of a still object would be
       that far apart less than once in a thousand times, by the tracker's measured noise
@@ -137,6 +142,7 @@ class EstimatorConfig:
     fresh_checks: bool = True
     moving_teleports: bool = True
     still_unacted: bool = True
+    one_action_per_motion: bool = True
     noise_aware_jumps: bool = True
     freeze_unreachable: bool = True
     static_clip: bool = True
@@ -183,7 +189,8 @@ class EstimatorConfig:
                    priors=ModePriors(release_on_loss=1.0, release_on_loss_carried=1.0, release_on_loss_still=1.0,
                                      let_go_moving=0.0),
                    negative_evidence=False, follow_hands=False, lazy_checks=False, fresh_checks=False,
-                   moving_teleports=False, still_unacted=False, static_clip=False, noise_aware_jumps=False,
+                   moving_teleports=False, still_unacted=False, one_action_per_motion=False, static_clip=False,
+                   noise_aware_jumps=False,
                    freeze_unreachable=False)
 
 

@@ -71,6 +71,10 @@ def settle(model, state: ParticleState, move: Move, out: BatchOutput, t: float, 
     if move.out_of_reach is not None:  # hands are tracked, none within reach of it: an action needs
         silent = silent | move.out_of_reach[None, :]  # an agent; its particle's physics moved it
     acted = np.isfinite(state.event_t).any(axis=-1)  # an event before this update
+    if cfg.one_action_per_motion:  # an event of this particle since the object was seen to start
+        # moving explains that motion: held again while still seen moving, the same action goes on
+        with np.errstate(invalid="ignore"):
+            silent = silent | (np.max(state.event_t, axis=-1) >= onset[None, :] - 1e-6)
     quiet = silent | acted
     if cfg.still_unacted:  # seen still, and at rest in its particle before or on a support where
         # it is seen: no one moved it, its particle's physics did (no events); one held still in
