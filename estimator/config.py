@@ -92,9 +92,9 @@ class EstimatorConfig:
       held still in the air), was moved by that particle's physics (knocked by something the
       particle let fall), not by an agent: its held episode is silent, no Pick and no Place or Push
       at its end (the paper reports a Pick for every divergence: off in paper mode).
-    * ``one_action_per_motion``: a particle that already has an event since its object was seen to
-      start moving has explained that motion; held again while the object is still seen moving
-      (never at rest in between), it is the same action going on, not a new one (a box dragged
+    * ``one_action_per_motion``: a particle whose latest event is a Push since its object was seen
+      to start moving has explained that motion; held again while the object is still seen moving
+      (never at rest in between), it is the same push going on, not a new action (a box dragged
       along the table, which physics lets slide to rest before the hand stops, is held again to
       follow it: one Push, not a Push and a Pick; off in paper mode, which reports each divergence).
     * ``noise_aware_jumps``: a detection that jumped by more than ``d_perc_prev`` since the previous

@@ -71,10 +71,11 @@ def settle(model, state: ParticleState, move: Move, out: BatchOutput, t: float, 
     if move.out_of_reach is not None:  # hands are tracked, none within reach of it: an action needs
         silent = silent | move.out_of_reach[None, :]  # an agent; its particle's physics moved it
     acted = np.isfinite(state.event_t).any(axis=-1)  # an event before this update
-    if cfg.one_action_per_motion:  # an event of this particle since the object was seen to start
-        # moving explains that motion: held again while still seen moving, the same action goes on
+    if cfg.one_action_per_motion:  # a Push of this particle since the object was seen to start moving,
+        # its latest event, explains that motion: held again while still seen moving, the push goes on
+        pushed_t = state.event_t[..., PUSH - 1]
         with np.errstate(invalid="ignore"):
-            silent = silent | (np.max(state.event_t, axis=-1) >= onset[None, :] - 1e-6)
+            silent = silent | ((pushed_t >= onset[None, :] - 1e-6) & (pushed_t >= np.max(state.event_t, axis=-1)))
     quiet = silent | acted
     if cfg.still_unacted:  # seen still, and at rest in its particle before or on a support where
         # it is seen: no one moved it, its particle's physics did (no events); one held still in
