@@ -42,22 +42,6 @@ def test_move_teleports_a_first_sighting_and_makes_it_known():
     assert np.all(mv.target[:, MYSTERY, :3] == [0.1, -0.1, 0.2])  # checked against the perception itself
 
 
-def test_a_first_sighting_where_the_scene_places_the_object_keeps_the_prior_and_a_far_one_teleports():
-    """The ball's first detection 4 mm from where the scene places it is a jump the tracker's noise
-    explains: the particles keep their prior poses (checked against the detection); 10 cm away, it
-    is teleported (Algorithm 2), as every first sighting is in paper mode."""
-    for seen, aware, teleported in (([0.084, 0.0, 0.14], True, False), ([0.18, 0.0, 0.14], True, True),
-                                    ([0.084, 0.0, 0.14], False, True)):
-        model = make(EstimatorConfig(particles=3, noise=NoiseConfig(position_std=0.01), noise_aware_jumps=aware))
-        st = model.initial_state(np.random.default_rng(0))
-        frame = Frame(0.0, {"ball": Detection(np.array(seen))})
-        detected = model.memory.record(frame)
-        mv = model.move(st, frame, detected, model.memory.perceived(0.0), 0.0, np.random.default_rng(3))
-        assert bool(mv.teleported[BALL]) == teleported, (seen, aware)
-        if not teleported:
-            assert np.array_equal(mv.poses[:, BALL], st.poses[:, BALL]) and np.all(mv.check[:, BALL])
-
-
 def test_round_objects_rolling_friction_is_scaled_log_uniformly_and_boxes_keep_theirs():
     sc = scene()
     cfg = EstimatorConfig(particles=4000, noise=NoiseConfig())

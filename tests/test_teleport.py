@@ -95,9 +95,7 @@ def test_a_teleported_object_is_scored_on_its_physics_not_on_its_teleport_noise(
     """The next update's prediction of a teleported object is where the particle has it, carried on
     at its velocity, minus the noise its teleport drew: two particles that drew different noise but
     move alike predict the same detection."""
-    # the ball is first seen where the scene places it: a teleport only when jumps are not judged
-    # against the tracker's noise (with them, the prior stands: test_scene_model)
-    model = make(EstimatorConfig(particles=2, noise=NoiseConfig(position_std=0.01), noise_aware_jumps=False))
+    model = make(EstimatorConfig(particles=2, noise=NoiseConfig(position_std=0.01)))
     st = model.initial_state(np.random.default_rng(0))
     mem = model.memory
     detected = np.zeros(5, bool)
