@@ -601,7 +601,7 @@ def test_paper_situations_hidden_object_ends_where_it_is(name, obj, relation, su
 
 def test_paper_situation_e_hidden_while_held_with_tracked_hands():
     """The cup held behind the back is believed held while hidden (the paper's reasoner says it fell),
-    over four seeds: in one run in four or five, one update near the end of the hidden phase dips
+    over four seeds: in about one run in six, one update near the end of the hidden phase dips
     under 0.5 as the hand comes back, so the claim is on the share of hidden updates (at least 90 %,
     against 0 % for a belief that it fell) and on each run's median."""
     p_held = []
