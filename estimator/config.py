@@ -190,8 +190,7 @@ class EstimatorConfig:
                                      let_go_moving=0.0),
                    negative_evidence=False, follow_hands=False, lazy_checks=False, fresh_checks=False,
                    moving_teleports=False, still_unacted=False, one_action_per_motion=False, static_clip=False,
-                   noise_aware_jumps=False,
-                   freeze_unreachable=False)
+                   noise_aware_jumps=False, freeze_unreachable=False)
 
 
 def with_adaptive_count(config: EstimatorConfig, min_particles: int | None = None,

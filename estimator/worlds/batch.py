@@ -91,18 +91,14 @@ class ParticleWorld:
     ``frozen``: objects out of collision detection because nothing could reach them at the last
     update (:mod:`~estimator.worlds.frozen`); :meth:`thaw` puts them back (before any ray test).
     ``contactless``: objects an update took out of collision (:mod:`~estimator.worlds.frozen`) and
-    that have not been awake since: Bullet has forgotten their contacts. ``dozing``: objects put to
-    sleep since the world was last stepped: Bullet still moves them in their next step (a body
-    falls asleep only then), so one taken out of collision then falls a step's worth of gravity
-    unless set back after it (:func:`~estimator.worlds.propagate.propagate_batch`). ``boxes``: the
-    objects' body-frame boxes (:func:`~estimator.worlds.frozen.local_boxes`), measured when first asked."""
+    that have not been awake since: Bullet has forgotten their contacts. ``boxes``: the objects'
+    body-frame boxes (:func:`~estimator.worlds.frozen.local_boxes`), measured when first asked."""
 
     def __init__(self, world: World):
         self.world = world
         self.dynamic = [int(i) for i in world.dynamic_indices]
         self.contactless: set[int] = set()
         self.frozen: list[int] = []
-        self.dozing: set[int] = set()
         self.stepped = False  # stepped since its last loads (else what it holds is awake at zero velocity)
         self._boxes: tuple[np.ndarray, np.ndarray] | None = None
         self._params: np.ndarray | None = None

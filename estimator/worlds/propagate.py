@@ -202,16 +202,15 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
                 woken += near_settled
             if True in frozen_l[k]:
                 fz = [i for i in dyn if frozen_l[k][i] and i not in woken and not w.is_parked(i)]
-                if True in reset_l[k]:  # a settled load (not woken by its load): asleep, for sure
+                if True in reset_l[k]:  # a settled load (not woken by its load): asleep, for sure; Bullet
+                    # still moves a body put to sleep in its next step (out of collision, a fall of
+                    # g dt^2): set back where it was loaded, at rest, after that step
                     slept = [i for i in fz if reset_l[k][i]]
                     sleep(w, slept)
-                    pw.dozing.update(slept)
+                    restart += [(w.uids[i], com_p[k, i, :3].tolist(), com_p[k, i, 3:].tolist(), [0.0] * 3,
+                                 [0.0] * 3) for i in slept]
                 pw.thaw([i for i in pw.frozen if i not in fz])  # woken since
                 w.set_colliding([i for i in fz if i not in pw.frozen], False)
-                # put to sleep since the last step: its first step still moves it (out of collision, it
-                # would fall); set back where it is, at rest, after that step
-                restart += [(w.uids[i], com_p[k, i, :3].tolist(), com_p[k, i, 3:].tolist(), [0.0] * 3, [0.0] * 3)
-                            for i in fz if i in pw.dozing]
                 pw.frozen = fz
                 pw.contactless.update(fz)
             pw.contactless.difference_update(woken)
@@ -237,8 +236,6 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
             read[k] = pws[k].world.read_raw(dyn)
         for k in ks:
             pws[k].stepped = n_steps > 0 or (pws[k].stepped and not reset_any[k])
-            if n_steps > 0:
-                pws[k].dozing.clear()
         took["read"] += clock() - t_part
     t_part = clock()
     poses, vel, aabbs = _assemble(w0, dyn, read, origins)

@@ -34,19 +34,13 @@ def slow(vel: np.ndarray) -> np.ndarray:
 
 
 def sleep_resting(pws: list, candidates: np.ndarray, vel_in: np.ndarray,
-                  vel_out: np.ndarray) -> np.ndarray:
+                  vel_out: np.ndarray) -> None:
     """Put to sleep the ``candidates (K, M)`` at rest at both ends of the update (velocities
     ``(K, M, 6)``, :func:`slow`) that are still awake (a sleeping body reads back exactly zero
-    velocity; :attr:`~estimator.worlds.batch.ParticleWorld.dozing` until their next step). The
-    particles' state keeps the velocities read before the sleep: only what reads back exactly zero
-    (asleep through a whole update) is loaded asleep into another world by resampling
-    (:class:`~estimator.worlds.world_cache.WorldCache`) and may be frozen
-    (:func:`~estimator.worlds.frozen.to_freeze`)."""
+    velocity)."""
     rest = candidates & slow(vel_in) & slow(vel_out) & np.any(vel_out != 0.0, axis=-1)
     for k in np.flatnonzero(rest.any(axis=1)).tolist():
-        rows = np.flatnonzero(rest[k]).tolist()
-        sleep(pws[k].world, rows)
-        pws[k].dozing.update(rows)
+        sleep(pws[k].world, np.flatnonzero(rest[k]).tolist())
 
 
 def restart_after_wake(w: World, rows: list[int], com_p: np.ndarray, com_v: np.ndarray, dt: float,
