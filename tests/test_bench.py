@@ -98,17 +98,20 @@ def test_bench_scenario_replays_the_whole_stream(capsys):
     # 3 s at 30 frames per second, a reasoning step every third frame: 30, of which the first only
     # places the objects
     assert cells[:4] == ["static_floating", "2", "29", "3.00"]
-    # the share of bare stepping the resting objects cost: a fraction (static_floating's objects
-    # come to rest on the table, so that it is measured)
+    # the share of bare stepping the resting objects cost is measured (static_floating's objects
+    # come to rest on the table); its value is a ratio of two wall-clock times, which tiny worlds
+    # leave to noise (it was once -0.06): the benchmark's to report, not a test's to bound
     share = float(cells[lines[0].strip("|").split("|").index(" resting share of bare ")])
-    assert 0.0 < share < 1.0
+    assert math.isfinite(share) and share < 1.0
 
 
 def test_bench_measures_the_resting_share_only_with_the_breakdown():
     plain = bench_one(2, 2, 0, updates=2, warmup=1)
     assert math.isnan(plain["resting_share"])
     r = bench_one(2, 2, 0, updates=2, warmup=1, resting=True)
-    assert 0.0 < r["resting_share"] < 1.0  # the synthetic scene's boxes rest on the table
+    # measured (the synthetic scene's boxes rest on the table): a ratio of wall-clock times, whose
+    # sign two tiny updates leave to noise
+    assert math.isfinite(r["resting_share"]) and r["resting_share"] < 1.0
 
 
 def test_bench_unknown_scenario_is_a_clear_error(capsys):
