@@ -103,7 +103,11 @@ class EstimatorConfig:
       (:meth:`~estimator.model.perception_memory.PerceptionMemory.jumped`): a 1 cm tracker's
       detections of a resting object are more than 3.2 cm apart at one update in five, and every
       such jump would put the object on a noisy detection and wake what it touches. Below 5.6 mm of
-      noise the threshold is ``d_perc_prev``, as in the paper (off in paper mode).
+      noise the threshold is ``d_perc_prev``, as in the paper (off in paper mode). The first
+      sighting of an object the scene places is judged the same way, as a jump from that pose:
+      within the noise, it is teleported horizontally only, each particle keeping the height and
+      orientation its support gave it (a block of a stack, missed by the first frame and seen 9 mm
+      above where it rests, is not put into its neighbours in every particle).
     * ``freeze_unreachable``: with sleeping physics, objects at rest that nothing awake in their
       particle can reach within the update (:func:`~estimator.worlds.frozen.unreachable`: a bound on
       how far anything moves in it) are out of collision detection while the worlds step: a resting

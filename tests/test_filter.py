@@ -1099,7 +1099,9 @@ def test_a_frame_enters_the_filter_at_most_four_times_through_an_update_that_res
     box = {"id": "box", "box": {"size": [0.06, 0.06, 0.06]}, "pose": {"position": [0, 0, TABLE_TOP + 0.03]}}
     cfg = EstimatorConfig(particles=8, workers=0, noise=NoiseConfig(), resample_threshold=1.0)  # resample
     with SceneEstimator(table_scene(box), cfg, np.random.default_rng(0)) as est:
-        est.update(Frame(0.0, {"box": det([0.0, 0.0, TABLE_TOP + 0.03])}))
-        entered = _filter_entries(est, Frame(0.1, {"box": det([0.01, 0.0, TABLE_TOP + 0.03])}))
+        # first seen 10 cm from where the scene has it: placed at its detection, height noise included,
+        # which the next update weighs (seen where the scene has it, each particle keeps its height)
+        est.update(Frame(0.0, {"box": det([0.1, 0.0, TABLE_TOP + 0.03])}))
+        entered = _filter_entries(est, Frame(0.1, {"box": det([0.11, 0.0, TABLE_TOP + 0.03])}))
     assert entered[:3] == ["update", "observe", "step"] and "_resample" in entered
     assert len(entered) <= 4, entered

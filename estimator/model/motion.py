@@ -53,7 +53,8 @@ def place(poses: np.ndarray, vel: np.ndarray, idx: np.ndarray, newly_known: np.n
           positions: np.ndarray, orientations: np.ndarray, has_orientation: np.ndarray, perc_vel: np.ndarray,
           noise: NoiseConfig, rng: np.random.Generator, spinning: np.ndarray | None = None,
           held: np.ndarray | None = None, ball_radius: np.ndarray | None = None,
-          vel_std: np.ndarray | None = None, gliding: np.ndarray | None = None) -> np.ndarray:
+          vel_std: np.ndarray | None = None, gliding: np.ndarray | None = None,
+          level: np.ndarray | None = None) -> np.ndarray:
     """Alg. 2, in place on ``poses (K, M, 7)`` and ``vel (K, M, 6)``: put objects ``idx`` at
     ``positions (M, 3)`` (their perception, or where it was at the update's start) plus perception
     noise per particle (``noise.position_std``; none where ``held (K, M)``: a held object goes to its
@@ -70,8 +71,10 @@ def place(poses: np.ndarray, vel: np.ndarray, idx: np.ndarray, newly_known: np.n
     standard error: a hidden object goes on with what its last detections allow, not with one
     velocity in every particle) and keep each particle's angular velocity, balls among them
     (``ball_radius (M,)``, NaN for other shapes) the spin of rolling at their velocity
-    (:func:`rolling_spin`); the others have none. Returns the position noise
-    ``(K, len(idx), 3)`` m each particle's object got."""
+    (:func:`rolling_spin`); the others have none. Objects ``level (M,)`` are moved horizontally only:
+    each particle keeps its own height and orientation (what its support gives a resting object,
+    rather than a noisy detection's, which would put it into what it rests on or under). Returns the
+    position noise ``(K, len(idx), 3)`` m each particle's object got."""
     K = len(poses)
     new = poses[:, idx].copy()
     new[..., :3] = positions[idx]
@@ -86,6 +89,10 @@ def place(poses: np.ndarray, vel: np.ndarray, idx: np.ndarray, newly_known: np.n
     if noise.orientation_std > 0 and np.any(has_q):
         dq = quat_from_rotvec(rng.normal(0.0, noise.orientation_std / 4, (K, int(has_q.sum()), 3)))
         new[:, has_q, 3:] = quat_multiply(dq, new[:, has_q, 3:])
+    if level is not None and np.any(level[idx]):
+        flat = level[idx]
+        new[:, flat, 2], new[:, flat, 3:] = poses[:, idx[flat], 2], poses[:, idx[flat], 3:]
+        drawn[:, flat, 2] = 0.0
     moved = set(int(i) for i in idx)
     for j, b in enumerate(idx):
         if newly_known[b]:

@@ -116,6 +116,7 @@ class SceneModel:
         hr = config.reasoner
         self.episode_rule = EpisodeRule(hr.push_lift, hr.push_smoothing, hr.place_wait)
         self._just_initialised = np.zeros(self.M, dtype=bool)
+        self._sighted = np.zeros(self.M, dtype=bool)  # perceived at some update so far
         # the static bodies, to stop paths at their surfaces (config.static_clip)
         solid = bool(np.any(self.static)) or scene.floor
         self.geometry = StaticGeometry(scene, config.physics) if config.static_clip and solid else None
@@ -265,6 +266,11 @@ class SceneModel:
         poses, vel = state.poses.copy(), state.velocities.copy()
         newly_known = perceived & ~self.known
         fresh = detected if cfg.fresh_checks else perceived
+        jumped = mem.jumped(cfg.noise_aware_jumps)
+        # first sightings, within the tracker's noise, of where the scene places an object: its height
+        # and orientation are the particle's (its support's), only where it stands is the detection's
+        level = perceived & self.known & ~self._sighted & ~jumped if cfg.noise_aware_jumps else None
+        self._sighted |= perceived
         u = Draft(state=state, frame=frame, detected=detected, perceived=perceived, dt=dt, rng=rng, cameras=cameras,
                   # a finite difference across a jump or a gap is no velocity; one across a reasoning
                   # period of continuous tracking is (moving_teleports: an object tracked in motion keeps moving)
@@ -272,7 +278,7 @@ class SceneModel:
                   far=self._out_of_reach(frame, detected), poses=poses, vel=vel, prev_modes=state.modes.copy(),
                   predicted=poses.copy(),  # before teleports: what each particle expected
                   jitter=np.zeros((K, M, 3)), newly_known=newly_known,
-                  tele=perceived & (~mem.perceived_prev | mem.jumped(cfg.noise_aware_jumps) | newly_known),  # teleports, first sightings
+                  tele=perceived & (~mem.perceived_prev | jumped | newly_known), level=level,  # teleports, first sightings
                   moving=np.zeros(M, dtype=bool), falling=np.zeros(M, dtype=bool),
                    cover_t=np.full((K, M), np.nan), proposal=np.zeros(K),
                   # at rest in the particle (on a support, slower than rest_speed) before this update

@@ -28,6 +28,8 @@ class Draft:
 
     Working arrays (see :class:`~estimator.model.step.Move` for their meaning): ``poses``, ``vel``,
     ``prev_modes``, ``modes``, ``release_codes``, ``predicted``, ``jitter``, ``tele``, ``newly_known``,
+    ``level (M,)`` (teleported horizontally only: first sightings within the tracker's noise of
+    where the scene places them, each particle keeping its height and orientation),
     ``moving`` and ``falling (M,)``, ``start (M, 3)``, ``fall`` (:class:`~estimator.model.step.Fall`),
     ``set_moving``, ``cover_t``, ``proposal (K,)``, ``grip``,
     ``let_go``, ``resting``, ``nudged``, ``detections``, ``target``, ``target_vel``,
@@ -52,6 +54,7 @@ class Draft:
     tele: np.ndarray
     moving: np.ndarray
     falling: np.ndarray
+    level: np.ndarray | None = None
     start: np.ndarray | None = None
     fall: object = None
     set_moving: np.ndarray | None = None

@@ -72,7 +72,7 @@ class Teleports(Mechanism):
             u.fall = Fall(fall, z1, (z1 - z0) / dt)
         if np.any(tele):
             u.jitter[:, tele] = self.teleport(u.poses, u.vel, np.flatnonzero(tele), u.newly_known, state.is_in,
-                                              u.rng, spinning, start, is_held(u.prev_modes))
+                                              u.rng, spinning, start, is_held(u.prev_modes), u.level)
             u.jitter[..., 2] = 0.0  # a support undoes the vertical noise: only the horizontal persists
             if np.any(fall):  # when the fall began is known to the vertical velocity's error
                 u.vel[:, fall, 2] += u.rng.normal(0.0, 1.0, (model.K, int(fall.sum()))) * vz_std[fall]
@@ -100,15 +100,17 @@ class Teleports(Mechanism):
 
     def teleport(self, poses: np.ndarray, vel: np.ndarray, idx: np.ndarray, newly_known: np.ndarray,
                  is_in: np.ndarray, rng: np.random.Generator, spinning: np.ndarray | None = None,
-                 start: np.ndarray | None = None, held: np.ndarray | None = None) -> np.ndarray:
+                 start: np.ndarray | None = None, held: np.ndarray | None = None,
+                 level: np.ndarray | None = None) -> np.ndarray:
         """Alg. 2 (:func:`~estimator.model.motion.place`), in place on ``poses (K, M, 7)`` and ``vel (K, M,
         6)``: objects ``idx`` at their last detection, or at ``start (M, 3)`` m (the detections
         carried back to the update's start,
         :meth:`~estimator.model.perception_memory.PerceptionMemory.position_at`), with the memory's perceived
-        velocities (and, teleported in motion, their standard error as velocity noise). Returns the
-        position noise ``(K, len(idx), 3)`` m."""
+        velocities (and, teleported in motion, their standard error as velocity noise); those of
+        ``level (M,)`` keep each particle's height and orientation. Returns the position noise
+        ``(K, len(idx), 3)`` m."""
         mem, nz = self.model.memory, self.model.config.noise
         positions = mem.last_pose[:, :3] if start is None else start
         return place(poses, vel, idx, newly_known, is_in, positions, mem.last_pose[:, 3:], mem.last_has_orientation,
                      mem.perc_vel, nz, rng, spinning, held, self.model.ball_radius, mem.velocity_std(nz.position_std),
-                     held if self.moving else None)
+                     held if self.moving else None, level)
