@@ -112,7 +112,12 @@ class EstimatorConfig:
       particle can reach within the update (:func:`~estimator.worlds.frozen.unreachable`: a bound on
       how far anything moves in it) are out of collision detection while the worlds step: a resting
       object costs Bullet nearly as much as a moving one otherwise. Exact while the bound holds
-      (off in paper mode, whose worlds do not sleep).
+      (off in paper mode).
+    * ``sleep_loads``: with sleeping physics, an object the update loaded into its world (teleported,
+      copied by resampling, pushed out of penetration; not held at the update's start) that is at
+      rest at both ends of the update is put to sleep then, as one it did not load is. Without,
+      it stays awake for one more update, and keeps awake whatever it touches: a stack whose middle
+      block was first seen late stayed awake in every world for three updates (off in paper mode).
     * ``physics``: the particle worlds' engine settings; the solver stops at a residual of
       :data:`SOLVER_RESIDUAL` (the ground-truth simulator keeps pybullet's 1e-7); URDFs are
       loaded without their visual meshes and textures (much less memory and start-up); objects at
@@ -149,6 +154,7 @@ class EstimatorConfig:
     one_action_per_motion: bool = True
     noise_aware_jumps: bool = True
     freeze_unreachable: bool = True
+    sleep_loads: bool = True
     static_clip: bool = True
     visibility_threshold: float = 0.3
     hypothesis_min_p: float = 0.02
@@ -194,7 +200,7 @@ class EstimatorConfig:
                                      let_go_moving=0.0),
                    negative_evidence=False, follow_hands=False, lazy_checks=False, fresh_checks=False,
                    moving_teleports=False, still_unacted=False, one_action_per_motion=False, static_clip=False,
-                   noise_aware_jumps=False, freeze_unreachable=False)
+                   noise_aware_jumps=False, freeze_unreachable=False, sleep_loads=False)
 
 
 def with_adaptive_count(config: EstimatorConfig, min_particles: int | None = None,

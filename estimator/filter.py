@@ -195,7 +195,7 @@ class SceneEstimator:
         proposal = model.propose(self.state, dt, self.rng)
         out = self.pool.advance(proposal.batch, int(round(dt / cfg.physics.time_step)), cfg.reasoner.d_sim_perc,
                                 cfg.lazy_checks, proposal.moving_targets, proposal.cameras, proposal.move.fused,
-                                cfg.freeze_unreachable)
+                                cfg.freeze_unreachable, cfg.sleep_loads)
         bad = ~out.finite  # exploded, or lost with their worker: weighed zero, then re-seeded
         if np.any(bad):
             log.warning("t=%.3f: %d particle simulation(s) exploded or lost; they are re-seeded from the "

@@ -151,10 +151,11 @@ class WorldPool:
 
     def run(self, batch: BatchInput, n_steps: int, d_sim_perc: float, lazy: bool = False,
             moving: bool = False, cameras: tuple[CameraSpec, ...] | None = None,
-            freeze: bool = False) -> BatchOutput:
+            freeze: bool = False, sleep_loads: bool = False) -> BatchOutput:
         """Propagate all K particles by ``n_steps`` steps (see :func:`~estimator.worlds.propagate.propagate`;
         ``moving``: divergence tests of objects teleported in motion carry their target on at its
-        velocity; ``freeze``: objects nothing can reach are out of collision while stepping);
+        velocity; ``freeze``: objects nothing can reach are out of collision while stepping;
+        ``sleep_loads``: objects loaded at rest that end the update at rest are put to sleep);
         visibility of ``batch.vis_query`` to ``cameras`` (None: the scene's camera; several: the
         largest fraction any of them sees)."""
         t0 = time.perf_counter()
@@ -165,7 +166,7 @@ class WorldPool:
         slots = self.slot_of[:K]
         if self._local is not None:
             out = self._in_particle_order(self._local.run(self._by_slot(batch), self._used, n_steps, d_sim_perc,
-                                                          lazy, moving, cameras, freeze), slots)
+                                                          lazy, moving, cameras, freeze, sleep_loads), slots)
             self.last_run_seconds = time.perf_counter() - t0
             self.last_worker_seconds = [self.last_run_seconds]
             self.last_worker_parts = [dict(self._local.last_parts)]
@@ -174,7 +175,7 @@ class WorldPool:
         self._shared.write_inputs(batch, slots)
         for conn, (lo, hi) in zip(self._conns, self._bounds):
             try:
-                conn.send(("run", self._used[lo:hi], n_steps, d_sim_perc, lazy, moving, cameras, freeze))
+                conn.send(("run", self._used[lo:hi], n_steps, d_sim_perc, lazy, moving, cameras, freeze, sleep_loads))
             except OSError:
                 pass  # a dead worker: its reply says so
         replies = [self._recv(conn) for conn in self._conns]  # all of them: no reply is left unread
@@ -202,7 +203,7 @@ class WorldPool:
 
     def advance(self, batch: BatchInput, n_steps: int, d_sim_perc: float, lazy: bool = False,
                 moving: bool = False, cameras: tuple[CameraSpec, ...] | None = None,
-                fused: np.ndarray | None = None, freeze: bool = False) -> BatchOutput:
+                fused: np.ndarray | None = None, freeze: bool = False, sleep_loads: bool = False) -> BatchOutput:
         """:meth:`run` for the particles' next update, the pool keeping its :attr:`cache` told: the
         entries of ``batch`` to load (``reset``) and those a world produced at rest (``settled``) are
         the cache's (:meth:`~estimator.worlds.world_cache.WorldCache.loads`; ``fused (K, M)``: entries only
@@ -211,7 +212,7 @@ class WorldPool:
         at rest, and their worlds load in full at the next update."""
         reset, settled = self.cache.loads(batch.poses, batch.velocities, fused)
         out = self.run(dataclasses.replace(batch, reset=reset, settled=settled), n_steps, d_sim_perc, lazy,
-                       moving, cameras, freeze)
+                       moving, cameras, freeze, sleep_loads)
         bad = ~out.finite
         if np.any(bad):
             out.poses[bad] = batch.poses[bad]

@@ -39,11 +39,12 @@ few steps late, at the latest after the last step)."""
 
 
 def propagate(pw: ParticleWorld, inp: StepInput, n_steps: int, d_sim_perc: float,
-              lazy: bool = False, moving: bool = False, freeze: bool = False) -> StepOutput:
+              lazy: bool = False, moving: bool = False, freeze: bool = False,
+              sleep_loads: bool = False) -> StepOutput:
     """Run Algorithm 1 for ``n_steps`` steps in one particle's world (see :func:`propagate_batch`)."""
     batch = BatchInput(*(None if getattr(inp, f) is None else np.asarray(getattr(inp, f))[None]
                          for f in PER_PARTICLE))
-    out = propagate_batch([pw], batch, n_steps, d_sim_perc, lazy, moving, freeze=freeze)
+    out = propagate_batch([pw], batch, n_steps, d_sim_perc, lazy, moving, freeze=freeze, sleep_loads=sleep_loads)
     return StepOutput(out.poses[0], out.velocities[0], out.modes[0], out.max_divergence[0], out.aabbs[0],
                       bool(out.finite[0]))
 
@@ -72,7 +73,8 @@ def _due_steps(d: np.ndarray, v: np.ndarray, d_sim_perc: float, dt: float) -> np
 
 def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d_sim_perc: float,
                     lazy: bool = False, moving: bool = False, parts: dict[str, float] | None = None,
-                    counts: dict[str, int] | None = None, freeze: bool = False) -> BatchOutput:
+                    counts: dict[str, int] | None = None, freeze: bool = False,
+                    sleep_loads: bool = False) -> BatchOutput:
     """Run Algorithm 1 for ``n_steps`` steps in each of the K worlds ``pws`` (all built from the same
     scene), particle ``k`` from the state in row ``k`` of ``batch``.
 
@@ -106,6 +108,10 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     update (:func:`~estimator.worlds.frozen.unreachable`) are out of collision detection while the
     worlds step, and stay out until an update may reach them or rays are cast
     (:meth:`~estimator.worlds.batch.ParticleWorld.thaw`: the caller's duty before any ray test).
+    Objects at rest at both ends of the update are put to sleep
+    (:func:`~estimator.worlds.resting.sleep_resting`): those it did not load, and with
+    ``sleep_loads=True`` also those it loaded (teleported, resampled, pushed out of penetration)
+    unless held at its start.
 
     ``parts``: where the call's time goes is added to it (seconds, :data:`PARTS`). ``counts``: what
     the update moved is added to it: ``entries`` (worlds times dynamic objects), ``moved`` (the
@@ -263,7 +269,7 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     for k, i, d in switched_at:
         max_d[k, i] = d
     if sleeping:
-        sleep_resting(pws, dyn_mask & is_free(modes_out) & ~moved, com_v, vel)
+        sleep_resting(pws, dyn_mask & is_free(modes_out) & ~(held_mask if sleep_loads else moved), com_v, vel)
     finite = (np.isfinite(poses).all(axis=(1, 2)) & np.isfinite(vel).all(axis=(1, 2))
               & (np.abs(vel[..., :3]) < MAX_SPEED).all(axis=(1, 2)))
     aabbs[~finite] = np.nan

@@ -158,7 +158,7 @@ class _Shard:
 
     def run(self, batch: BatchInput, active: np.ndarray, n_steps: int, d_sim_perc: float, lazy: bool = False,
             moving: bool = False, cameras: tuple[CameraSpec, ...] | None = None,
-            freeze: bool = False) -> BatchOutput:
+            freeze: bool = False, sleep_loads: bool = False) -> BatchOutput:
         """Propagate the worlds of the slots ``active (n,)`` bool from their rows of ``batch`` (one
         row per slot of the shard); the output has one row per slot in use, in increasing order of
         slot. ``last_parts`` then says where the time went (seconds: the parts of
@@ -175,7 +175,7 @@ class _Shard:
                                np.zeros((0, M, 2, 3)), np.zeros(0, bool), np.zeros((0, M)))
         self.last_parts = parts = {}
         out = propagate_batch([self.worlds[k] for k in slots], batch, n_steps, d_sim_perc, lazy, moving, parts,
-                              self.last_counts, freeze)
+                              self.last_counts, freeze, sleep_loads)
         t0 = time.perf_counter()
         q = np.flatnonzero(batch.vis_query) if batch.vis_query is not None else np.zeros(0, int)
         if cameras is None:
@@ -350,9 +350,9 @@ def _worker_main(conn, scene, settings, groups, buffer, n_particles, active):
                 getattr(shard, msg[0])()
                 conn.send(("ok", time.perf_counter() - t0))
                 continue
-            _, used, n_steps, d, lazy, moving, cameras, freeze = msg
+            _, used, n_steps, d, lazy, moving, cameras, freeze, sleep_loads = msg
             try:
-                out = shard.run(shared.inputs(lo, hi), used, n_steps, d, lazy, moving, cameras, freeze)
+                out = shard.run(shared.inputs(lo, hi), used, n_steps, d, lazy, moving, cameras, freeze, sleep_loads)
                 shared.write_outputs(lo + np.flatnonzero(used), out)
                 # the worker's time, its parts, what it moved
                 conn.send(("ok", (time.perf_counter() - t0, shard.last_parts, shard.last_counts)))
