@@ -117,7 +117,8 @@ class EstimatorConfig:
       copied by resampling, pushed out of penetration; not held at the update's start) that is at
       rest at both ends of the update is put to sleep then, as one it did not load is. Without,
       it stays awake for one more update, and keeps awake whatever it touches: a stack whose middle
-      block was first seen late stayed awake in every world for three updates (off in paper mode).
+      block was first seen late stayed awake in every world for two updates, in most for five (off
+      in paper mode).
     * ``physics``: the particle worlds' engine settings; the solver stops at a residual of
       :data:`SOLVER_RESIDUAL` (the ground-truth simulator keeps pybullet's 1e-7); URDFs are
       loaded without their visual meshes and textures (much less memory and start-up); objects at

@@ -57,8 +57,8 @@ class PerceptionMemory(HandsInMemory):
     (s; -inf: never), ``last_std`` (m; NaN: the detector gave none), ``perc_vel (M, 6)`` (linear part
     the least-squares slope of the detections over :data:`VELOCITY_WINDOW`, m/s; angular part 0),
     ``perc_vel_sxx (M,)`` (s^2, the spread of those detections' times about their mean: the slope's
-    standard error is the detection noise over its square root; 0: no slope), ``pose_at_tick (M, 7)`` (``last_pose`` at the
-    previous reasoning step), ``perceived_prev`` bool (perceived at the previous step),
+    standard error is the detection noise over its square root; 0: no slope), ``pose_at_tick (M, 7)``
+    and ``seen_at_tick`` (``last_pose``, ``last_seen`` at the previous reasoning step), ``perceived_prev`` bool (then),
     ``hold_hand`` (name of the tracked hand near each object when last detected, or None),
     ``hold_offset (M, 3)`` (object minus raw hand position, m, averaged over the frames that showed
     both, :func:`~estimator.model.hands.average_offset`), ``still_position (M, 3)`` (m, average
@@ -90,7 +90,7 @@ class PerceptionMemory(HandsInMemory):
         self.perceived_prev = np.zeros(M, dtype=bool)
         self._init_hands(M)
         self._prev_tick_vel = np.zeros((M, 3))
-        self._t_seen_at_tick = np.full(M, -np.inf)
+        self.seen_at_tick = np.full(M, -np.inf)
         self._history: list[deque] = [deque() for _ in range(M)]
         self.still_position = np.full((M, 3), np.nan)
         self.moving_since = np.full(M, np.nan)
@@ -334,8 +334,8 @@ class PerceptionMemory(HandsInMemory):
     def tick_velocity(self) -> np.ndarray:
         """Perceived velocity ``(M, 3)`` (m/s) over the last reasoning period (smoother than
         frame-to-frame differences): from the detections used at the previous step to the latest."""
-        ok = np.isfinite(self.last_seen) & np.isfinite(self._t_seen_at_tick)
-        gap = np.where(ok, self.last_seen - np.where(ok, self._t_seen_at_tick, 0.0), 0.0)
+        ok = np.isfinite(self.last_seen) & np.isfinite(self.seen_at_tick)
+        gap = np.where(ok, self.last_seen - np.where(ok, self.seen_at_tick, 0.0), 0.0)
         ok &= gap > 1e-6
         vel = np.zeros((self.M, 3))
         vel[ok] = (self.last_pose[ok, :3] - self.pose_at_tick[ok, :3]) / gap[ok, None]
@@ -410,4 +410,4 @@ class PerceptionMemory(HandsInMemory):
         self._prev_tick_vel = np.where(detected[:, None], tick_vel, 0.0)
         self.perceived_prev = perceived
         self.pose_at_tick = self.last_pose.copy()
-        self._t_seen_at_tick = self.last_seen.copy()
+        self.seen_at_tick = self.last_seen.copy()

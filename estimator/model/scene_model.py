@@ -116,7 +116,6 @@ class SceneModel:
         hr = config.reasoner
         self.episode_rule = EpisodeRule(hr.push_lift, hr.push_smoothing, hr.place_wait)
         self._just_initialised = np.zeros(self.M, dtype=bool)
-        self._sighted = np.zeros(self.M, dtype=bool)  # perceived at some update so far
         # the static bodies, to stop paths at their surfaces (config.static_clip)
         solid = bool(np.any(self.static)) or scene.floor
         self.geometry = StaticGeometry(scene, config.physics) if config.static_clip and solid else None
@@ -269,8 +268,8 @@ class SceneModel:
         jumped = mem.jumped(cfg.noise_aware_jumps)
         # first sightings, within the tracker's noise, of where the scene places an object: its height
         # and orientation are the particle's (its support's), only where it stands is the detection's
-        level = perceived & self.known & ~self._sighted & ~jumped if cfg.noise_aware_jumps else None
-        self._sighted |= perceived
+        first = ~np.isfinite(mem.seen_at_tick)  # never detected before this update
+        level = perceived & self.known & first & ~jumped if cfg.noise_aware_jumps else None
         u = Draft(state=state, frame=frame, detected=detected, perceived=perceived, dt=dt, rng=rng, cameras=cameras,
                   # a finite difference across a jump or a gap is no velocity; one across a reasoning
                   # period of continuous tracking is (moving_teleports: an object tracked in motion keeps moving)
