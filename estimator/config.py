@@ -119,6 +119,14 @@ class EstimatorConfig:
       it stays awake for one more update, and keeps awake whatever it touches: a stack whose middle
       block was first seen late stayed awake in every world for two updates, in most for five (off
       in paper mode).
+    * ``rest_prior``: the particles start where the scene's objects come to rest from the poses the
+      scene gives them, settled once in one world (:func:`~estimator.model.prior.rest_prior`), for
+      each object that comes to rest within three standard deviations of the perception noise
+      (``noise.position_std``, ``noise.orientation_std``) of its given pose; the others (held in
+      the air, say) keep the scene's pose. Otherwise an object given a pose it cannot rest in (a
+      duck a few degrees off the tilt it stands at) settles in every particle at once, and the
+      filter's jitter, which moves it without its contacts, pumps the swing until it tips over
+      (off in paper mode).
     * ``physics``: the particle worlds' engine settings; the solver stops at a residual of
       :data:`SOLVER_RESIDUAL` (the ground-truth simulator keeps pybullet's 1e-7); URDFs are
       loaded without their visual meshes and textures (much less memory and start-up); objects at
@@ -156,6 +164,7 @@ class EstimatorConfig:
     noise_aware_jumps: bool = True
     freeze_unreachable: bool = True
     sleep_loads: bool = True
+    rest_prior: bool = True
     static_clip: bool = True
     visibility_threshold: float = 0.3
     hypothesis_min_p: float = 0.02
@@ -201,7 +210,8 @@ class EstimatorConfig:
                                      let_go_moving=0.0),
                    negative_evidence=False, follow_hands=False, lazy_checks=False, fresh_checks=False,
                    moving_teleports=False, still_unacted=False, one_action_per_motion=False, static_clip=False,
-                   noise_aware_jumps=False, freeze_unreachable=False, sleep_loads=False)
+                   noise_aware_jumps=False, freeze_unreachable=False, sleep_loads=False,
+                   rest_prior=False)
 
 
 def with_adaptive_count(config: EstimatorConfig, min_particles: int | None = None,

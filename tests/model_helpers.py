@@ -1,5 +1,6 @@
 """A small scene for the scene model's tests (no worlds): a table, a crate, a ball in it, a cup and
 an object without a pose; and a model of it under a configuration."""
+import dataclasses
 import math
 
 import numpy as np
@@ -25,7 +26,10 @@ def scene():
 
 
 def make(config):
-    """A :class:`SceneModel` of :func:`scene` under ``config``, its memory built as the tests need it."""
+    """A :class:`SceneModel` of :func:`scene` under ``config``, its memory built as the tests need it;
+    its particles start at the scene's poses exactly (``rest_prior`` off: tests/test_prior.py tests
+    the prior at rest)."""
+    config = dataclasses.replace(config, rest_prior=False)
     sc = scene()
     memory = PerceptionMemory(sc, initial_poses(sc)[0], config.reasoner, config.follow_hands)
     base = np.tile([0.5, 0.0, 0.0, 0.1, 0.2], (len(sc.objects), 1))

@@ -44,6 +44,7 @@ from .mechanisms import PHASES, Draft, Mechanism, mechanisms_for
 from .motion import out_of_reach, roll_released, rolled_along
 from .params import param_bounds, world_params
 from .perception_memory import PerceptionMemory
+from .prior import rest_prior
 from .step import Move, Proposal, Settled, Weighed
 from .terms import Evidence, LogWeightTerm, held_unseen_in_view
 
@@ -67,14 +68,6 @@ def initial_poses(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     return poses, known
 
 
-
-
-
-
-
-
-
-
 class SceneModel:
     """How the particles of ``scene`` move and are weighed (see the module docstring).
 
@@ -86,7 +79,8 @@ class SceneModel:
             hooks run (default :func:`~estimator.model.mechanisms.mechanisms_for`; a caller adds its
             own with ``lambda model: mechanisms_for(model) + [Mine(model)]``).
 
-    ``known (M,)``: objects with an initial pose or perceived since; ``mechanisms``: the list;
+    ``known (M,)``: objects with an initial pose or perceived since; ``prior (M, 7)``: the poses the
+    particles start from (the scene's, or where its objects rest: ``config.rest_prior``); ``mechanisms``: the list;
     ``terms``: the log-weight terms; ``seconds``: the wall time (s) spent so far in each part of the
     model, each mechanism's hook by ``"<class>.<phase>"``, and ``"settle"``, ``"weigh"``, ``"commit"``
     (``bench --breakdown`` reports it per update).
@@ -96,8 +90,13 @@ class SceneModel:
                  memory: PerceptionMemory | None = None, mechanisms=None):
         self.scene = scene
         self.config = config
+        given, self.known = initial_poses(scene)
+        nz = config.noise
+        # the poses the particles start from (prior.rest_prior: where the objects come to rest)
+        self.prior = (rest_prior(scene, given, self.known, config.physics, 3 * nz.position_std, 3 * nz.orientation_std)[0]
+                      if config.rest_prior else given)
         self.memory = memory if memory is not None else PerceptionMemory(
-            scene, initial_poses(scene)[0], config.reasoner, config.follow_hands,
+            scene, self.prior, config.reasoner, config.follow_hands,
             from_onset=config.moving_teleports, hands=config.hands)
         self.inputs = StepInputs(len(scene.objects), scene.camera)
         self.recoveries = 0  # updates after which every particle had zero weight (reseed)
@@ -108,7 +107,6 @@ class SceneModel:
         self.hollow = np.array(scene.hollow, dtype=bool)
         self.round = np.array([o.shape in ("sphere", "cylinder") for o in scene.objects], dtype=bool)
         self.ball_radius = np.array([o.radius if o.shape == "sphere" else np.nan for o in scene.objects])
-        self.known = initial_poses(scene)[1]
         self.base_params = base_params
         self.param_bounds = param_bounds(config)
         self.perturbed = np.zeros((self.M, 5), dtype=bool)  # parameters the prior spreads (initial_state)
@@ -221,10 +219,10 @@ class SceneModel:
 
     # -- the prior ------------------------------------------------------------------------------------
     def initial_state(self, rng: np.random.Generator) -> ParticleState:
-        """K particles at the scene's poses, with physical parameters drawn from their priors and the
+        """K particles at the prior's poses (:attr:`prior`), with physical parameters drawn from their priors and the
         positions of known dynamic objects perturbed horizontally by ``position_std``."""
         K, M, nz = self.K, self.M, self.config.noise
-        poses = np.repeat(initial_poses(self.scene)[0][None], K, axis=0)
+        poses = np.repeat(self.prior[None], K, axis=0)
         base = self.base_params
         params = np.repeat(base[None], K, axis=0)
         dyn = np.flatnonzero(self.dynamic)

@@ -1,0 +1,78 @@
+"""The prior at rest: where the scene's objects come to rest from the poses the scene gives them.
+
+A scene file states where objects are to within a tracker's noise, not a pose they can rest in:
+a duck given 10 degrees off the tilt its rounded base rests at rocks when dropped there. Put in K
+worlds at once, it rocks in every one of them, and each jitter of the filter (regularisation,
+process noise) moves it without its contacts (Bullet's contact points stay with the old pose and
+are made again), which gives the swing energy instead of taking it: in every particle the hidden
+duck tipped over onto its side, though it stands in the truth, and stayed awake doing it.
+:func:`rest_prior` settles the scene once, in one world with the scene's own parameters, and keeps
+for each object the pose it came to rest in when that is within the prior's stated uncertainty
+(otherwise the object is somewhere physics does not leave it, held in the air say, and the scene's
+pose stands). Array shapes: M objects, poses ``(M, 7)``: metres, quaternions x, y, z, w.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from physics.scene import Scene
+from physics.settings import PhysicsSettings
+from physics.transforms import quat_angle
+from physics.world import World
+
+from ..worlds.resting import REST_SPEED, REST_SPIN
+
+WINDOW = 0.05
+"""s: the settling is tested for rest over windows of this length (as the ground truth's)."""
+MAX_TIME = 2.0
+"""s: the most the prior settles; objects still moving then keep the scene's poses."""
+
+
+def _settle(world: World, poses: np.ndarray, indices: list[int]) -> tuple[np.ndarray, bool]:
+    """Step ``world`` from ``poses (M, 7)`` until objects ``indices`` moved slower than
+    :data:`REST_SPEED` and turned slower than :data:`REST_SPIN` over a :data:`WINDOW` (at most
+    :data:`MAX_TIME`); returns the poses ``(M, 7)`` reached and whether they are at rest."""
+    world.set_poses(poses)
+    world.set_velocities(np.zeros((len(poses), 6)))
+    n = max(1, int(round(WINDOW / world.settings.time_step)))
+    span = n * world.settings.time_step
+    for _ in range(int(round(MAX_TIME / WINDOW))):
+        before = world.get_poses(indices)
+        world.step(n)
+        after = world.get_poses(indices)
+        speed = np.linalg.norm(after[:, :3] - before[:, :3], axis=1) / span
+        spin = quat_angle(after[:, 3:], before[:, 3:]) / span
+        if np.all(speed < REST_SPEED) and np.all(spin < REST_SPIN):
+            return world.get_poses(), True
+    return world.get_poses(), False
+
+
+def rest_prior(scene: Scene, poses: np.ndarray, known: np.ndarray, settings: PhysicsSettings,
+               reach: float, turn: float) -> tuple[np.ndarray, np.ndarray]:
+    """The scene's poses ``poses (M, 7)`` with each known dynamic object (``known (M,)`` bool) at
+    the pose it comes to rest in, settled in one world built with ``settings`` and the scene's
+    parameters, where that is at most ``reach`` (m) and ``turn`` (rad) from its given pose (the
+    world does not let bodies sleep: a reset would not wake them).
+
+    The others keep their given poses, and are out of collision in a second settling so that the
+    rest is not what their fall would make it. Returns the poses ``(M, 7)`` and which objects
+    took their rest pose ``(M,)`` bool (none when the scene did not come to rest within
+    :data:`MAX_TIME`)."""
+    poses = np.array(poses, dtype=float)
+    out, rested = poses.copy(), np.zeros(len(poses), dtype=bool)
+    with World(scene, dataclasses.replace(settings, sleeping=False)) as world:
+        todo = [int(i) for i in world.dynamic_indices if known[i]]
+        while todo:
+            settled, at_rest = _settle(world, poses, todo)
+            if not at_rest:
+                return out, np.zeros(len(poses), dtype=bool)
+            near = ((np.linalg.norm(settled[todo, :3] - poses[todo, :3], axis=1) <= reach)
+                    & (quat_angle(settled[todo, 3:], poses[todo, 3:]) <= turn))
+            if np.all(near):
+                out[todo], rested[todo] = settled[todo], True
+                break
+            world.set_colliding([i for i, ok in zip(todo, near) if not ok], False)
+            todo = [i for i, ok in zip(todo, near) if ok]
+    return out, rested
