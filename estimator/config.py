@@ -107,7 +107,11 @@ class EstimatorConfig:
       sighting of an object the scene places is judged the same way, as a jump from that pose:
       within the noise, it is teleported horizontally only, each particle keeping the height and
       orientation its support gave it (a block of a stack, missed by the first frame and seen 9 mm
-      above where it rests, is not put into its neighbours in every particle).
+      above where it rests, is not put into its neighbours in every particle). And an object is
+      teleported onto a fall off an edge (``moving_teleports``) only once it was seen moving, a
+      motion onset beyond the noise: by their tick velocities, a 1 cm tracker's detections of a
+      still tray read as sliding along and then falling at about one update in twenty, and each such
+      teleport woke the tray and what shares its island in every particle.
     * ``freeze_unreachable``: with sleeping physics, objects at rest that nothing awake in their
       particle can reach within the update (:func:`~estimator.worlds.frozen.unreachable`: a bound on
       how far anything moves in it) are out of collision detection while the worlds step: a resting

@@ -112,3 +112,33 @@ def test_a_teleported_object_is_scored_on_its_physics_not_on_its_teleport_noise(
     mv2 = model.move(st, Frame(0.1), np.zeros(5, bool), mem.perceived(0.1), 0.1, np.random.default_rng(2))
     assert np.allclose(mv2.predicted[:, BALL, :2], [0.08 + 0.05, 0.0])
     assert np.all(mv2.jitter == 0)  # nothing teleported this time
+
+
+@pytest.mark.parametrize("aware, rolling", [(True, False), (False, False), (True, True)])
+def test_a_still_objects_noisy_detections_are_not_a_fall_off_an_edge(aware, rolling):
+    """A cup standing still, seen by a detector of 1 cm noise: its last detection of one update is
+    2.5 cm to one side, of the next 3 cm lower, which by the tick velocities reads as moving along
+    (0.25 m/s) then falling (0.3 m/s down). Within the noise (no motion onset), it is no fall off an
+    edge and is not teleported (noise_aware_jumps); without it, it is, as before. A cup that really
+    slides along at 0.9 m/s and drops is teleported on its fall either way."""
+    model = make(EstimatorConfig(particles=3, noise=NoiseConfig(position_std=0.01), noise_aware_jumps=aware))
+    st = model.initial_state(np.random.default_rng(0))
+    mem = model.memory
+    still = np.array([0.3, 0.3, 0.14])
+
+    def seen(tf, last, tick):
+        if rolling:
+            return still + [0.9 * tf, 0.0, -0.3 * max(0.0, tf - 0.15)]
+        return still + ([0.025, 0.0, 0.0] if last and tick == 1 else [0.0, 0.0, -0.03] if last and tick == 2 else 0.0)
+
+    for j, t in enumerate([0.0, 0.1, 0.2]):
+        for f in range(3):
+            tf = t + f / 30
+            mem.record(Frame(tf, {"cup": Detection(seen(tf, f == 2, j), position_std=0.01)}))
+        frame = Frame(t + 2 / 30, {})
+        detected = np.zeros(5, bool)
+        detected[CUP] = True
+        perceived = mem.perceived(frame.t)
+        mv = model.move(st, frame, detected, perceived, 0.1, np.random.default_rng(j))
+        mem.end_tick(perceived, detected, mem.tick_velocity())
+    assert mv.teleported[CUP] == (rolling or not aware)

@@ -50,6 +50,8 @@ class Teleports(Mechanism):
             # moving along, or rolled off an edge: keeps its velocity and spin
             moving, falling = teleport_kinds(perceived & mem.perceived_prev & ~u.newly_known & detected, u.tick_vel,
                                              mem.previous_tick_velocity())
+            if cfg.noise_aware_jumps:  # falling off an edge: seen moving (a motion onset beyond the tracker's
+                falling &= np.isfinite(mem.moving_since)  # noise), not a still object's noisy detections
             # seen rolling off an edge (with no tracked hand to move it), it is placed on its fall
             # even if it moved little since the last update (one late detection): a fixed target
             # would make it held in the air
