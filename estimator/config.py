@@ -139,10 +139,12 @@ class EstimatorConfig:
     * ``visibility_threshold``: fraction of an object's sample points in view for it to count as
       visible to the camera.
     * ``static_clip``: a held object's path to its target (a tracked hand, a detection carried on at
-      its velocity), and the target of a perceived object, stop at the surface of static geometry
-      they would enter (:meth:`physics.penetration.StaticGeometry.clip`): no particle ever believes
-      an object inside the table or under the floor. Off in paper mode, which places an overridden
-      object at its perceived pose wherever that is.
+      its velocity) stops at the surface of static geometry it would enter
+      (:meth:`physics.penetration.StaticGeometry.clip`), and the target of a free perceived object
+      that the tracker's error sank into it is pushed out onto its surface, where it was seen
+      horizontally (:meth:`~estimator.model.mechanisms.static_clip.StaticClip.lift_targets`): no
+      particle ever believes an object inside the table or under the floor. Off in paper mode, which
+      places an overridden object at its perceived pose wherever that is.
     """
 
     particles: int = 1

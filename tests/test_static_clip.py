@@ -37,3 +37,24 @@ def test_an_object_left_deep_inside_the_table_is_pushed_out_and_none_when_clippi
     assert np.array_equal(out[1], poses[1]) and np.array_equal(out[:, TABLE], poses[:, TABLE])
     off = make(EstimatorConfig(particles=2, noise=NoiseConfig(), static_clip=False))
     assert not any(isinstance(m, StaticClip) for m in off.mechanisms)
+
+
+def test_a_free_objects_detection_sunk_into_the_table_is_lifted_onto_it_where_it_was_seen():
+    """The tracker's error sank the cup's detection 2 cm into the table, 5 cm beside where the
+    particle has it: the target goes up onto the table top above the detection (its horizontal
+    position is the evidence), with no target velocity; a detection 2 mm low (within
+    CLIP_DEPTH) and one above the table are left alone."""
+    model = make(EstimatorConfig(particles=3, noise=NoiseConfig()))
+    clip = model.mechanism(StaticClip)
+    st = model.initial_state(np.random.default_rng(0))
+    target = st.poses.copy()  # the cup (8 cm tall, frame at its centre) stands on the top at 0.1 m
+    target[:, CUP, :3] = [[0.35, 0.3, 0.14 - 0.02], [0.35, 0.3, 0.14 - 0.002], [0.35, 0.3, 0.16]]
+    seen = target.copy()
+    target_vel = np.ones((3, 5, 6))
+    which = np.zeros((3, 5), bool)
+    which[:, CUP] = True
+    clip.lift_targets(target, target_vel, which)
+    assert np.array_equal(target[0, CUP, :2], seen[0, CUP, :2])  # where it was seen, horizontally
+    assert abs(target[0, CUP, 2] - 0.14) < 1e-3  # on the top, not in it
+    assert np.all(target_vel[0, CUP] == 0.0) and np.all(target_vel[1:, CUP] == 1.0)
+    assert np.array_equal(target[1:], seen[1:]) and np.array_equal(target[:, BALL], seen[:, BALL])

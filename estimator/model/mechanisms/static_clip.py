@@ -1,13 +1,15 @@
-"""No object inside static geometry (``static_clip``): the path of a held object, or of a free one
-checked against its detection, to its target stops at the surface of static geometry it would enter
-(a hand cannot carry a cup through the table; a detection sunk into it by the tracker's error is not
-where the cup is); after physics, an object that a step left inside the table or the floor is pushed
-out (:class:`~physics.penetration.StaticGeometry`)."""
+"""No object inside static geometry (``static_clip``): the path of a held object to its target stops
+at the surface of static geometry it would enter (a hand cannot carry a cup through the table); the
+target of a free one checked against its detection, sunk into static geometry by the tracker's error,
+is pushed out of it (it is not where the cup is: the cup is on the surface, above it); after physics,
+an object that a step left inside the table or the floor is pushed out
+(:class:`~physics.penetration.StaticGeometry`)."""
 from __future__ import annotations
 
 import numpy as np
 
 from actions.modes import is_held
+from physics.penetration import CLIP_DEPTH
 
 from .base import Draft, Mechanism
 
@@ -16,7 +18,27 @@ class StaticClip(Mechanism):
     """Clips :attr:`Draft.target` before physics and pushes the poses out of static geometry after."""
 
     def check(self, u: Draft) -> None:
-        self.clip_targets(u.poses, u.target, u.target_vel, is_held(u.modes) | u.check)
+        held = is_held(u.modes)
+        self.clip_targets(u.poses, u.target, u.target_vel, held)
+        self.lift_targets(u.target, u.target_vel, u.check & ~held)
+
+    def lift_targets(self, target: np.ndarray, target_vel: np.ndarray, which: np.ndarray) -> None:
+        """In place on ``target (K, M, 7)`` and ``target_vel (K, M, 6)``: the targets of the entries
+        ``which (K, M)`` more than :data:`~physics.penetration.CLIP_DEPTH` deep inside static geometry
+        are pushed out of it along the deepest contact's normal
+        (:meth:`~physics.penetration.StaticGeometry.push_out`; equal targets, a detection every
+        particle shares, are asked once) and have no target velocity. The detection's horizontal
+        position is kept, which a path stopped at the surface from each particle's pose would cut
+        short; and it costs one query per distinct target, not a sweep per particle."""
+        model = self.model
+        for m in np.flatnonzero(which.any(axis=0) & model.dynamic & model.known).tolist():
+            rows = np.flatnonzero(which[:, m])
+            ends, inverse = np.unique(target[rows, m], axis=0, return_inverse=True)
+            lifted, deep = model.geometry.push_out(m, ends, CLIP_DEPTH)
+            hit = deep[inverse.ravel()]
+            if np.any(hit):
+                target[rows[hit], m] = lifted[inverse.ravel()][hit]
+                target_vel[rows[hit], m] = 0.0
 
     def clip_targets(self, poses: np.ndarray, target: np.ndarray, target_vel: np.ndarray, which: np.ndarray) -> None:
         """In place on ``target (K, M, 7)`` and ``target_vel (K, M, 6)``: the paths of the entries
