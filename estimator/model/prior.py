@@ -3,9 +3,9 @@
 A scene file states where objects are to within a tracker's noise, not a pose they can rest in:
 a duck given 10 degrees off the tilt its rounded base rests at rocks when dropped there. Put in K
 worlds at once, it rocks in every one of them, and each jitter of the filter (regularisation,
-process noise) moves it without its contacts (Bullet's contact points stay with the old pose and
-are made again), which gives the swing energy instead of taking it: in every particle the hidden
-duck tipped over onto its side, though it stands in the truth, and stayed awake doing it.
+process noise) of a few millimetres moves it without its contacts, which Bullet then makes afresh, and
+that gives the swing energy instead of taking it: in 255 of 256 particles the hidden duck tipped
+over onto its side, though it stands in the truth, and it stayed awake doing it.
 :func:`rest_prior` settles the scene once, in one world with the scene's own parameters, and keeps
 for each object the pose it came to rest in when that is within the prior's stated uncertainty
 (otherwise the object is somewhere physics does not leave it, held in the air say, and the scene's
