@@ -245,12 +245,16 @@ class StaticGeometry:
     def push_out(self, m: int, poses: np.ndarray, depth: float = INVARIANT_DEPTH) -> tuple[np.ndarray, np.ndarray]:
         """Link-frame ``poses (N, 7)`` of dynamic object ``m``, those deeper than ``depth`` (m) inside
         static geometry moved out of it along the deepest contact's normal (a fast object caught by
-        a step in the middle of its impact on the table). Returns the poses ``(N, 7)`` (a copy) and
-        which were moved ``(N,)``."""
+        a step in the middle of its impact on the table). Equal poses (a detection every particle
+        shares) are pushed out once. Returns the poses ``(N, 7)`` (a copy) and which were moved ``(N,)``."""
         poses = np.asarray(poses, dtype=float).reshape(-1, 7).copy()
         deep = self.depth_of(m, poses, depth) > depth
+        pushed: dict[bytes, np.ndarray] = {}
         for r in np.flatnonzero(deep).tolist():
-            poses[r] = self._push_out(m, poses[r])
+            key = poses[r].tobytes()
+            if key not in pushed:
+                pushed[key] = self._push_out(m, poses[r])
+            poses[r] = pushed[key]
         return poses, deep
 
     def _push_out(self, m: int, pose: np.ndarray, rounds: int = 3) -> np.ndarray:

@@ -22,18 +22,22 @@ from physics.settings import PhysicsSettings
 from physics.transforms import quat_angle
 from physics.world import World
 
-from ..worlds.resting import REST_SPEED, REST_SPIN
+from ..worlds.resting import at_rest
 
 WINDOW = 0.05
 """s: the settling is tested for rest over windows of this length (as the ground truth's)."""
 MAX_TIME = 2.0
 """s: the most the prior settles; objects still moving then keep the scene's poses."""
+REACH_SIGMAS = 3.0
+"""An object takes its rest pose when it is within this many standard deviations of the perception
+noise (``NoiseConfig.position_std``, ``orientation_std``) of its given pose
+(:class:`~estimator.model.SceneModel`)."""
 
 
 def _settle(world: World, poses: np.ndarray, indices: list[int]) -> tuple[np.ndarray, bool]:
-    """Step ``world`` from ``poses (M, 7)`` until objects ``indices`` moved slower than
-    :data:`REST_SPEED` and turned slower than :data:`REST_SPIN` over a :data:`WINDOW` (at most
-    :data:`MAX_TIME`); returns the poses ``(M, 7)`` reached and whether they are at rest."""
+    """Step ``world`` from ``poses (M, 7)`` until objects ``indices`` are at rest over a :data:`WINDOW`
+    (:func:`~estimator.worlds.resting.at_rest`; at most :data:`MAX_TIME`); returns the poses
+    ``(M, 7)`` reached and whether they are at rest."""
     world.set_poses(poses)
     world.set_velocities(np.zeros((len(poses), 6)))
     n = max(1, int(round(WINDOW / world.settings.time_step)))
@@ -41,10 +45,7 @@ def _settle(world: World, poses: np.ndarray, indices: list[int]) -> tuple[np.nda
     for _ in range(int(round(MAX_TIME / WINDOW))):
         before = world.get_poses(indices)
         world.step(n)
-        after = world.get_poses(indices)
-        speed = np.linalg.norm(after[:, :3] - before[:, :3], axis=1) / span
-        spin = quat_angle(after[:, 3:], before[:, 3:]) / span
-        if np.all(speed < REST_SPEED) and np.all(spin < REST_SPIN):
+        if at_rest(before, world.get_poses(indices), span):
             return world.get_poses(), True
     return world.get_poses(), False
 

@@ -44,7 +44,7 @@ from .mechanisms import PHASES, Draft, Mechanism, mechanisms_for
 from .motion import out_of_reach, roll_released, rolled_along
 from .params import param_bounds, world_params
 from .perception_memory import PerceptionMemory
-from .prior import rest_prior
+from .prior import REACH_SIGMAS, rest_prior
 from .step import Move, Proposal, Settled, Weighed
 from .terms import Evidence, LogWeightTerm, held_unseen_in_view
 
@@ -91,10 +91,9 @@ class SceneModel:
         self.scene = scene
         self.config = config
         given, self.known = initial_poses(scene)
-        nz = config.noise
+        reach = REACH_SIGMAS * np.array([config.noise.position_std, config.noise.orientation_std])
         # the poses the particles start from (prior.rest_prior: where the objects come to rest)
-        self.prior = (rest_prior(scene, given, self.known, config.physics, 3 * nz.position_std, 3 * nz.orientation_std)[0]
-                      if config.rest_prior else given)
+        self.prior = rest_prior(scene, given, self.known, config.physics, *reach)[0] if config.rest_prior else given
         self.memory = memory if memory is not None else PerceptionMemory(
             scene, self.prior, config.reasoner, config.follow_hands,
             from_onset=config.moving_teleports, hands=config.hands)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from physics.sleep import sleep
-from physics.transforms import quat_from_rotvec, quat_multiply
+from physics.transforms import quat_angle, quat_from_rotvec, quat_multiply
 from physics.world import World
 
 REST_SPEED = 0.005
@@ -25,6 +25,15 @@ SETTLED_REACH = 0.03
 """m: a settled object loaded asleep (:class:`~estimator.worlds.batch.StepInput` ``settled``) is woken when an object of its
 particle that the update moves ends within this distance of it (boxes): three times the largest
 regularisation jitter, so that an object whose support was jittered away does not float."""
+
+
+def at_rest(before: np.ndarray, after: np.ndarray, dt: float) -> bool:
+    """Whether poses ``(D, 7)`` (link frames, quaternions x, y, z, w) taken ``dt`` seconds apart
+    moved slower than :data:`REST_SPEED` and turned slower than :data:`REST_SPIN` on average (the
+    ground truth's settling and the prior at rest, :mod:`estimator.model.prior`, test rest so)."""
+    speed = np.linalg.norm(after[:, :3] - before[:, :3], axis=1) / dt
+    spin = quat_angle(after[:, 3:], before[:, 3:]) / dt
+    return bool(np.all(speed < REST_SPEED) and np.all(spin < REST_SPIN))
 
 
 def slow(vel: np.ndarray) -> np.ndarray:

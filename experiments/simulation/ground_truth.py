@@ -12,7 +12,7 @@ import numpy as np
 import pybullet as pb
 
 from estimator.relations import relation_list, relation_masks
-from estimator.worlds.resting import REST_SPEED, REST_SPIN
+from estimator.worlds.resting import at_rest
 from experiments.simulation.camera import SyntheticCamera
 from experiments.simulation.files import SimulationResult, _r, _rl
 from experiments.simulation.perception import PerceptionModel
@@ -21,7 +21,6 @@ from experiments.simulation.scripted_hand import ScriptedHand
 from experiments.simulation.variants import Variant
 from physics.bodies import bullet_rolling_friction, support_friction
 from physics.scene import CameraSpec
-from physics.transforms import quat_angle
 from physics.world import PhysicsSettings, World
 
 HAND_ID = "human/right"
@@ -37,15 +36,6 @@ SETTLE_MAX = 3.0
 
 # --------------------------------------------------------------------------------------------------
 # the ground-truth world
-
-
-def at_rest(before: np.ndarray, after: np.ndarray, dt: float) -> bool:
-    """Whether poses ``(D, 7)`` (link frames, quaternions x, y, z, w) taken ``dt`` seconds apart
-    moved slower than :data:`~estimator.worlds.resting.REST_SPEED` and turned slower than
-    :data:`~estimator.worlds.resting.REST_SPIN` on average."""
-    speed = np.linalg.norm(after[:, :3] - before[:, :3], axis=1) / dt
-    spin = quat_angle(after[:, 3:], before[:, 3:]) / dt
-    return bool(np.all(speed < REST_SPEED) and np.all(spin < REST_SPIN))
 
 
 class GroundTruth(ScriptedHand):

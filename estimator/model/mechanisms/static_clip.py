@@ -26,19 +26,17 @@ class StaticClip(Mechanism):
         """In place on ``target (K, M, 7)`` and ``target_vel (K, M, 6)``: the targets of the entries
         ``which (K, M)`` more than :data:`~physics.penetration.CLIP_DEPTH` deep inside static geometry
         are pushed out of it along the deepest contact's normal
-        (:meth:`~physics.penetration.StaticGeometry.push_out`; equal targets, a detection every
-        particle shares, are asked once) and have no target velocity. The detection's horizontal
-        position is kept, which a path stopped at the surface from each particle's pose would cut
-        short; and it costs one query per distinct target, not a sweep per particle."""
+        (:meth:`~physics.penetration.StaticGeometry.push_out`, which asks equal targets once) and
+        have no target velocity. The detection's horizontal position is kept, which a path stopped at
+        the surface from each particle's pose would cut short; and it costs one query per distinct
+        target, not a sweep per particle."""
         model = self.model
         for m in np.flatnonzero(which.any(axis=0) & model.dynamic & model.known).tolist():
             rows = np.flatnonzero(which[:, m])
-            ends, inverse = np.unique(target[rows, m], axis=0, return_inverse=True)
-            lifted, deep = model.geometry.push_out(m, ends, CLIP_DEPTH)
-            hit = deep[inverse.ravel()]
-            if np.any(hit):
-                target[rows[hit], m] = lifted[inverse.ravel()][hit]
-                target_vel[rows[hit], m] = 0.0
+            lifted, deep = model.geometry.push_out(m, target[rows, m], CLIP_DEPTH)
+            if np.any(deep):
+                target[rows[deep], m] = lifted[deep]
+                target_vel[rows[deep], m] = 0.0
 
     def clip_targets(self, poses: np.ndarray, target: np.ndarray, target_vel: np.ndarray, which: np.ndarray) -> None:
         """In place on ``target (K, M, 7)`` and ``target_vel (K, M, 6)``: the paths of the entries
