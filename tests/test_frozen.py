@@ -70,13 +70,33 @@ def test_a_turned_box_is_judged_by_its_own_box_and_particles_apart():
     assert frozen[:, 2].tolist() == [False, True]
 
 
-def test_local_boxes_are_the_objects_own_whatever_their_pose():
+def test_a_held_object_gliding_past_a_box_does_not_reach_it_where_a_free_one_might_fall_onto_it():
+    """The ball passes 4 cm beside box 2 (more than the contact margin, less than a fall in one
+    update): held, it is set on its path at every step and cannot touch the box; free, it may."""
+    gap = 0.04
+    assert FREEZE_MARGIN < gap < FALL
+    poses, shift, targets, spread, speeds, boxes, resting, awake = _line([1.0 * T + 0.03 + gap + 0.05], 0.05, 1.0)
+    gliding = awake.copy()
+    held = unreachable(poses, shift, targets, spread, speeds, boxes, resting, awake, T, gliding=gliding)
+    free = unreachable(poses, shift, targets, spread, speeds, boxes, resting, awake, T)
+    assert held[0, 2] and not free[0, 2]
+    # nearer than the contact margin, even a held one may touch it
+    poses[0, 2, 0] = 1.0 * T + 0.03 + 0.5 * FREEZE_MARGIN + 0.05
+    assert not unreachable(poses, shift, targets, spread, speeds, boxes, resting, awake, T, gliding=gliding)[0, 2]
+
+
+@pytest.mark.parametrize("yaw_deg", [0.0, 90.0, 45.0, 30.0])
+def test_local_boxes_are_the_objects_own_whatever_their_pose(yaw_deg):
+    """Measured exactly, not from the box the object happens to fill at its pose: a box yawed
+    45 degrees fills a box half as wide again, which read back in its frame would double."""
+    q = [0.0, 0.0, np.sin(np.radians(yaw_deg) / 2), np.cos(np.radians(yaw_deg) / 2)]
     scene = table_scene({"id": "a", "box": {"size": [0.1, 0.2, 0.3]}, "pose": {"position": [0, 0, 1.0]}},
-                        {"id": "b", "box": {"size": [0.1, 0.2, 0.3]},
-                         "pose": {"position": [0.5, 0, 1.0], "orientation": [0, 0, 0.7071068, 0.7071068]}})
+                        {"id": "b", "box": {"size": [0.1, 0.2, 0.3]}, "pose": {"position": [0.5, 0, 1.0], "orientation": q}})
     with World(scene) as w:
         w.set_poses(w.get_poses())  # loaded (not parked)
+        before = w.get_poses()
         centre, half = local_boxes(w)
+        assert np.allclose(w.get_poses(), before, atol=1e-9)  # set back where it was
     assert np.allclose(half[1:], [[0.05, 0.1, 0.15]] * 2, atol=0.005)  # Bullet's margin at most
     assert np.allclose(centre[1:], 0.0, atol=1e-6) and np.all(half[0] == 0.0)  # the static table: none
 

@@ -92,15 +92,16 @@ class ParticleWorld:
     update (:mod:`~estimator.worlds.frozen`); :meth:`thaw` puts them back (before any ray test).
     ``contactless``: objects an update took out of collision (:mod:`~estimator.worlds.frozen`) and
     that have not been awake since: Bullet has forgotten their contacts. ``boxes``: the objects'
-    body-frame boxes (:func:`~estimator.worlds.frozen.local_boxes`), measured when first asked."""
+    body-frame boxes (:func:`~estimator.worlds.frozen.local_boxes`), as given (the same for every
+    copy of a scene) or measured in ``world`` now (turning its objects: build it before its run)."""
 
-    def __init__(self, world: World):
+    def __init__(self, world: World, boxes: tuple[np.ndarray, np.ndarray] | None = None):
         self.world = world
         self.dynamic = [int(i) for i in world.dynamic_indices]
         self.contactless: set[int] = set()
         self.frozen: list[int] = []
         self.stepped = False  # stepped since its last loads (else what it holds is awake at zero velocity)
-        self._boxes: tuple[np.ndarray, np.ndarray] | None = None
+        self.boxes: tuple[np.ndarray, np.ndarray] = local_boxes(world) if boxes is None else boxes
         self._params: np.ndarray | None = None
         self._params_key: bytes = b""
 
@@ -111,12 +112,6 @@ class ParticleWorld:
             back = self.frozen if indices is None else [i for i in self.frozen if i in indices]
             self.world.set_colliding([i for i in back if not self.world.is_parked(i)], True)
             self.frozen = [i for i in self.frozen if i not in back]
-
-    @property
-    def boxes(self) -> tuple[np.ndarray, np.ndarray]:
-        if self._boxes is None:
-            self._boxes = local_boxes(self.world)
-        return self._boxes
 
     def apply_params(self, params: np.ndarray) -> None:
         key = params.tobytes()

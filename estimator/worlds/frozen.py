@@ -13,7 +13,9 @@ and a bound on how far anything can move in one update of ``T`` seconds:
   body-frame box at a pose) where it is, where its velocity takes it in ``T`` and at its target
   (held objects glide there; a tested one may be set there), widened by how far its spin or its
   glide's turn moves its points and by ``g T^2 / 2 + margin`` (a fall, pushes out of
-  penetration, the contact distance);
+  penetration, the contact distance). An object held from the update's start is set on its glide
+  at every step and cannot fall: its box is widened by ``margin`` only (a mug carried 5 cm beside
+  a box does not reach it);
 * an object at rest (its box exact: its body-frame box at its pose) that comes within that of
   something awake may be hit. Its points then move at most ``4 v T + g T^2 / 2 + margin``, with
   ``v`` the fastest point of anything awake in the particle (speed plus spin times bounding
@@ -35,6 +37,7 @@ from __future__ import annotations
 import numpy as np
 
 from physics.transforms import quat_angle, quat_to_matrix
+from physics.visibility import local_box
 from physics.world import World
 
 FREEZE_MARGIN = 0.02
@@ -44,33 +47,37 @@ regularisation jitter may move it by, and the contact distance of Bullet's pairs
 
 def local_boxes(world: World) -> tuple[np.ndarray, np.ndarray]:
     """Body-frame boxes about each object's centre of mass: centres ``(M, 3)`` and half-extents
-    ``(M, 3)`` (m), from the bounding box the world holds now and the object's orientation (exact
-    for an object axis-aligned now, larger otherwise; zeros for static objects, never frozen).
-    Read only: :func:`physics.visibility.local_box` is exact but turns the object to identity and
-    back, which would disturb a world in the middle of a run (its float round trip differs, and which
-    world is asked first depends on the sharding)."""
+    ``(M, 3)`` (m), exact (each object's bounding box with its centre-of-mass frame turned to
+    the identity, :func:`physics.visibility.local_box`); zeros for static objects, never frozen.
+    Each object is turned and set back, its velocity lost: measure a world before it runs (the
+    shards do so when they build their worlds). A box read at the pose an object happens to hold
+    would be larger than the object by up to twice for a turned one (a mug's yawed 45 degrees:
+    20 cm across for its 9 cm), and every object within that of something moving kept awake."""
     M = world.num_objects
     centre, half = np.zeros((M, 3)), np.zeros((M, 3))
-    dyn = [int(i) for i in world.dynamic_indices]
-    if dyn:
-        boxes = world.aabbs(dyn)  # (n, 2, 3), scene frame
-        com = world.com_frame(world.get_poses(dyn)[None], indices=dyn)[0][0]
-        rot_t = np.swapaxes(quat_to_matrix(com[:, 3:]), -1, -2)  # world -> body
-        centre[dyn] = np.einsum("nij,nj->ni", rot_t, boxes.mean(axis=1) - com[:, :3])
-        half[dyn] = np.einsum("nij,nj->ni", np.abs(rot_t), 0.5 * (boxes[:, 1] - boxes[:, 0]))
+    ident = np.zeros((1, M, 7))
+    ident[..., 6] = 1.0
+    inertial = world.com_frame(ident)[0][0]  # (M, 7): each centre-of-mass frame in its link frame
+    for i in (int(i) for i in world.dynamic_indices):
+        c_link, h_link = local_box(world, i)  # link frame turned to the identity
+        rot_t = quat_to_matrix(inertial[i, 3:]).T  # link -> centre-of-mass frame
+        centre[i] = rot_t @ (c_link - inertial[i, :3])
+        half[i] = np.abs(rot_t) @ h_link
     return centre, half
 
 
 def _within(lo: np.ndarray, hi: np.ndarray, lo2: np.ndarray, hi2: np.ndarray, dist: np.ndarray) -> np.ndarray:
     """``(K, M, M)`` bool: whether boxes ``lo, hi (K, M, 3)`` (axis 1) and ``lo2, hi2 (K, M, 3)``
-    (axis 2) come closer than ``dist (K,)`` (m)."""
+    (axis 2) come closer than ``dist`` (m): ``(K,)``, one per row, or ``(K, M)``, one per box of
+    axis 2."""
     total = np.zeros(lo.shape[:2] + lo2.shape[1:2])
     for a in range(3):  # one axis at a time: contiguous (K, M, M) arrays
         lo_a, hi_a, lo2_a, hi2_a = (np.ascontiguousarray(x[..., a]) for x in (lo, hi, lo2, hi2))
         sep = np.maximum(lo_a[:, :, None] - hi2_a[:, None], lo2_a[:, None] - hi_a[:, :, None])
         np.maximum(sep, 0.0, out=sep)
         total += sep * sep
-    return total < np.square(dist)[:, None, None]
+    dist = np.asarray(dist)
+    return total < (np.square(dist)[:, None, None] if dist.ndim == 1 else np.square(dist)[:, None, :])
 
 
 def _world_boxes(poses: np.ndarray, boxes: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -84,7 +91,8 @@ def _world_boxes(poses: np.ndarray, boxes: tuple[np.ndarray, np.ndarray]) -> tup
 
 def unreachable(com_poses: np.ndarray, shift: np.ndarray, targets: np.ndarray, spread: np.ndarray,
                 speeds: np.ndarray, boxes: tuple[np.ndarray, np.ndarray], resting: np.ndarray, awake: np.ndarray,
-                horizon: float, gravity: float = 9.81, margin: float = FREEZE_MARGIN) -> np.ndarray:
+                horizon: float, gravity: float = 9.81, margin: float = FREEZE_MARGIN,
+                gliding: np.ndarray | None = None) -> np.ndarray:
     """Which resting objects no awake object can touch during an update (see the module docstring).
 
     com_poses ``(K, M, 7)``: centre-of-mass poses at the update's start (m, quaternions x, y, z, w).
@@ -93,23 +101,25 @@ def unreachable(com_poses: np.ndarray, shift: np.ndarray, targets: np.ndarray, s
     ``(K, M)`` (m): how far its points may move by turning. speeds ``(K, M)`` (m/s): the fastest point of each awake
     object. boxes: :func:`local_boxes`. resting ``(K, M)`` bool: the candidates (asleep, not moved,
     not able to switch mode). awake ``(K, M)`` bool: everything that moves or may (static objects
-    and candidates excluded). horizon (s): the update's length. Returns ``(K, M)`` bool, a subset of
-    ``resting``."""
+    and candidates excluded). horizon (s): the update's length. gliding ``(K, M)`` bool (default
+    none): the awake objects set on a path at every step (held from the update's start), which
+    cannot fall. Returns ``(K, M)`` bool, a subset of ``resting``."""
     frozen = resting & ~awake
     rows = np.flatnonzero(frozen.any(axis=1) & awake.any(axis=1))  # particles where anything may be reached
     if len(rows) == 0:
         return frozen
     shift, spread, speeds, awake = shift[rows], spread[rows], speeds[rows], awake[rows]
+    fall = 0.5 * abs(gravity) * horizon ** 2 + margin
+    near = np.full(awake.shape, fall) if gliding is None else np.where(gliding[rows], margin, fall)
     lo_r, hi_r = _world_boxes(com_poses[rows], boxes)  # (R, M, 3) each
     lo_t, hi_t = _world_boxes(targets[rows], boxes)
-    fall = 0.5 * abs(gravity) * horizon ** 2 + margin
     lo = np.minimum(np.minimum(lo_r, lo_r + shift), lo_t) - spread[..., None]
     hi = np.maximum(np.maximum(hi_r, hi_r + shift), hi_t) + spread[..., None]
     vmax = np.where(awake, speeds, 0.0).max(axis=1, initial=0.0)  # (R,)
     reach = 4.0 * vmax * horizon + fall
     # candidate (axis 1) within reach of an awake object's sweep, or of a hit one's box (axis 2)
     sub = frozen[rows]
-    hit = (_within(lo_r, hi_r, lo, hi, np.full(len(reach), fall)) & awake[:, None, :]).any(axis=2) & sub
+    hit = (_within(lo_r, hi_r, lo, hi, near) & awake[:, None, :]).any(axis=2) & sub
     if hit.any():
         pushed = _within(lo_r, hi_r, lo_r, hi_r, reach)
     while hit.any():
@@ -142,5 +152,7 @@ def to_freeze(boxes: tuple[np.ndarray, np.ndarray], com_p: np.ndarray, com_v: np
     turn = np.where(held, np.minimum(quat_angle(com_p[..., 3:], target_orn), 2.0) * radius, 0.0)  # a glide's turn
     speeds = np.maximum(np.linalg.norm(com_v[..., :3], axis=-1) + spin,
                         np.linalg.norm(targets[..., :3] - centres, axis=-1) / horizon + turn / horizon)
-    return unreachable(com_p, com_v[..., :3] * horizon, targets, np.minimum(spin * horizon, 2.0 * radius) + turn,
-                       speeds, boxes, resting, dyn & ~resting, horizon, gravity)
+    # a glide's point strays from the hull of its two end boxes by at most twice its turn: once
+    # from the straight path of its start orientation, once from the end box at that orientation
+    return unreachable(com_p, com_v[..., :3] * horizon, targets, np.minimum(spin * horizon, 2.0 * radius) + 2.0 * turn,
+                       speeds, boxes, resting, dyn & ~resting, horizon, gravity, gliding=held)

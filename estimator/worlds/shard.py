@@ -75,10 +75,12 @@ class _Shard:
         self._first = [lo - groups[0][0] for lo, _ in groups]  # each group's first slot, shard-local
         self._group_of = [j for j, (lo, hi) in enumerate(groups) for _ in range(lo, hi)]  # slot -> its client
         self.worlds: list[ParticleWorld | None] = [None] * n
+        self.boxes = None  # the objects' body-frame boxes, measured in the first world built
         try:  # one copy in each client now; the others as the slots come into use (self.use)
             for j, (lo, hi) in enumerate(groups):
                 self.groups.append(WorldGroup(scene, settings, 1, capacity=hi - lo))
-                self.worlds[self._first[j]] = ParticleWorld(self.groups[j].worlds[0])
+                self.worlds[self._first[j]] = ParticleWorld(self.groups[j].worlds[0], self.boxes)
+                self.boxes = self.worlds[self._first[j]].boxes
         except BaseException:
             self.close()
             raise
@@ -152,7 +154,7 @@ class _Shard:
                 j = self._group_of[k]
                 built = len(self.groups[j].worlds)
                 for c, w in enumerate(self.groups[j].grow(k - self._first[j] + 1)):
-                    self.worlds[self._first[j] + built + c] = ParticleWorld(w)
+                    self.worlds[self._first[j] + built + c] = ParticleWorld(w, self.boxes)
         self._active = active.copy()
         return np.flatnonzero(active).tolist()
 
