@@ -227,9 +227,10 @@ class SceneEstimator:
         (the pool follows the particles)."""
         anc = keep_survivors_in_place(systematic_resample(weights, self.rng, n))
         own, kernels = self.model.before_resampling(self.state, settled, perceived, weights)
-        self.state = self.state.take(anc, own)
-        self.pool.follow(anc)  # (slots beyond n: the pool parks their worlds at its next run)
+        before, self.state = self.state, self.state.take(anc, own)
         self.model.after_resampling(self.state, kernels, self.rng)
+        # (slots beyond n: the pool parks their worlds at its next run)
+        self.pool.follow(anc, self.model.carried_at_rest(before, self.state, anc, own, self.pool.scene_boxes))
 
     def _reseed(self, bad: np.ndarray, weights: np.ndarray) -> None:
         """Particles ``bad (K,)`` take the state (and weight) of survivors drawn by ``weights (K,)``

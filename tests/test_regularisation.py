@@ -1,11 +1,12 @@
 """After resampling: estimator.model.regularisation."""
 import numpy as np
+import pytest
 
 from actions.modes import HELD
 from estimator.config import EstimatorConfig, NoiseConfig
 from estimator.model.params import param_bounds
-from estimator.model.regularisation import regularisation_kernels, regularise
-from model_helpers import BALL, CRATE, CUP, TABLE, make
+from estimator.model.regularisation import bounding_radii, carried_at_rest, regularisation_kernels, regularise
+from model_helpers import BALL, CRATE, CUP, MYSTERY, TABLE, make
 
 
 def test_regularisation_jitters_only_free_copies_of_hidden_objects():
@@ -59,3 +60,39 @@ def test_a_hidden_objects_kernel_keeps_its_spread_when_the_weights_pick_one_part
     assert np.allclose(one @ one.T, 0.25 * np.cov(st.poses[:, BALL, :3].T, aweights=mixed, bias=True),
                        rtol=1e-6, atol=1e-12)
     assert np.trace(one @ one.T) > 0.9 * np.trace(even @ even.T)
+
+
+def test_an_object_kept_by_its_particle_is_carried_at_rest_with_its_level_support_and_nothing_in_its_way():
+    """The ball rests in the crate in every particle, which keeps its own ball (nothing weighed it)
+    and takes its ancestor's crate, shifted and turned about the vertical: the ball comes along, at
+    rest as a world would have left it. Not when the crate tilts, when either was moving, or when
+    the ancestor has the cup where the ball lands."""
+    model = make(EstimatorConfig(particles=6))
+    st = model.initial_state(np.random.default_rng(0))
+    st.poses[:, CUP, :3] = [0.3, 0.3, 0.14]
+    st.velocities[:] = 0.0
+    st.is_in[:] = False
+    st.is_in[:, BALL, CRATE] = True
+    st.poses[:, CRATE, 0] += 0.02 * np.arange(6)  # each particle's crate a little further along x
+    yaw = np.array([0.0, 0.0, np.sin(0.1), np.cos(0.1)])
+    st.poses[1, CRATE, 3:] = yaw  # particle 1's crate turned 0.2 rad about the vertical
+    st.poses[5, CRATE, 3:] = [np.sin(0.05), 0.0, 0.0, np.cos(0.05)]  # particle 5's tilted 0.1 rad
+    st.velocities[3, BALL, 0] = 0.1  # particle 3's ball rolling
+    st.poses[4, CUP, :3] = st.poses[4, CRATE, :3]  # particle 4's cup in its crate, 8 cm from its ball
+    own = np.zeros(5, bool)
+    own[BALL] = True
+    # particle 0 takes the turned crate, 2 the tilted one, 3 particle 0's; the others their own
+    anc = np.array([1, 1, 5, 0, 4, 5])
+    after = st.take(anc, own)
+    radii = bounding_radii(np.array([[[-0.5, -0.5, 0], [0.5, 0.5, 0.1]], [[-0.15, -0.1, 0.1], [0.15, 0.1, 0.22]],
+                                     [[0.05, -0.03, 0.11], [0.11, 0.03, 0.17]], [[0.27, 0.27, 0.1], [0.33, 0.33, 0.18]],
+                                     [[np.nan] * 3, [np.nan] * 3]]), model.prior[:, :3])
+    assert abs(radii[BALL] - np.sqrt(3) * 0.03) < 1e-9
+    mask, poses = carried_at_rest(model, st, after, anc, own, radii)
+    assert poses is after.poses
+    # the ball moved with the turned crate: its pose relative to the crate is particle 0's
+    rel_before = st.poses[0, BALL, :3] - st.poses[0, CRATE, :3]
+    assert np.linalg.norm(after.poses[0, BALL, :3] - after.poses[0, CRATE, :3]) == pytest.approx(np.linalg.norm(rel_before))
+    assert mask[:, BALL].tolist() == [True, True, False, False, False, True]
+    assert mask[:, [TABLE, CRATE, CUP, MYSTERY]].sum() == 0
+    assert carried_at_rest(model, st, after, anc, np.zeros(5, bool), radii) is None

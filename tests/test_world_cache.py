@@ -56,3 +56,23 @@ def test_a_new_particle_count_keeps_the_slots_it_had_and_loads_the_new_ones_in_f
     assert cache.loads(more, more_vel)[0].tolist() == [[False, False]] * 3 + [[True, True]] * 2
     cache.follow(np.array([0, 1]))
     assert not cache.loads(poses[:2], vel[:2])[0].any()
+
+
+def test_entries_carried_at_rest_load_asleep_while_they_stay_where_they_were_carried():
+    cache = WorldCache()
+    poses, vel = _state()
+    cache.hold(poses.copy(), vel.copy())
+    after = poses[[2, 2, 0]].copy()
+    after[0, 1, :2] += 0.03  # object 1 of particle 0 carried with its support, somewhere no world produced
+    mask = np.zeros((3, 2), bool)
+    mask[0, 1] = True
+    cache.follow(np.array([2, 2, 0]), (mask, after))
+    assert cache.loads(after, vel)[1].all()
+    cache.hold(poses.copy(), vel.copy())
+    cache.follow(np.array([2, 2, 0]))  # not said to be at rest: it is loaded awake
+    assert not cache.loads(after, vel)[1][0, 1]
+    cache.hold(poses.copy(), vel.copy())
+    cache.follow(np.array([2, 2, 0]), (mask, after))
+    moved = after.copy()
+    moved[0, 1, 2] += 0.01  # moved again before the load: awake
+    assert not cache.loads(moved, vel)[1][0, 1]

@@ -1,5 +1,5 @@
-"""After resampling: the jitter of hidden objects and the shrinkage of the physical parameters; and
-the recovery when every particle has zero weight.
+"""After resampling: the jitter of hidden objects and the shrinkage of the physical parameters, what
+was carried along at rest; and the recovery when every particle has zero weight.
 
 Functions of the scene model (:class:`~estimator.model.SceneModel`, passed as ``model``): K particles,
 M objects; positions in metres.
@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from actions.modes import is_free
+from physics.transforms import quat_conjugate, quat_multiply, quat_rotate
 
 from ..resampling import effective_sample_size
 from ..state import ParticleState
@@ -74,3 +75,57 @@ def regularise(model, state: ParticleState, kernels: dict[int, np.ndarray], rng:
         floor[model.surprise[dyn] > SURPRISE, :2] = nz.param_widen  # frictions: surprised by its motion
         state.params[:, dyn] = shrink_params(state.params[:, dyn], nz.param_jitter, model.param_bounds, rng,
                                              floor, model.perturbed[dyn])
+
+
+LEVEL_TILT = 1e-3
+"""rad: the most the support of an object carried along at rest (:func:`carried_at_rest`) may turn
+away from the vertical between the particle and its ancestor (a support tilted further could set
+what rests on it rolling)."""
+
+
+def bounding_radii(boxes: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """Radii ``(M,)`` (m) of spheres about ``positions (M, 3)`` that hold each object, from its
+    bounding box ``boxes (M, 2, 3)`` read at that position (whatever the object's orientation
+    later, it stays within). Where a position is not finite (an object the scene does not place),
+    the box's half diagonal is taken as the offset of its centre too."""
+    centre, half = boxes.mean(axis=1), np.linalg.norm(0.5 * (boxes[:, 1] - boxes[:, 0]), axis=-1)
+    offset = np.linalg.norm(centre - positions, axis=-1)
+    return half + np.where(np.isfinite(offset), offset, half)
+
+
+def carried_at_rest(model, before: ParticleState, after: ParticleState, ancestors: np.ndarray, own: np.ndarray,
+                    radii: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The entries that resampling carried along at rest (:meth:`~estimator.state.ParticleState.take`:
+    an object each particle keeps, ``own (M,)``, carried rigidly with the support it rests on or in
+    from the particle's pose of that support to the ancestor's), as ``(mask (n, M), after.poses)``
+    for :meth:`~estimator.worlds.pool.WorldPool.follow` (None if there are none): they may be loaded
+    asleep, as a world at rest would have produced them. An entry qualifies when the object and its
+    support were at rest (zero velocity, as the worlds leave what sleeps) in the particle and the
+    support is in the ancestor; the support is dynamic, resampled (not kept itself) and turned only
+    about the vertical (within :data:`LEVEL_TILT`): on it the object rests as it did; and no other
+    known dynamic object's bounding sphere (``radii (M,)``, m) meets the object's where it is carried: it
+    penetrates nothing it did not before (the marble in the bin of ``cluttered_table``, which was
+    loaded awake at every resampling and woke the bin for a whole update in every world)."""
+    n, M = min(len(ancestors), len(before.poses)), model.M
+    idx = np.flatnonzero(own & model.dynamic)
+    if len(idx) == 0:
+        return None
+    support = before.is_in[:n, idx] | before.on_top[:n, idx, :M]  # (n, len(idx), M), as take() carries
+    k, j = np.nonzero(support.any(axis=-1))
+    if len(k) == 0:
+        return None
+    m, c = idx[j], np.argmax(support[k, j], axis=-1)
+    ok = model.dynamic[c] & ~own[c]
+    still = ~np.any(before.velocities != 0.0, axis=-1)  # (K, M): at rest, as the worlds leave it
+    ok &= still[k, m] & still[k, c] & ~np.any(after.velocities[k, c] != 0.0, axis=-1)
+    turn = quat_multiply(after.poses[k, c, 3:], quat_conjugate(before.poses[k, c, 3:]))
+    up = quat_rotate(turn, np.broadcast_to([0.0, 0.0, 1.0], turn.shape[:-1] + (3,)))
+    ok &= up[:, 2] > np.cos(LEVEL_TILT)
+    others = (model.dynamic & model.known)[None, :] & (np.arange(M)[None, :] != m[:, None]) & (np.arange(M)[None, :] != c[:, None])
+    gap = np.linalg.norm(after.poses[k, :, :3] - after.poses[k, m, None, :3], axis=-1) - radii[m][:, None] - radii[None]
+    ok &= ~np.any(others & ~(gap > 0.0), axis=-1)
+    if not ok.any():
+        return None
+    mask = np.zeros((len(after.poses), M), dtype=bool)
+    mask[k[ok], m[ok]] = True
+    return mask, after.poses

@@ -216,6 +216,14 @@ class SceneModel:
         self.weighed = np.zeros(self.M, dtype=bool)
         regularisation.regularise(self, state, kernels, rng)
 
+    def carried_at_rest(self, before: ParticleState, after: ParticleState, ancestors: np.ndarray,
+                        own: np.ndarray, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """The entries resampling carried along at rest, for the worlds to load asleep
+        (:func:`~estimator.model.regularisation.carried_at_rest`); ``boxes (M, 2, 3)``: the
+        objects' bounding boxes (m) at the scene's poses (the pool's ``scene_boxes``)."""
+        radii = regularisation.bounding_radii(boxes, initial_poses(self.scene)[0][:, :3])  # as the boxes were read
+        return regularisation.carried_at_rest(self, before, after, ancestors, own, radii)
+
     # -- the prior ------------------------------------------------------------------------------------
     def initial_state(self, rng: np.random.Generator) -> ParticleState:
         """K particles at the prior's poses (:attr:`prior`), with physical parameters drawn from their priors and the

@@ -221,11 +221,11 @@ class WorldPool:
         self.cache.hold(out.poses.copy(), out.velocities.copy(), bad)
         return out
 
-    def follow(self, ancestors: np.ndarray) -> None:
+    def follow(self, ancestors: np.ndarray, at_rest: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         """Particle ``i`` is now a copy of particle ``ancestors[i]`` (``(n,)``: resampling, which may
-        change their number); the worlds keep what they hold (:meth:`WorldCache.follow`; slots beyond
-        ``n`` are parked at the next run)."""
-        self.cache.follow(ancestors)
+        change their number); the worlds keep what they hold (:meth:`WorldCache.follow`, with its
+        ``at_rest``; slots beyond ``n`` are parked at the next run)."""
+        self.cache.follow(ancestors, at_rest)
 
     def _slots_used(self, K: int) -> np.ndarray:
         """``(n_slots,)`` bool: the slots of particles ``0 .. K-1``."""

@@ -58,13 +58,20 @@ class WorldCache:
         if lost is not None and np.any(lost):
             self.poses[lost] = np.nan
 
-    def follow(self, ancestors: np.ndarray) -> None:
+    def follow(self, ancestors: np.ndarray, at_rest: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         """Particle ``i`` is now a copy of particle ``ancestors[i]`` (``(n,)``, resampling); the
         worlds keep what they hold. When ``n`` differs from the particles before, the slots beyond
         the old count hold nothing known (they load in full) and those beyond ``n`` are forgotten
-        (the pool parks their worlds)."""
+        (the pool parks their worlds). ``at_rest``: entries ``(n, M)`` bool that are now at rest at
+        poses ``(n, M, 7)`` no world produced, as surely as if one had (an object carried with the
+        support it rests on, :func:`~estimator.model.regularisation.carried_at_rest`): taken as
+        produced at rest."""
         if self._produced is not None:
             self._produced = (self._produced[0][ancestors], self._produced[1][ancestors])
+            if at_rest is not None and np.any(at_rest[0]):
+                mask, poses = at_rest
+                self._produced[0][mask] = poses[mask]
+                self._produced[1][mask] = 0.0
         n = len(ancestors)
         if self.poses is None or n == len(self.poses):
             return
