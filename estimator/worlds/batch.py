@@ -126,3 +126,25 @@ class ParticleWorld:
                            spinning_friction=row[2], restitution=row[3], mass=row[4])
         self._params = params.copy()
         self._params_key = key
+
+
+def assemble(w0: World, dyn: list[int], read: list[tuple[list, list, list]],
+              origins: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Centre-of-mass poses ``(K, M, 7)``, velocities ``(K, M, 6)`` and AABBs ``(K, M, 2, 3)``, in
+    the client frame, from each world's flat read-back of its dynamic objects (static ones from the
+    scene, shifted to each world's ``origins (K, 1, 3)``)."""
+    K, M, D = len(read), w0.num_objects, len(dyn)
+    poses = np.empty((K, M, 7))
+    vel = np.zeros((K, M, 6))
+    aabbs = np.empty((K, M, 2, 3))
+    st = np.ones(M, dtype=bool)
+    st[dyn] = False
+    if st.any():  # static objects never move: their centre-of-mass poses and boxes from the scene
+        sp, sb = w0.static_raw()
+        poses[:, st] = sp[st]
+        poses[:, st, :3] += origins
+        aabbs[:, st] = sb[st] + origins[:, None]
+    poses[:, dyn] = np.array([r[0] for r in read]).reshape(K, D, 7)
+    vel[:, dyn] = np.array([r[1] for r in read]).reshape(K, D, 6)
+    aabbs[:, dyn] = np.array([r[2] for r in read]).reshape(K, D, 2, 3)
+    return poses, vel, aabbs

@@ -21,12 +21,11 @@ import pybullet as pb
 
 from actions.modes import HELD, is_free, is_held
 from physics.sleep import asleep, near, sleep, touching, wake
-from physics.world import World
 
-from .batch import PER_PARTICLE, BatchInput, BatchOutput, ParticleWorld, StepInput, StepOutput
+from .batch import PER_PARTICLE, BatchInput, BatchOutput, ParticleWorld, StepInput, StepOutput, assemble
 from .frozen import to_freeze
 from .held import HeldObjects, depenetrate, glide_paths
-from .resting import SETTLED_REACH, restart_after_wake, sleep_resting, slow
+from .resting import PROBE_STEPS, SETTLED_REACH, restart_after_wake, sleep_resting, sleep_still, slow
 
 MAX_SPEED = 50.0  # m/s: anything faster is a simulation that exploded
 
@@ -111,7 +110,9 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     Objects at rest at both ends of the update are put to sleep
     (:func:`~estimator.worlds.resting.sleep_resting`): those it did not load, and with
     ``sleep_loads=True`` also those it loaded (teleported, resampled, pushed out of penetration)
-    unless held at its start.
+    unless held at its start; with it, those it loaded or woke at rest (in a world never stepped,
+    all) that are still after :data:`~estimator.worlds.resting.PROBE_STEPS` steps sleep from then on
+    (:func:`~estimator.worlds.resting.sleep_still`).
 
     ``parts``: where the call's time goes is added to it (seconds, :data:`PARTS`). ``counts``: what
     the update moved is added to it: ``entries`` (worlds times dynamic objects), ``moved`` (the
@@ -147,7 +148,9 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     if batch.settled is not None:  # a settled state loaded asleep stays asleep...
         settled = batch.settled & moved & ~held_mask & ~depen_mask
         moved &= ~settled
-    reset_l, depen_l, moved_l = reset.tolist(), depen_mask.tolist(), moved.tolist()
+    reset_l, depen_l, moved_l, held_l = reset.tolist(), depen_mask.tolist(), moved.tolist(), held_mask.tolist()
+    probing = sleep_loads and sleeping and n_steps >= 2 * PROBE_STEPS
+    early = [0]  # bodies put to sleep after the probe's steps
     reset_any = reset.any(axis=1).tolist()
     settled_l = settled.tolist()
     # watched objects and the first step at which each one needs testing
@@ -180,7 +183,7 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     took["prepare"] = clock() - t_part
     for client, ks in clients.items():
         t_part = clock()
-        helds, watches, restart = [], [], []
+        helds, watches, restart, probes = [], [], [], []
         for k in ks:
             pw = pws[k]
             w = pw.world
@@ -220,6 +223,9 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
                 pw.frozen = fz
                 pw.contactless.update(fz)
             pw.contactless.difference_update(woken)
+            if probing:  # awake at rest, from loads or wakes (in a world never stepped, everything): probed
+                fresh = woken if pw.stepped else [i for i in dyn if not w.is_parked(i)]
+                probes += [w.uids[i] for i in fresh if not speed_l[k][i] and not held_l[k][i]]
             held = HeldObjects(w, batch.target[k], batch.target_vel[k], batch.contents[k], n_steps, moving)
             for h in glides.get(k, ()):
                 held.glide(*h)
@@ -231,7 +237,8 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
         stepping = [0.0] if parts is not None else None  # Bullet's steps timed one by one only when asked
         t_sim = clock()
         took["load"] += t_sim - t_part
-        switched = _simulate(client, dt, helds, watches, n_steps, d_sim_perc, lazy, restart, stepping)
+        switched = _simulate(client, dt, helds, watches, n_steps, d_sim_perc, lazy, restart, stepping,
+                             (probes, PROBE_STEPS / n_steps, early) if probes else None)
         t_part = clock()
         bullet = stepping[0] if stepping else 0.0
         took["step"] += bullet
@@ -244,7 +251,7 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
             pws[k].stepped = n_steps > 0 or (pws[k].stepped and not reset_any[k])
         took["read"] += clock() - t_part
     t_part = clock()
-    poses, vel, aabbs = _assemble(w0, dyn, read, origins)
+    poses, vel, aabbs = assemble(w0, dyn, read, origins)
     # largest divergences: from the tests in the loop and, lazily, the test after the last step on
     # the state read back (an object that diverged during the last steps is held, at the
     # perception, as in the loop)
@@ -264,7 +271,7 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
             modes_out[k, late] = HELD
             w = pws[k].world
             HeldObjects(w, batch.target[k], batch.target_vel[k], batch.contents[k], n_steps, moving).jump(late)
-            p, v, b = _assemble(w0, dyn, [w.read_raw(dyn)], origins[k:k + 1])
+            p, v, b = assemble(w0, dyn, [w.read_raw(dyn)], origins[k:k + 1])
             poses[k], vel[k], aabbs[k] = p[0], v[0], b[0]
     for k, i, d in switched_at:
         max_d[k, i] = d
@@ -278,7 +285,7 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     poses, vel = w0.link_frame(poses, vel)
     took["finish"] = clock() - t_part
     if counts is not None:
-        for name, n in (("entries", K * len(dyn)), ("moved", int(moved.sum())),
+        for name, n in (("entries", K * len(dyn)), ("moved", int(moved.sum())), ("slept early", early[0]),
                         ("moving", int((~slow(vel[:, dyn]) & finite[:, None]).sum())), ("frozen", int(frozen.sum()))):
             counts[name] = counts.get(name, 0) + n
     if parts is not None:
@@ -306,37 +313,18 @@ def _glides(pws: list[ParticleWorld], batch: BatchInput, held: np.ndarray,
     return out
 
 
-def _assemble(w0: World, dyn: list[int], read: list[tuple[list, list, list]],
-              origins: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Centre-of-mass poses ``(K, M, 7)``, velocities ``(K, M, 6)`` and AABBs ``(K, M, 2, 3)``, in
-    the client frame, from each world's flat read-back of its dynamic objects (static ones from the
-    scene, shifted to each world's ``origins (K, 1, 3)``)."""
-    K, M, D = len(read), w0.num_objects, len(dyn)
-    poses = np.empty((K, M, 7))
-    vel = np.zeros((K, M, 6))
-    aabbs = np.empty((K, M, 2, 3))
-    st = np.ones(M, dtype=bool)
-    st[dyn] = False
-    if st.any():  # static objects never move: their centre-of-mass poses and boxes from the scene
-        sp, sb = w0.static_raw()
-        poses[:, st] = sp[st]
-        poses[:, st, :3] += origins
-        aabbs[:, st] = sb[st] + origins[:, None]
-    poses[:, dyn] = np.array([r[0] for r in read]).reshape(K, D, 7)
-    vel[:, dyn] = np.array([r[1] for r in read]).reshape(K, D, 6)
-    aabbs[:, dyn] = np.array([r[2] for r in read]).reshape(K, D, 2, 3)
-    return poses, vel, aabbs
-
-
 def _simulate(client: int, dt: float, helds: list["HeldObjects"], watch: list[list], n_steps: int,
               d_sim_perc: float, lazy: bool, restart: list[tuple] = (),
-              stepping: list[float] | None = None) -> list[tuple[int, int, float]]:
+              stepping: list[float] | None = None,
+              probe: tuple[list[int], float, list[int]] | None = None) -> list[tuple[int, int, float]]:
     """The step loop of one client (the hot path, plain Python), for its worlds' held objects
     ``helds`` (one per world) and divergence tests ``watch`` (items updated in place); ``restart``
     (see :func:`~estimator.worlds.resting.restart_after_wake`) is applied after the first step. Returns the objects that switched to
     HELD during the loop as ``(world position, object, largest divergence)`` (lazily, the test
     after the last step is left to the caller, on the state read back). ``stepping``: Bullet's
-    stepping time is added to its one entry (seconds)."""
+    stepping time is added to its one entry (seconds). ``probe``: ``(body ids, scale, count)``,
+    the bodies put to sleep after :data:`~estimator.worlds.resting.PROBE_STEPS` steps if slower than the rest thresholds times
+    ``scale`` (their number is added to ``count[0]``)."""
     c = client
     get = pb.getBasePositionAndOrientation
     get_vel = pb.getBaseVelocity
@@ -358,6 +346,8 @@ def _simulate(client: int, dt: float, helds: list["HeldObjects"], watch: list[li
             stop = n_steps  # a test due in the last steps is the test after the last step
         if restart:
             stop = 1
+        if probe and s < PROBE_STEPS:
+            stop = min(stop, PROBE_STEPS)
         if moving:
             for t in range(s + 1, stop + 1):
                 for h in moving:
@@ -367,6 +357,9 @@ def _simulate(client: int, dt: float, helds: list["HeldObjects"], watch: list[li
             for _ in range(stop - s):
                 step(physicsClientId=c)
         s = stop
+        if probe and s == PROBE_STEPS:
+            sleep_still(c, *probe)
+            probe = None
         if restart:
             for uid, pos, orn, lin, ang in restart:
                 pb.resetBasePositionAndOrientation(uid, pos, orn, physicsClientId=c)

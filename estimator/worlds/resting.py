@@ -10,6 +10,7 @@ fusion of detections nudges while slower than them is set at rest and loaded asl
 from __future__ import annotations
 
 import numpy as np
+import pybullet as pb
 
 from physics.sleep import sleep
 from physics.transforms import quat_angle, quat_from_rotvec, quat_multiply
@@ -21,6 +22,14 @@ REST_SPEED = 0.005
 put to sleep: stepping skips it until something touches it or it is reset."""
 REST_SPIN = 0.05
 """rad/s: see :data:`REST_SPEED`."""
+PROBE_STEPS = 4
+"""With ``sleep_loads``: objects at rest that an update loaded or woke (in a world never stepped,
+all of them) are probed after this many steps, and those then slower than the update's end test
+scaled to these steps (:data:`~estimator.worlds.resting.REST_SPEED` and
+:data:`~estimator.worlds.resting.REST_SPIN` times ``PROBE_STEPS / n_steps``: at a constant
+acceleration, still at rest by that test at the update's end) are put to sleep then, not after
+the update. Bullet wakes again any of them whose island something awake moves."""
+
 SETTLED_REACH = 0.03
 """m: a settled object loaded asleep (:class:`~estimator.worlds.batch.StepInput` ``settled``) is woken when an object of its
 particle that the update moves ends within this distance of it (boxes): three times the largest
@@ -50,6 +59,19 @@ def sleep_resting(pws: list, candidates: np.ndarray, vel_in: np.ndarray,
     rest = candidates & slow(vel_in) & slow(vel_out) & np.any(vel_out != 0.0, axis=-1)
     for k in np.flatnonzero(rest.any(axis=1)).tolist():
         sleep(pws[k].world, np.flatnonzero(rest[k]).tolist())
+
+
+def sleep_still(client: int, uids: list[int], scale: float, count: list[int]) -> None:
+    """Put to sleep the bodies ``uids`` of pybullet client ``client`` moving slower than
+    :data:`REST_SPEED` and turning slower than :data:`REST_SPIN`, both times ``scale`` (the hot
+    path: direct pybullet calls); their number is added to ``count[0]``."""
+    get_vel, change, asleep = pb.getBaseVelocity, pb.changeDynamics, pb.ACTIVATION_STATE_SLEEP
+    v_max, w_max = (REST_SPEED * scale) ** 2, (REST_SPIN * scale) ** 2
+    for uid in uids:
+        v, w = get_vel(uid, physicsClientId=client)
+        if v[0] * v[0] + v[1] * v[1] + v[2] * v[2] < v_max and w[0] * w[0] + w[1] * w[1] + w[2] * w[2] < w_max:
+            change(uid, -1, activationState=asleep, physicsClientId=client)
+            count[0] += 1
 
 
 def restart_after_wake(w: World, rows: list[int], com_p: np.ndarray, com_v: np.ndarray, dt: float,
