@@ -207,7 +207,7 @@ class World:
         """Set velocities ``(n, 6)`` (linear of the link-frame origin, angular), world frame."""
         idx = self._indices(indices)
         vel = np.array(velocities, dtype=float).reshape(len(idx), 6)
-        if self._has_offset:
+        if self._has_offset and np.any(vel[:, 3:] != 0.0):  # not turning: the origin's velocity is the centre's
             vel = self.com_frame(self.get_poses(idx), vel, idx)[1]
         c = self.client
         for i, row in zip(idx, vel.tolist()):

@@ -43,6 +43,7 @@ def test_bench_command_prints_json(capsys):
     assert all(v >= 0 for v in parts.values()) and list(parts.values()) == sorted(parts.values(), reverse=True)
     r = out["results"][0]  # dynamic objects per particle the updates moved, and those still moving
     assert 0 <= r["moving_per_particle"] <= 2 and 0 <= r["moved_per_particle"] <= 2  # two boxes
+    assert 0 <= r["slept_early_per_particle"] <= 2
     shard = out["results"][0]["shard_parts_ms_median"]  # where the slowest shard's time went
     assert {"step", "load", "read", "held and tests", "visibility"} <= set(shard)
     assert all(v >= 0 for v in shard.values()) and list(shard.values()) == sorted(shard.values(), reverse=True)

@@ -61,7 +61,7 @@ class StreamTiming:
     parts_s: list[dict] = dataclasses.field(default_factory=list)  # the scene model's parts, per update
     resting_s: list[tuple[float, float]] = dataclasses.field(default_factory=list)  # see time_stream
     shard_parts_s: list[dict] = dataclasses.field(default_factory=list)  # the slowest shard's parts, per update
-    per_particle: list[tuple[float, float, float]] = dataclasses.field(default_factory=list)  # objects moved, moving, frozen
+    per_particle: list[tuple[float, float, float, float]] = dataclasses.field(default_factory=list)  # objects moved, moving, frozen, slept early
 
     @property
     def stream_s(self) -> float:
@@ -136,10 +136,11 @@ def time_stream(scene: Scene, cfg: EstimatorConfig, frames: Iterable[Frame], rng
                     st.parts_s.append({k: v - before.get(k, 0.0) for k, v in est.model.seconds.items()})
                     st.shard_parts_s.append(shard_parts)
                     counts = {k: sum(c.get(k, 0) for c in pool.last_worker_counts)
-                              for k in ("entries", "moved", "moving", "frozen")}
+                              for k in ("entries", "moved", "moving", "frozen", "slept early")}
                     if counts["entries"]:
                         n = est.K
-                        st.per_particle.append((counts["moved"] / n, counts["moving"] / n, counts["frozen"] / n))
+                        st.per_particle.append((counts["moved"] / n, counts["moving"] / n, counts["frozen"] / n,
+                                                counts["slept early"] / n))
             st.peak_memory_mb = max(st.peak_memory_mb, _rss_mb(pids))
             if max_updates is not None and len(st.update_s) >= max_updates:
                 break
@@ -170,6 +171,8 @@ def timing_row(st: StreamTiming) -> dict:
             # (medians over the updates)
             **{name: float(np.median([m[j] for m in st.per_particle])) if st.per_particle else math.nan
                for j, name in enumerate(("moved_per_particle", "moving_per_particle", "frozen_per_particle"))},
+            # ... and those put to sleep a few steps into the update (the mean: most updates have none)
+            "slept_early_per_particle": float(np.mean([m[3] for m in st.per_particle])) if st.per_particle else math.nan,
             # the share of bare stepping that objects at rest cost (NaN where not measured)
             "resting_share": float(np.median([1.0 - r / b for b, r in st.resting_s])) if st.resting_s else math.nan}
 
@@ -211,5 +214,6 @@ BREAKDOWN_COLUMNS = [("main_ms_median", "main process (ms)", "{:.2f}"),
                      ("moved_per_particle", "objects moved per particle", "{:.2f}"),
                      ("moving_per_particle", "moving at the end per particle", "{:.2f}"),
                      ("frozen_per_particle", "frozen per particle", "{:.2f}"),
+                     ("slept_early_per_particle", "slept early per particle (mean)", "{:.2f}"),
                      ("model_parts_slowest", "slowest model parts (ms)", "{}"),
                      ("shard_parts", "slowest shard's parts (ms)", "{}")]
