@@ -258,7 +258,7 @@ def test_an_object_loaded_at_rest_that_stays_at_rest_sleeps_in_that_update_and_o
             poses = out.poses.copy()
             poses[3, :3] += [0.1, 0.0, lift]
             load = propagate(pw, inputs(w, poses=poses, velocities=np.zeros((4, 6)),
-                                        reset=np.array([False, False, False, True])), 8, 0.045, sleep_loads=sleep_loads)
+                                        reset=np.array([False, False, False, True])), 19, 0.045, sleep_loads=sleep_loads)
             asleep = lift == 0.0 and sleep_loads
             assert np.all(load.velocities[3] == 0.0) == asleep, (lift, sleep_loads)
             out = propagate(pw, inputs(w, poses=load.poses, velocities=load.velocities, reset=np.zeros(4, bool)), 19,

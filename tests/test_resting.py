@@ -3,7 +3,7 @@ import numpy as np
 import pybullet as pb
 import pytest
 
-from estimator.worlds.resting import REST_SPEED, REST_SPIN, at_rest, sleep_still
+from estimator.worlds.resting import REST_SPEED, REST_SPIN, at_rest, sleep_settling, sleep_still
 from helpers import table_scene
 from physics.sleep import asleep
 from physics.transforms import quat_from_rotvec
@@ -44,3 +44,24 @@ def test_sleep_still_sleeps_a_body_slower_than_the_scaled_thresholds_and_no_othe
         assert count[0] == (2 if sleeps else 0)
         w.step(2)
         assert asleep(w, [1, 2]) == ([1, 2] if sleeps else [])
+
+
+def test_a_slow_body_that_has_not_sped_up_since_the_probe_sleeps_and_one_speeding_up_does_not():
+    """Two balls in the air, slower than the rest thresholds but not than the probe's scaled ones:
+    not put to sleep at the probe, handed on; some steps later (here, reset to the speeds they would
+    then have), the one that slowed down sleeps, the one that sped up does not."""
+    scene = table_scene(*({"id": f"b{i}", "sphere": {"radius": 0.02}, "pose": {"position": [0.2 * i, 0.0, 1.5]}}
+                          for i in range(2)))
+    with World(scene, PhysicsSettings(sleeping=True, gravity=0.0)) as w:
+        uids = [w.uids[1], w.uids[2]]
+        for uid in uids:
+            pb.resetBaseVelocity(uid, [0.5 * REST_SPEED, 0.0, 0.0], [0.0, 0.0, 0.0], physicsClientId=w.client)
+        count = [0]
+        slow = sleep_still(w.client, uids, 0.1, count)
+        assert count[0] == 0 and [u for u, _, _ in slow] == uids
+        pb.resetBaseVelocity(uids[0], [0.3 * REST_SPEED, 0.0, 0.0], [0.0, 0.0, 0.0], physicsClientId=w.client)
+        pb.resetBaseVelocity(uids[1], [0.6 * REST_SPEED, 0.0, 0.0], [0.0, 0.0, 0.0], physicsClientId=w.client)
+        sleep_settling(w.client, slow, count)
+        assert count[0] == 1
+        w.step(2)
+        assert asleep(w, [1, 2]) == [1]

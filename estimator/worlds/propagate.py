@@ -25,7 +25,7 @@ from physics.sleep import asleep, near, sleep, touching, wake
 from .batch import PER_PARTICLE, BatchInput, BatchOutput, ParticleWorld, StepInput, StepOutput, assemble
 from .frozen import to_freeze
 from .held import HeldObjects, depenetrate, glide_paths
-from .resting import PROBE_STEPS, SETTLED_REACH, restart_after_wake, sleep_resting, sleep_still, slow
+from .resting import PROBE_STEPS, SETTLED_REACH, restart_after_wake, sleep_resting, sleep_settling, sleep_still, slow
 
 MAX_SPEED = 50.0  # m/s: anything faster is a simulation that exploded
 
@@ -149,7 +149,7 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
         settled = batch.settled & moved & ~held_mask & ~depen_mask
         moved &= ~settled
     reset_l, depen_l, moved_l, held_l = reset.tolist(), depen_mask.tolist(), moved.tolist(), held_mask.tolist()
-    probing = sleep_loads and sleeping and n_steps >= 2 * PROBE_STEPS
+    probing = sleep_loads and sleeping and n_steps >= 3 * PROBE_STEPS
     early = [0]  # bodies put to sleep after the probe's steps
     reset_any = reset.any(axis=1).tolist()
     settled_l = settled.tolist()
@@ -324,7 +324,9 @@ def _simulate(client: int, dt: float, helds: list["HeldObjects"], watch: list[li
     after the last step is left to the caller, on the state read back). ``stepping``: Bullet's
     stepping time is added to its one entry (seconds). ``probe``: ``(body ids, scale, count)``,
     the bodies put to sleep after :data:`~estimator.worlds.resting.PROBE_STEPS` steps if slower than the rest thresholds times
-    ``scale`` (their number is added to ``count[0]``)."""
+    ``scale``, or after twice that many if slower than the thresholds and not sped up since
+    (:func:`~estimator.worlds.resting.sleep_still`, :func:`~estimator.worlds.resting.sleep_settling`;
+    their number is added to ``count[0]``)."""
     c = client
     get = pb.getBasePositionAndOrientation
     get_vel = pb.getBaseVelocity
@@ -346,8 +348,8 @@ def _simulate(client: int, dt: float, helds: list["HeldObjects"], watch: list[li
             stop = n_steps  # a test due in the last steps is the test after the last step
         if restart:
             stop = 1
-        if probe and s < PROBE_STEPS:
-            stop = min(stop, PROBE_STEPS)
+        if probe and s < 2 * PROBE_STEPS:
+            stop = min(stop, PROBE_STEPS if s < PROBE_STEPS else 2 * PROBE_STEPS)
         if moving:
             for t in range(s + 1, stop + 1):
                 for h in moving:
@@ -358,7 +360,10 @@ def _simulate(client: int, dt: float, helds: list["HeldObjects"], watch: list[li
                 step(physicsClientId=c)
         s = stop
         if probe and s == PROBE_STEPS:
-            sleep_still(c, *probe)
+            settling = sleep_still(c, *probe)
+            probe = (settling, probe[2]) if settling else None
+        elif probe and s == 2 * PROBE_STEPS:
+            sleep_settling(c, *probe)
             probe = None
         if restart:
             for uid, pos, orn, lin, ang in restart:
