@@ -91,7 +91,8 @@ def test_local_boxes_are_the_objects_own_whatever_their_pose(yaw_deg):
     45 degrees fills a box half as wide again, which read back in its frame would double."""
     q = [0.0, 0.0, np.sin(np.radians(yaw_deg) / 2), np.cos(np.radians(yaw_deg) / 2)]
     scene = table_scene({"id": "a", "box": {"size": [0.1, 0.2, 0.3]}, "pose": {"position": [0, 0, 1.0]}},
-                        {"id": "b", "box": {"size": [0.1, 0.2, 0.3]}, "pose": {"position": [0.5, 0, 1.0], "orientation": q}})
+                        {"id": "b", "box": {"size": [0.1, 0.2, 0.3]},
+                         "pose": {"position": [0.5, 0, 1.0], "orientation": q}})
     with World(scene) as w:
         w.set_poses(w.get_poses())  # loaded (not parked)
         before = w.get_poses()

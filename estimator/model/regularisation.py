@@ -121,8 +121,10 @@ def carried_at_rest(model, before: ParticleState, after: ParticleState, ancestor
     turn = quat_multiply(after.poses[k, c, 3:], quat_conjugate(before.poses[k, c, 3:]))
     up = quat_rotate(turn, np.broadcast_to([0.0, 0.0, 1.0], turn.shape[:-1] + (3,)))
     ok &= up[:, 2] > np.cos(LEVEL_TILT)
-    others = (model.dynamic & model.known)[None, :] & (np.arange(M)[None, :] != m[:, None]) & (np.arange(M)[None, :] != c[:, None])
-    gap = np.linalg.norm(after.poses[k, :, :3] - after.poses[k, m, None, :3], axis=-1) - radii[m][:, None] - radii[None]
+    cols = np.arange(M)[None, :]
+    others = (model.dynamic & model.known)[None, :] & (cols != m[:, None]) & (cols != c[:, None])
+    centres = np.linalg.norm(after.poses[k, :, :3] - after.poses[k, m, None, :3], axis=-1)
+    gap = centres - radii[m][:, None] - radii[None]
     ok &= ~np.any(others & ~(gap > 0.0), axis=-1)
     if not ok.any():
         return None

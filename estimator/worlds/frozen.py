@@ -49,7 +49,7 @@ def local_boxes(world: World) -> tuple[np.ndarray, np.ndarray]:
     """Body-frame boxes about each object's centre of mass: centres ``(M, 3)`` and half-extents
     ``(M, 3)`` (m), exact (each object's bounding box with its centre-of-mass frame turned to
     the identity, :func:`physics.visibility.local_box`); zeros for static objects, never frozen.
-    Each object is turned and set back, its velocity lost: measure a world before it runs (the
+    Each object is turned and set back (a float round trip): measure a world before it runs (the
     shards do so when they build their worlds). A box read at the pose an object happens to hold
     would be larger than the object by up to twice for a turned one (a mug's yawed 45 degrees:
     20 cm across for its 9 cm), and every object within that of something moving kept awake."""

@@ -323,10 +323,10 @@ def _simulate(client: int, dt: float, helds: list["HeldObjects"], watch: list[li
     HELD during the loop as ``(world position, object, largest divergence)`` (lazily, the test
     after the last step is left to the caller, on the state read back). ``stepping``: Bullet's
     stepping time is added to its one entry (seconds). ``probe``: ``(body ids, scale, count)``,
-    the bodies put to sleep after :data:`~estimator.worlds.resting.PROBE_STEPS` steps if slower than the rest thresholds times
-    ``scale``, or after twice that many if slower than the thresholds and not sped up since
-    (:func:`~estimator.worlds.resting.sleep_still`, :func:`~estimator.worlds.resting.sleep_settling`;
-    their number is added to ``count[0]``)."""
+    the bodies put to sleep after :data:`~estimator.worlds.resting.PROBE_STEPS` steps if slower
+    than the rest thresholds times ``scale``, or after twice that many if slower than the
+    thresholds and not sped up since (:func:`~estimator.worlds.resting.sleep_still`,
+    :func:`~estimator.worlds.resting.sleep_settling`; their number is added to ``count[0]``)."""
     c = client
     get = pb.getBasePositionAndOrientation
     get_vel = pb.getBaseVelocity
