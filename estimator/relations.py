@@ -61,7 +61,7 @@ class _PairGeometry:
         n = valid.shape[-1]
         self.pairs = valid[..., :, None] & valid[..., None, :] & ~np.eye(n, dtype=bool)
         # per axis, subject a as a column (..., M, 1) against object b as a row (..., 1, M)
-        (ax_lo, ay_lo, az_lo), (ax_hi, ay_hi, az_hi) = ([lo[..., d, None] for d in range(3)],
+        (ax_lo, ay_lo, az_lo), (ax_hi, ay_hi, _) = ([lo[..., d, None] for d in range(3)],
                                                        [hi[..., d, None] for d in range(3)])
         (bx_lo, by_lo, bz_lo), (bx_hi, by_hi, bz_hi) = ([lo[..., None, :, d] for d in range(3)],
                                                        [hi[..., None, :, d] for d in range(3)])

@@ -113,6 +113,7 @@ class SceneModel:
         hr = config.reasoner
         self.episode_rule = EpisodeRule(hr.push_lift, hr.push_smoothing, hr.place_wait)
         self._just_initialised = np.zeros(self.M, dtype=bool)
+        self._radii: np.ndarray | None = None  # (M,) m: bounding radii for carried_at_rest
         # the static bodies, to stop paths at their surfaces (config.static_clip)
         solid = bool(np.any(self.static)) or scene.floor
         self.geometry = StaticGeometry(scene, config.physics) if config.static_clip and solid else None
@@ -221,8 +222,9 @@ class SceneModel:
         """The entries resampling carried along at rest, for the worlds to load asleep
         (:func:`~estimator.model.regularisation.carried_at_rest`); ``boxes (M, 2, 3)``: the
         objects' bounding boxes (m) at the scene's poses (the pool's ``scene_boxes``)."""
-        radii = regularisation.bounding_radii(boxes, initial_poses(self.scene)[0][:, :3])  # as the boxes were read
-        return regularisation.carried_at_rest(self, before, after, ancestors, own, radii)
+        if self._radii is None:  # the scene's boxes do not change: the radii once, about the poses they were read at
+            self._radii = regularisation.bounding_radii(boxes, initial_poses(self.scene)[0][:, :3])
+        return regularisation.carried_at_rest(self, before, after, ancestors, own, self._radii)
 
     # -- the prior ------------------------------------------------------------------------------------
     def initial_state(self, rng: np.random.Generator) -> ParticleState:

@@ -111,8 +111,10 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     (:func:`~estimator.worlds.resting.sleep_resting`): those it did not load, and with
     ``sleep_loads=True`` also those it loaded (teleported, resampled, pushed out of penetration)
     unless held at its start; with it, those it loaded or woke at rest (in a world never stepped,
-    all) that are still after :data:`~estimator.worlds.resting.PROBE_STEPS` steps sleep from then on
-    (:func:`~estimator.worlds.resting.sleep_still`).
+    all) that are still after :data:`~estimator.worlds.resting.PROBE_STEPS` steps, or slow and not
+    sped up after twice that many, sleep from then on (:func:`~estimator.worlds.resting.sleep_still`,
+    :func:`~estimator.worlds.resting.sleep_settling`; updates of fewer than three times that many
+    steps are not probed).
 
     ``parts``: where the call's time goes is added to it (seconds, :data:`PARTS`). ``counts``: what
     the update moved is added to it: ``entries`` (worlds times dynamic objects), ``moved`` (the
@@ -237,8 +239,8 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
         stepping = [0.0] if parts is not None else None  # Bullet's steps timed one by one only when asked
         t_sim = clock()
         took["load"] += t_sim - t_part
-        switched = _simulate(client, dt, helds, watches, n_steps, d_sim_perc, lazy, restart, stepping,
-                             (probes, PROBE_STEPS / n_steps, early) if probes else None)
+        switched = _simulate(client, dt, helds, watches, n_steps, d_sim_perc, lazy, restart, stepping, probes,
+                             early)
         t_part = clock()
         bullet = stepping[0] if stepping else 0.0
         took["step"] += bullet
@@ -315,18 +317,18 @@ def _glides(pws: list[ParticleWorld], batch: BatchInput, held: np.ndarray,
 
 def _simulate(client: int, dt: float, helds: list["HeldObjects"], watch: list[list], n_steps: int,
               d_sim_perc: float, lazy: bool, restart: list[tuple] = (),
-              stepping: list[float] | None = None,
-              probe: tuple[list[int], float, list[int]] | None = None) -> list[tuple[int, int, float]]:
+              stepping: list[float] | None = None, probes: list[int] = (),
+              slept: list[int] | None = None) -> list[tuple[int, int, float]]:
     """The step loop of one client (the hot path, plain Python), for its worlds' held objects
     ``helds`` (one per world) and divergence tests ``watch`` (items updated in place); ``restart``
     (see :func:`~estimator.worlds.resting.restart_after_wake`) is applied after the first step. Returns the objects that switched to
     HELD during the loop as ``(world position, object, largest divergence)`` (lazily, the test
     after the last step is left to the caller, on the state read back). ``stepping``: Bullet's
-    stepping time is added to its one entry (seconds). ``probe``: ``(body ids, scale, count)``,
-    the bodies put to sleep after :data:`~estimator.worlds.resting.PROBE_STEPS` steps if slower
-    than the rest thresholds times ``scale``, or after twice that many if slower than the
-    thresholds and not sped up since (:func:`~estimator.worlds.resting.sleep_still`,
-    :func:`~estimator.worlds.resting.sleep_settling`; their number is added to ``count[0]``)."""
+    stepping time is added to its one entry (seconds). ``probes``: body ids put to sleep after
+    :data:`~estimator.worlds.resting.PROBE_STEPS` steps if slower than the rest thresholds times
+    ``PROBE_STEPS / n_steps``, or after twice that many if slower than the thresholds and not sped
+    up since (:func:`~estimator.worlds.resting.sleep_still`,
+    :func:`~estimator.worlds.resting.sleep_settling`); their number is added to ``slept[0]``."""
     c = client
     get = pb.getBasePositionAndOrientation
     get_vel = pb.getBaseVelocity
@@ -339,6 +341,8 @@ def _simulate(client: int, dt: float, helds: list["HeldObjects"], watch: list[li
             bullet_step(physicsClientId=physicsClientId)
             stepping[0] += clock() - t0
     out: list[tuple[int, int, float]] = []
+    settling: list[tuple[int, float, float]] = []  # probed once, slow but not still: probed again
+    slept = [0] if slept is None else slept
     moving = [h for h in helds if h.items]
     s = 0
     while s < n_steps:
@@ -348,7 +352,7 @@ def _simulate(client: int, dt: float, helds: list["HeldObjects"], watch: list[li
             stop = n_steps  # a test due in the last steps is the test after the last step
         if restart:
             stop = 1
-        if probe and s < 2 * PROBE_STEPS:
+        if (probes or settling) and s < 2 * PROBE_STEPS:  # stop at the probes' steps
             stop = min(stop, PROBE_STEPS if s < PROBE_STEPS else 2 * PROBE_STEPS)
         if moving:
             for t in range(s + 1, stop + 1):
@@ -359,12 +363,11 @@ def _simulate(client: int, dt: float, helds: list["HeldObjects"], watch: list[li
             for _ in range(stop - s):
                 step(physicsClientId=c)
         s = stop
-        if probe and s == PROBE_STEPS:
-            settling = sleep_still(c, *probe)
-            probe = (settling, probe[2]) if settling else None
-        elif probe and s == 2 * PROBE_STEPS:
-            sleep_settling(c, *probe)
-            probe = None
+        if probes and s == PROBE_STEPS:
+            settling, probes = sleep_still(c, probes, PROBE_STEPS / n_steps, slept), ()
+        elif settling and s == 2 * PROBE_STEPS:
+            sleep_settling(c, settling, slept)
+            settling = []
         if restart:
             for uid, pos, orn, lin, ang in restart:
                 pb.resetBasePositionAndOrientation(uid, pos, orn, physicsClientId=c)

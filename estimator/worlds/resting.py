@@ -30,7 +30,7 @@ scaled to these steps (:data:`~estimator.worlds.resting.REST_SPEED` and
 acceleration, still at rest by that test at the update's end) are put to sleep then, not after
 the update; those slower than the test itself are probed again as many steps later, and sleep if
 they have not sped up (:func:`sleep_settling`). Bullet wakes again any of them whose island
-something awake moves."""
+something awake moves. Updates of fewer than three times this many steps are not probed."""
 
 SETTLED_REACH = 0.03
 """m: a settled object loaded asleep (:class:`~estimator.worlds.batch.StepInput` ``settled``) is woken when an object of its
