@@ -114,6 +114,7 @@ class World:
         self._has_offset = bool(np.any(np.abs(off[:, :3]) > 1e-12)
                                 or np.any(np.abs(off[:, 3:6]) > 1e-12))
         self._inertial_inv = pose_inverse(off)
+        self.link_origins = self._inertial_inv[:, :3]  # (M, 3) m: link origin o in the com frame (at c + R o)
         self._num_links = [pb.getNumJoints(u, physicsClientId=c) for u in uids]
         self._static_raw: tuple[np.ndarray, np.ndarray] | None = None
         self._parked: set[int] = set()

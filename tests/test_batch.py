@@ -53,3 +53,38 @@ def test_thawing_puts_frozen_objects_back_in_collision_but_not_one_parked_since(
         assert w.ray_test((at + [0, 0, 1.0])[None], (at - [0, 0, 1.0])[None])[0].tolist() == [-1]
         w.set_colliding([2], True)  # (what an unguarded thaw would do: the ray would then hit it)
         assert w.ray_test((at + [0, 0, 1.0])[None], (at - [0, 0, 1.0])[None])[0].tolist() == [2]
+
+
+def test_a_read_takes_the_skipped_objects_from_the_last_read_and_asks_pybullet_the_rest():
+    boxes = [{"id": f"b{j}", "box": {"size": [0.06, 0.06, 0.06]}, "pose": {"position": [0.3 * j, 0, TABLE_TOP + 0.03]}}
+             for j in range(3)]
+    with World(table_scene(*boxes)) as w:
+        w.set_poses(w.get_poses())
+        pw = ParticleWorld(w)
+        first = pw.read()
+        assert first == w.read_raw(pw.dynamic)
+        poses = w.get_poses()
+        poses[1:, 0] += 0.05  # every box moves: a skipped one is the caller's promise that it did not
+        w.set_poses(poses)
+        fresh = w.read_raw(pw.dynamic)
+        p, v, b = pw.read({2})
+        assert p[7:14] == first[0][7:14] and b[6:12] == first[2][6:12]  # box 2 (the second dynamic): as last read
+        assert p[:7] == fresh[0][:7] and p[14:] == fresh[0][14:] and b[12:] == fresh[2][12:] and v == fresh[1]
+        pw.forget()
+        assert pw.read({2}) == fresh  # nothing to take it from: all asked of pybullet
+
+
+def test_a_frozen_object_gets_its_new_parameters_once_it_is_no_longer_skipped():
+    box = {"id": "box", "box": {"size": [0.06, 0.06, 0.06]}, "pose": {"position": [0, 0, TABLE_TOP + 0.03]}}
+    with World(table_scene(box)) as w:
+        pw = ParticleWorld(w)
+        params = np.tile([0.5, 0.001, 0.0, 0.1, 0.2], (2, 1))
+        pw.apply_params(params)
+        new = params.copy()
+        new[1, 0] = 0.9
+        pw.apply_params(new, [1])  # frozen: not yet
+        assert np.isclose(w.get_dynamics(1)["lateral_friction"], 0.5)
+        pw.apply_params(new.copy(), [1])
+        assert np.isclose(w.get_dynamics(1)["lateral_friction"], 0.5)
+        pw.apply_params(new.copy())  # thawed: the same values as before, now applied
+        assert np.isclose(w.get_dynamics(1)["lateral_friction"], 0.9)

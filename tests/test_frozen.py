@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from estimator.worlds.batch import PER_PARTICLE, BatchInput, ParticleWorld, StepInput
-from estimator.worlds.frozen import FREEZE_MARGIN, local_boxes, unreachable
+from estimator.worlds.frozen import FREEZE_MARGIN, alone, local_boxes, unreachable
 from estimator.worlds.propagate import propagate, propagate_batch
 from helpers import TABLE_TOP, table_scene
 from physics.world import PhysicsSettings, World
@@ -153,3 +153,25 @@ def test_a_ball_rolled_into_a_box_moves_it_while_the_box_it_cannot_reach_is_froz
                     o2 = propagate(pw2, _inputs(w2, o2.poses, o2.velocities, np.zeros(4, bool)), 19, 0.045)
                 ref = propagate_batch([pw2], batch, 19, 0.045)
             assert np.allclose(res.poses[0, :, :3], ref.poses[0, :, :3], atol=1e-6)
+
+
+def test_a_held_object_is_alone_only_when_its_glide_comes_near_nothing():
+    """Boxes ``lo, hi`` of two dynamic objects (1: held, gliding; 2: another) and a static one (0)
+    in two particles; the held object is alone in a particle only where it keeps ``margin`` off
+    the other object's sweep, the static box and the floor."""
+    lo = np.zeros((2, 3, 3))
+    hi = np.zeros((2, 3, 3))
+    lo[:, 1], hi[:, 1] = [0.0, 0.0, 1.0], [0.1, 0.1, 1.1]  # the held one's glide, 1 m up
+    lo[:, 2], hi[:, 2] = [0.3, 0.0, 1.0], [0.4, 0.1, 1.1]  # another, 20 cm from it...
+    lo[1, 2, 0] = 0.1 + FREEZE_MARGIN - 0.001  # ...or 1.9 cm from it
+    gliding = np.array([[False, True, False]] * 2)
+    dyn = np.array([False, True, True])
+    no_statics = np.zeros((2, 0, 2, 3))
+    got = alone(lo, hi, gliding, dyn, no_statics, np.zeros(2))
+    assert got.tolist() == [[False, True, False], [False, False, False]]
+    table = np.array([[[-1.0, -1.0, 0.0], [1.0, 1.0, 0.99]]] * 2)[:, None]  # (2, 1, 2, 3): top 1 cm below it
+    assert not alone(lo, hi, gliding, dyn, table, None)[0, 1]
+    table[:, :, 1, 2] = 1.0 - FREEZE_MARGIN - 0.001  # 2.1 cm below it
+    assert alone(lo, hi, gliding, dyn, table, None)[0, 1]
+    assert not alone(lo, hi, gliding, dyn, no_statics, np.array([1.0 - FREEZE_MARGIN + 0.001] * 2))[0, 1]  # the floor
+    assert not alone(lo, hi, gliding & False, dyn, no_statics, None).any()  # only held ones

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from estimator.worlds.held import depenetrate, glide_paths
+from estimator.worlds.held import HeldObjects, depenetrate, glide_paths
 from helpers import TABLE_TOP, table_scene
 from physics.transforms import quat_angle, quat_from_rotvec
 from physics.world import World
@@ -59,3 +59,39 @@ def test_hand_offset_walk_variance_follows_the_ornstein_uhlenbeck_law():
             stat = np.sum(err ** 2) / var
             assert chi2.ppf(0.0005, dof) < stat < chi2.ppf(0.9995, dof), n
     assert np.all(hand_offset_walk(err, dt, 0.0, tau, rng) == 0)
+
+
+@pytest.mark.parametrize("moving", [False, True])
+def test_a_jump_without_arrays_lands_where_the_array_jump_does(moving):
+    """An object that becomes held jumps to its target with its contents carried rigidly: the
+    jump from the caller's centre-of-mass targets (plain floats) against the one that converts
+    link frames with arrays, for a box turned by its jump, moving or not, with a teddy on it (the
+    teddy's centre of mass off its link origin, the teddy turning)."""
+    scene = table_scene({"id": "box", "box": {"size": [0.2, 0.2, 0.04]},
+                         "pose": {"position": [0, 0, TABLE_TOP + 0.02], "orientation": [0, 0, 0.2, 0.9797959]}},
+                        {"id": "teddy", "urdf": "pybullet_data://teddy_vhacd.urdf", "mass": 0.1,
+                         "pose": {"position": [0.05, 0, TABLE_TOP + 0.07]}})
+    n, s = 20, 7
+    target = np.zeros((3, 7))
+    target[:, 6] = 1.0
+    target[1] = [0.1, -0.05, TABLE_TOP + 0.12, *quat_from_rotvec(np.array([0.1, -0.2, 0.6]))]
+    tvel = np.zeros((3, 6))
+    tvel[1, :3] = [0.3, -0.1, 0.2]
+    contents = np.zeros((3, 3), dtype=bool)
+    contents[2, 1] = True  # the teddy is on the box
+    out = []
+    for fast in (False, True):
+        with World(scene) as w:
+            w.set_velocities(np.array([[0.05, 0.0, -0.1, 0.5, -1.0, 2.0]]), [2])  # the teddy turns
+            com = w.com_frame(target[None])[0][0]
+            start = com[:, :3] + w.origin - (tvel[:, :3] * (n * w.settings.time_step) if moving else 0.0)
+            h = HeldObjects(w, target, tvel, contents, n, moving, *((start.tolist(), com[:, 3:]) if fast else ()))
+            h.jump([1], s)
+            first = (w.get_poses([1, 2]), w.get_velocities([1, 2]))
+            h.apply(n + 1)
+            out.append(first + (w.get_poses([1]),))
+    (p0, v0, e0), (p1, v1, e1) = out[0], out[1]
+    assert np.allclose(p0, p1, atol=1e-12) and np.allclose(v0, v1, atol=1e-12)
+    assert np.allclose(e0, e1, atol=1e-12)
+    assert np.allclose(e1[0], target[1], atol=1e-9) or np.allclose(e1[0, 3:], -target[1, 3:], atol=1e-9)
+    assert not np.allclose(p1[1], [0.05, 0, TABLE_TOP + 0.07, 0, 0, 0, 1])  # the teddy was carried

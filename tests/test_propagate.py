@@ -228,6 +228,58 @@ def test_a_settled_load_that_is_frozen_stays_exactly_where_it_was_loaded():
         assert np.abs(out.poses[1:3] - poses[1:3]).max() < 1e-9 and np.all(out.velocities[1:3] == 0.0)
 
 
+def test_what_a_frozen_object_reads_back_is_what_pybullet_holds():
+    """Objects out of collision for an update are not read again (they cannot have moved): what the
+    update returns for them is still, bit for bit, what pybullet holds, over updates that freeze
+    them, move the ball about (awake, away from them) and reload one of them."""
+    with World(STACK, PhysicsSettings(sleeping=True)) as w:
+        pw, out = _settled(w)
+        frozen = 0
+        for j in range(6):
+            poses, vel = out.poses.copy(), out.velocities.copy()
+            reset = np.array([False, False, j == 4, True])
+            poses[3, :3] = [0.4 - 0.05 * j, 0.2, TABLE_TOP + 0.1]  # the ball dropped, away from the stack
+            poses[2, 0] += 0.001 * (j == 4)  # the top block loaded asleep 1 mm along (frozen too)
+            vel[3] = 0.0
+            out = propagate(pw, inputs(w, poses=poses, velocities=vel, reset=reset, settled=reset & (j == 4)), 19,
+                            0.045, lazy=True, freeze=True)
+            frozen += len(pw.frozen)
+            assert j != 4 or 2 in pw.frozen
+            p, v, b = w.read_state()
+            assert np.array_equal(out.poses[1:], p[1:]) and np.array_equal(out.velocities[1:], v[1:])
+            assert np.array_equal(out.aabbs[1:], b[1:])
+        assert frozen >= 8  # the stack was frozen in most updates
+
+
+def test_a_held_object_that_nothing_can_touch_ends_at_its_glides_end_and_back_in_collision(monkeypatch):
+    """The ball held, picked up 30 cm off the table, then carried 20 cm along in the air far from
+    the stack: with the freeze on it is out of collision for that second update and placed at its
+    glide's end only; it ends where it does when set at every step, with the same velocity, and
+    rays hit it again after."""
+    from estimator.worlds import held
+
+    alone, glide = [], held.HeldObjects.glide
+    monkeypatch.setattr(held.HeldObjects, "glide", lambda self, *a: alone.append(a[5]) or glide(self, *a))
+    ends = []
+    for freeze in (False, True):
+        with World(STACK, PhysicsSettings(sleeping=True)) as w:
+            pw, out = _settled(w)
+            target = out.poses.copy()
+            modes = np.array([FREE, FREE, FREE, HELD], np.int8)
+            for lift in ([0.0, 0.0, 0.3], [0.0, 0.2, 0.0]):  # picked up off the table, then carried in the air
+                target[3, :3] += lift
+                out = propagate(pw, inputs(w, poses=out.poses, velocities=out.velocities, modes=modes, target=target,
+                                           reset=np.zeros(4, bool)), 24, 0.045, lazy=True, freeze=freeze)
+            x, y = target[3, :2]
+            ends.append((out.poses, out.velocities, w.ray_test([[x, y, 2.0]], [[x, y, 0.0]])[0][0]))
+    assert alone == [None, None, None, 3]  # set at every step off the table or without the freeze, else alone
+    (p0, v0, _), (p1, v1, hit) = ends
+    assert hit == 3  # back in collision: rays see it
+    assert np.allclose(p1[3], p0[3], atol=1e-12) and np.allclose(v1[3], v0[3], atol=1e-12)
+    assert np.allclose(p1[3, :3], target[3, :3], atol=1e-9) and v1[3, 1] > 1.0  # at its target, gliding
+    assert np.allclose(p1[1:3], p0[1:3], atol=1e-9)  # the stack did not notice
+
+
 def test_a_resting_stack_stays_put_when_reloaded_every_update():
     """Loading every object from the arrays at every update (as after resampling) must not make a
     resting stack creep more than in a persistent world that never sleeps (Bullet's own creep of a

@@ -104,6 +104,33 @@ class ParticleWorld:
         self.boxes: tuple[np.ndarray, np.ndarray] = local_boxes(world) if boxes is None else boxes
         self._params: np.ndarray | None = None
         self._params_key: bytes = b""
+        self._read: tuple[list, list, list] | None = None  # the last read of its dynamic objects
+
+    def read(self, skip: set[int] | None = None) -> tuple[list[float], list[float], list[float]]:
+        """:meth:`~physics.world.World.read_raw` of its dynamic objects, in order; those in ``skip``
+        are taken from the last read instead of asked of pybullet: objects that cannot have moved
+        since (frozen, asleep and out of collision detection, and not loaded), whose last read was
+        this world's. :meth:`forget` the last read when something else moves them."""
+        last = self._read
+        if not skip or last is None:
+            out = self.world.read_raw(self.dynamic)
+        else:
+            read_raw = self.world.read_raw
+            flat_p, flat_v, flat_b = [], [], []
+            for j, i in enumerate(self.dynamic):
+                if i in skip:
+                    flat_p += last[0][7 * j:7 * j + 7]
+                    flat_v += last[1][6 * j:6 * j + 6]
+                    flat_b += last[2][6 * j:6 * j + 6]
+                else:
+                    read_raw((i,), flat_p, flat_v, flat_b)
+            out = (flat_p, flat_v, flat_b)
+        self._read = out
+        return out
+
+    def forget(self) -> None:
+        """Drop the last read (see :meth:`read`): the world's objects were moved outside an update."""
+        self._read = None
 
     def thaw(self, indices=None) -> None:
         """Put the objects frozen at the last update (those of them in ``indices``; default all) back
@@ -113,19 +140,27 @@ class ParticleWorld:
             self.world.set_colliding([i for i in back if not self.world.is_parked(i)], True)
             self.frozen = [i for i in self.frozen if i not in back]
 
-    def apply_params(self, params: np.ndarray) -> None:
+    def apply_params(self, params: np.ndarray, skip=()) -> None:
+        """Give the objects the parameters ``params (M, 5)`` (:data:`PARAM_NAMES`) where they differ
+        from those last applied; not yet to the objects in ``skip`` (frozen for the update: nothing
+        can touch them), which get theirs at a later call that does not skip them."""
         key = params.tobytes()
         if key == self._params_key:
             return
         w = self.world
-        for i in w.dynamic_indices:
-            row = params[i]
-            if self._params is not None and np.array_equal(row, self._params[i]):
+        if self._params is None:
+            self._params = np.full_like(params, np.nan)
+        rows = np.flatnonzero(np.any(params != self._params, axis=1)[w.dynamic_indices])
+        stale = False
+        for i in w.dynamic_indices[rows].tolist():
+            if i in skip:
+                stale = True
                 continue
-            w.set_dynamics(int(i), lateral_friction=row[0], rolling_friction=row[1],
+            row = params[i]
+            w.set_dynamics(i, lateral_friction=row[0], rolling_friction=row[1],
                            spinning_friction=row[2], restitution=row[3], mass=row[4])
-        self._params = params.copy()
-        self._params_key = key
+            self._params[i] = row
+        self._params_key = b"" if stale else key
 
 
 def assemble(w0: World, dyn: list[int], read: list[tuple[list, list, list]],

@@ -112,9 +112,7 @@ def unreachable(com_poses: np.ndarray, shift: np.ndarray, targets: np.ndarray, s
     fall = 0.5 * abs(gravity) * horizon ** 2 + margin
     near = np.full(awake.shape, fall) if gliding is None else np.where(gliding[rows], margin, fall)
     lo_r, hi_r = _world_boxes(com_poses[rows], boxes)  # (R, M, 3) each
-    lo_t, hi_t = _world_boxes(targets[rows], boxes)
-    lo = np.minimum(np.minimum(lo_r, lo_r + shift), lo_t) - spread[..., None]
-    hi = np.maximum(np.maximum(hi_r, hi_r + shift), hi_t) + spread[..., None]
+    lo, hi = sweeps(boxes, com_poses[rows], shift, targets[rows], spread)
     vmax = np.where(awake, speeds, 0.0).max(axis=1, initial=0.0)  # (R,)
     reach = 4.0 * vmax * horizon + fall
     # candidate (axis 1) within reach of an awake object's sweep, or of a hit one's box (axis 2)
@@ -129,9 +127,48 @@ def unreachable(com_poses: np.ndarray, shift: np.ndarray, targets: np.ndarray, s
     return frozen
 
 
+def alone(lo: np.ndarray, hi: np.ndarray, gliding: np.ndarray, dyn: np.ndarray, statics: np.ndarray,
+          floor: np.ndarray | None, margin: float = FREEZE_MARGIN) -> np.ndarray:
+    """``(K, M)`` bool: which of the ``gliding (K, M)`` objects (held from the update's start) come
+    within ``margin`` (m) of nothing during it: of no other dynamic object (``dyn (M,)`` bool),
+    of no static one and not of the floor. ``lo, hi (K, M, 3)``: where each dynamic object may be
+    during the update (:func:`unreachable`'s sweeps: a gliding object's, widened by how far its
+    turn moves its points; another's, by its fall and spin, whether awake or not). ``statics (K,
+    S, 2, 3)``: the static objects' boxes; ``floor (K,)``: the floor's height, or None without one
+    (all in the client frame, m). Nothing can touch such an object and it can touch nothing: it
+    need not be set on its glide at every step, only placed at its end."""
+    out = gliding & dyn
+    rows = np.flatnonzero(out.any(axis=1))
+    if len(rows) == 0:
+        return out
+    lo_r, hi_r = lo[rows], hi[rows]
+    near = _within(lo_r, hi_r, lo_r, hi_r, np.full(len(rows), margin)) & dyn[None, None, :]
+    near[:, np.arange(lo.shape[1]), np.arange(lo.shape[1])] = False  # (not itself)
+    sub = out[rows] & ~near.any(axis=2)
+    if statics.shape[1]:
+        sub &= ~_within(lo_r, hi_r, statics[rows, :, 0], statics[rows, :, 1], np.full(len(rows), margin)).any(axis=2)
+    if floor is not None:
+        sub &= lo_r[..., 2] > floor[rows, None] + margin
+    out[rows] = sub
+    return out
+
+
+def sweeps(boxes: tuple[np.ndarray, np.ndarray], com_p: np.ndarray, shift: np.ndarray, targets: np.ndarray,
+           spread: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Boxes ``lo, hi (K, M, 3)`` that hold each object's box (:func:`local_boxes`) at its
+    centre-of-mass pose ``com_p (K, M, 7)``, moved by ``shift (K, M, 3)`` and at ``targets (K, M,
+    7)``, widened by ``spread (K, M)`` (m)."""
+    lo_r, hi_r = _world_boxes(com_p, boxes)
+    lo_t, hi_t = _world_boxes(targets, boxes)
+    lo = np.minimum(np.minimum(lo_r, lo_r + shift), lo_t) - spread[..., None]
+    hi = np.maximum(np.maximum(hi_r, hi_r + shift), hi_t) + spread[..., None]
+    return lo, hi
+
+
 def to_freeze(boxes: tuple[np.ndarray, np.ndarray], com_p: np.ndarray, com_v: np.ndarray, target_com: np.ndarray,
               tvel: np.ndarray, target_orn: np.ndarray, checked: np.ndarray, held: np.ndarray, moved: np.ndarray,
-              dyn: np.ndarray, horizon: float, d_sim_perc: float, gravity: float) -> np.ndarray:
+              dyn: np.ndarray, horizon: float, d_sim_perc: float, gravity: float,
+              statics: np.ndarray | None = None, floor: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(K, M)`` bool: the objects to freeze for an update of ``horizon`` seconds
     (:func:`unreachable`), from the client-frame centre-of-mass state
     ``com_p (K, M, 7)``, ``com_v (K, M, 6)`` and the tests' targets at the update's start
@@ -140,7 +177,9 @@ def to_freeze(boxes: tuple[np.ndarray, np.ndarray], com_p: np.ndarray, com_v: np
     what a world holds but never stepped, which reads zero velocity awake; a settled load is a
     candidate, put to sleep if frozen); not held; and if tested, one that cannot diverge while it
     stays still (its target fixed and nearer than ``d_sim_perc``). Held and tested objects may go
-    to their targets (orientations ``target_orn (K, M, 4)``); ``dyn (M,)`` bool: the dynamic objects."""
+    to their targets (orientations ``target_orn (K, M, 4)``); ``dyn (M,)`` bool: the dynamic objects.
+    Returns that and, given the static objects' boxes ``statics (K, S, 2, 3)`` and the floor's
+    height ``floor (K,)`` (None: no floor), the held objects that are :func:`alone` (else none)."""
     centres = com_p[..., :3]
     goes = (checked | held)[..., None]
     targets = np.where(goes, np.concatenate([target_com + tvel * horizon, target_orn], axis=-1), com_p)
@@ -154,5 +193,15 @@ def to_freeze(boxes: tuple[np.ndarray, np.ndarray], com_p: np.ndarray, com_v: np
                         np.linalg.norm(targets[..., :3] - centres, axis=-1) / horizon + turn / horizon)
     # a glide's point strays from the hull of its two end boxes by at most twice its turn: once
     # from the straight path of its start orientation, once from the end box at that orientation
-    return unreachable(com_p, com_v[..., :3] * horizon, targets, np.minimum(spin * horizon, 2.0 * radius) + 2.0 * turn,
-                       speeds, boxes, resting, dyn & ~resting, horizon, gravity, gliding=held)
+    shift, spread = com_v[..., :3] * horizon, np.minimum(spin * horizon, 2.0 * radius) + 2.0 * turn
+    frozen = unreachable(com_p, shift, targets, spread, speeds, boxes, resting, dyn & ~resting, horizon, gravity,
+                         gliding=held)
+    lonely = np.zeros_like(frozen)
+    if statics is not None and held.any():
+        # where the others may be: their sweeps, widened by a fall and by what a hit from anything
+        # awake and not held may give them (the held ones alone hit nothing)
+        vmax = np.where(dyn & ~resting & ~held, speeds, 0.0).max(axis=1, initial=0.0)  # (K,)
+        reach = np.where(held, 0.0, 4.0 * vmax[:, None] * horizon + 0.5 * abs(gravity) * horizon ** 2)
+        lo, hi = sweeps(boxes, com_p, shift, targets, spread + reach)
+        lonely = alone(lo, hi, held, dyn, statics, floor)
+    return frozen, lonely

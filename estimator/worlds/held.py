@@ -78,23 +78,43 @@ class HeldObjects:
     contact solver moves what they carry or push (a tilted box pours its contents out). Objects that
     become held during the update (a divergence) jump to their target at once and take their contents
     with them rigidly, rotation included, as Algorithm 1 does.
+
+    ``target (M, 7)``: the link-frame targets (scene frame); ``target_vel (M, 6)``: their
+    velocities (linear of the link origin, angular); ``contents (M, M)`` bool: ``[j, i]``, object
+    ``j`` is in ``i``. ``com_start`` (M lists of 3, client frame) and ``com_orn (M, 4)``: the same
+    targets' centre-of-mass positions at the update's start (``moving``: moved back by ``n_steps``
+    steps at their velocity; the target moving with ``moving``) and orientations, computed for all
+    the worlds at once by the caller; given, an object whose target does not turn (zero angular
+    velocity) jumps without array work, its contents carried in plain floats (the hot path of an
+    update in which many worlds see an object let go).
     """
 
     def __init__(self, w: World, target: np.ndarray, target_vel: np.ndarray, contents: np.ndarray,
-                 n_steps: int, moving: bool = False):
+                 n_steps: int, moving: bool = False, com_start: list | None = None,
+                 com_orn: np.ndarray | None = None):
         self.w = w
         self.target = target
         self.tvel = target_vel
         self.contents = contents
         self.n = max(1, int(n_steps))
         self.moving = bool(moving)
+        self.com_start = com_start
+        self.com_orn = com_orn
         self.items: list[tuple] = []  # (body id, per-step com positions, per-step orientations, lin, ang)
+        self.ends: list[tuple] = []  # (index, body id, com position, orientation, lin, ang): placed at the end
 
-    def glide(self, uid: int, com: list, orn: list, lin: list, ang: list) -> None:
+    def glide(self, uid: int, com: list, orn: list, lin: list, ang: list, alone: int | None = None) -> None:
         """Add an object held from the start of the update, along the path of :func:`glide_paths`:
         centre-of-mass positions ``com`` and orientations ``orn`` before each step (``n + 1``
-        entries, client frame) and the matching velocity ``lin``, ``ang``."""
-        self.items.append((uid, com, orn, lin, ang))
+        entries, client frame) and the matching velocity ``lin``, ``ang``. ``alone``: its index,
+        when nothing can touch it nor it anything during the update
+        (:func:`~estimator.worlds.frozen.alone`): it is then out of collision detection until its
+        glide's end, where it is placed, and costs no call at the steps."""
+        if alone is None:
+            self.items.append((uid, com, orn, lin, ang))
+        else:
+            self.w.set_colliding([alone], False)
+            self.ends.append((alone, uid, com[-1], orn[-1], lin, ang))
 
     def jump(self, indices: list[int], step: int | None = None) -> None:
         """Add objects that became held after step ``step`` (default: the last): move them (and their
@@ -107,6 +127,16 @@ class HeldObjects:
                 int(j) for i in indices for j in np.flatnonzero(self.contents[:, i]))))
         s = self.n if step is None else min(int(step), self.n)
         dt = w.settings.time_step
+        if self.com_start is not None:
+            rest = []
+            for i in indices:
+                if self.tvel[i, 3:].any() or w.is_parked(i):
+                    rest.append(i)
+                else:
+                    self._jump_bare(i, s, dt, self._carried(i, indices))
+            if not rest:
+                return
+            indices = rest
         # the target's position before each step (n + 1 entries) relative to its end: -v (n - k) dt
         lag = (np.arange(self.n + 1) - self.n)[None, :, None] * dt * (
             self.tvel[indices, None, :3] if self.moving else np.zeros((len(indices), 1, 3)))
@@ -129,6 +159,53 @@ class HeldObjects:
             orn = [self.target[i, 3:].tolist()] * (self.n + 1)
             self.items.append((w.uids[i], pos, orn, v[:3], v[3:]))
 
+    def _carried(self, i: int, indices: list[int]) -> list[tuple]:
+        """What object ``i`` carries when it jumps, for :meth:`_jump_bare`: ``(body id, centre-of-mass
+        position, orientation, angular velocity, link origin in the centre-of-mass frame)`` of its
+        contents (the held ones excepted: they are set on their own paths before the next step, and
+        those jumping with it)."""
+        w, c = self.w, self.w.client
+        held = {item[0] for item in self.items}
+        out = []
+        for j in np.flatnonzero(self.contents[:, i]).tolist():
+            uid = w.uids[j]
+            if uid not in held and j not in indices:
+                pos, orn = pb.getBasePositionAndOrientation(uid, physicsClientId=c)
+                out.append((uid, pos, orn, pb.getBaseVelocity(uid, physicsClientId=c)[1], w.link_origins[j].tolist()))
+        return out
+
+    def _jump_bare(self, i: int, s: int, dt: float, carried: list[tuple]) -> None:
+        """:meth:`jump` of object ``i`` (woken already) that does not turn and is not parked, to where
+        its target is before step ``s + 1``, from the caller's centre-of-mass targets, with what it
+        carries (:meth:`_carried`) moved rigidly with it. Plain floats: no array work."""
+        start = self.com_start[i]
+        if self.moving:
+            tv = self.tvel[i, :3].tolist()
+            path = [[start[0] + tv[0] * (t * dt), start[1] + tv[1] * (t * dt), start[2] + tv[2] * (t * dt)]
+                    for t in range(self.n + 1)]
+        else:
+            path = [start] * (self.n + 1)
+        orn = self.com_orn[i].tolist()
+        v = self.tvel[i].tolist()
+        uid = self.w.uids[i]
+        c = self.w.client
+        if carried:  # a rigid motion of the centres of mass is that of the link frames
+            p0, q0 = pb.getBasePositionAndOrientation(uid, physicsClientId=c)
+            turn = _qmul(orn, (-q0[0], -q0[1], -q0[2], q0[3]))  # before -> after
+            for child, pos, q, ang, o in carried:
+                off = _qrot(turn, [pos[0] - p0[0], pos[1] - p0[1], pos[2] - p0[2]])
+                q = _qmul(turn, q)
+                pb.resetBasePositionAndOrientation(child, [path[s][a] + off[a] for a in range(3)], q,
+                                                   physicsClientId=c)
+                # its link origin takes the box's velocity; its centre of mass, at -R o from it, turns about it
+                d = _qrot(q, o)
+                lin = [v[0] - (ang[1] * d[2] - ang[2] * d[1]), v[1] - (ang[2] * d[0] - ang[0] * d[2]),
+                       v[2] - (ang[0] * d[1] - ang[1] * d[0])]
+                pb.resetBaseVelocity(child, lin, ang, physicsClientId=c)
+        pb.resetBasePositionAndOrientation(uid, path[s], orn, physicsClientId=c)
+        pb.resetBaseVelocity(uid, v[:3], v[3:], physicsClientId=c)
+        self.items.append((uid, path, [orn] * (self.n + 1), v[:3], v[3:]))
+
     def apply(self, s: int) -> None:
         """Place the held objects where they are before step ``s`` (1-based; ``n + 1``: the end)."""
         c = self.w.client
@@ -137,3 +214,25 @@ class HeldObjects:
         for uid, pos, orn, lin, ang in self.items:
             reset(uid, pos[k], orn[k], physicsClientId=c)
             reset_vel(uid, lin, ang, physicsClientId=c)
+        if s > self.n and self.ends:
+            for i, uid, pos, orn, lin, ang in self.ends:
+                reset(uid, pos, orn, physicsClientId=c)
+                reset_vel(uid, lin, ang, physicsClientId=c)
+            self.w.set_colliding([e[0] for e in self.ends if not self.w.is_parked(e[0])], True)
+            self.ends = []
+
+
+def _qmul(a, b) -> list[float]:
+    """Hamilton product ``a * b`` of two quaternions (x, y, z, w) given as sequences of floats."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return [aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz]
+
+
+def _qrot(q, v) -> list[float]:
+    """Vector ``v`` (3 floats) rotated by the unit quaternion ``q`` (x, y, z, w)."""
+    x, y, z, w = q
+    # v + 2 w (u x v) + 2 u x (u x v), u the vector part
+    tx, ty, tz = 2.0 * (y * v[2] - z * v[1]), 2.0 * (z * v[0] - x * v[2]), 2.0 * (x * v[1] - y * v[0])
+    return [v[0] + w * tx + (y * tz - z * ty), v[1] + w * ty + (z * tx - x * tz), v[2] + w * tz + (x * ty - y * tx)]

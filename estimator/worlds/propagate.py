@@ -166,14 +166,15 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
         d0 = np.linalg.norm(com_p[..., :3] - target_com, axis=-1)
         due = _due_steps(d0, np.linalg.norm(com_v[..., :3] - tvel, axis=-1), d_sim_perc, dt)
     checked_l, target_l, due_l, tvel_l = checked.tolist(), target_com.tolist(), due.tolist(), tvel.tolist()
-    frozen = np.zeros((K, M), dtype=bool)
+    frozen = alone = np.zeros((K, M), dtype=bool)
     if freeze and sleeping and n_steps > 0:
         stepped = np.array([pw.stepped for pw in pws])[:, None]  # loaded at rest and never stepped: awake
-        frozen = to_freeze(pws[0].boxes, com_p, com_v, target_com, tvel, target_orn, checked, held_mask,
-                           moved | (reset & ~settled) | ~stepped, dyn_mask, n_steps * dt, d_sim_perc,
-                           w0.settings.gravity)
+        frozen, alone = to_freeze(pws[0].boxes, com_p, com_v, target_com, tvel, target_orn, checked, held_mask,
+                                  moved | (reset & ~settled) | ~stepped, dyn_mask, n_steps * dt, d_sim_perc,
+                                  w0.settings.gravity, w0.static_raw()[1][~dyn_mask][None] + origins[:, None],
+                                  origins[:, 0, 2] if w0.floor_uid >= 0 else None)
     frozen_l = frozen.tolist()
-    glides = _glides(pws, batch, held_mask, n_steps)
+    glides = _glides(pws, batch, held_mask, alone, n_steps)
     clients: dict[int, list[int]] = {}
     for k, pw in enumerate(pws):
         clients.setdefault(pw.world.client, []).append(k)
@@ -189,7 +190,6 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
         for k in ks:
             pw = pws[k]
             w = pw.world
-            pw.apply_params(batch.params[k])
             if pw.frozen:  # frozen at the last update: back in collision unless frozen again
                 pw.thaw([i for i in pw.frozen if not frozen_l[k][i]])
             rows = [i for i in dyn if moved_l[k][i]] if True in moved_l[k] else []
@@ -225,17 +225,19 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
                 pw.frozen = fz
                 pw.contactless.update(fz)
             pw.contactless.difference_update(woken)
+            pw.apply_params(batch.params[k], pw.frozen)
             if probing:  # awake at rest, from loads or wakes (in a world never stepped, everything): probed
                 fresh = woken if pw.stepped else [i for i in dyn if not w.is_parked(i)]
                 probes += [w.uids[i] for i in fresh if not speed_l[k][i] and not held_l[k][i]]
-            held = HeldObjects(w, batch.target[k], batch.target_vel[k], batch.contents[k], n_steps, moving)
+            held = HeldObjects(w, batch.target[k], batch.target_vel[k], batch.contents[k], n_steps, moving,
+                               target_l[k], target_orn[k])
             for h in glides.get(k, ()):
                 held.glide(*h)
             helds.append(held)
             # [index, body id, x, y, z of the perceived centre of mass, next step to test, largest
             # divergence, position of the world in ks, velocity of the target x, y, z]
             watches += [[i, w.uids[i], *target_l[k][i], due_l[k][i], 0.0, len(helds) - 1, *tvel_l[k][i]]
-                        for i in dyn if checked_l[k][i]]
+                        for i in dyn if checked_l[k][i] and not (lazy and i in pw.frozen)]  # frozen: tested at the end
         stepping = [0.0] if parts is not None else None  # Bullet's steps timed one by one only when asked
         t_sim = clock()
         took["load"] += t_sim - t_part
@@ -247,8 +249,8 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
         took["held and tests"] += t_part - t_sim - bullet
         switched_at += [(ks[j], i, d) for j, i, d in switched]
         tested += [(ks[item[7]], item[0], item[6]) for item in watches if item[6]]
-        for k in ks:
-            read[k] = pws[k].world.read_raw(dyn)
+        for k in ks:  # what was frozen and not loaded has not moved since this world's last read
+            read[k] = pws[k].read({i for i in pws[k].frozen if not reset_l[k][i]})
         for k in ks:
             pws[k].stepped = n_steps > 0 or (pws[k].stepped and not reset_any[k])
         took["read"] += clock() - t_part
@@ -272,8 +274,9 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
             late = np.flatnonzero(d_end[k] > d_sim_perc).tolist()
             modes_out[k, late] = HELD
             w = pws[k].world
-            HeldObjects(w, batch.target[k], batch.target_vel[k], batch.contents[k], n_steps, moving).jump(late)
-            p, v, b = assemble(w0, dyn, [w.read_raw(dyn)], origins[k:k + 1])
+            HeldObjects(w, batch.target[k], batch.target_vel[k], batch.contents[k], n_steps, moving, target_l[k],
+                        target_orn[k]).jump(late)
+            p, v, b = assemble(w0, dyn, [pws[k].read()], origins[k:k + 1])
             poses[k], vel[k], aabbs[k] = p[0], v[0], b[0]
     for k, i, d in switched_at:
         max_d[k, i] = d
@@ -296,12 +299,13 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     return BatchOutput(poses, vel, modes_out, max_d, aabbs, finite, np.zeros((K, M)))
 
 
-def _glides(pws: list[ParticleWorld], batch: BatchInput, held: np.ndarray,
+def _glides(pws: list[ParticleWorld], batch: BatchInput, held: np.ndarray, alone: np.ndarray,
             n_steps: int) -> dict[int, list[tuple]]:
     """The glide paths (:func:`~estimator.worlds.held.glide_paths`) of all objects ``held (K, M)`` from the
-    start of the update, computed in one pass: ``{k: [(body id, com, orn, lin, ang), ...]}`` as
-    lists in the client frame. They start from the batch's poses, which the worlds hold (held
-    objects are never pushed out of penetration)."""
+    start of the update, computed in one pass: ``{k: [(body id, com, orn, lin, ang, index or None), ...]}``
+    as lists in the client frame, with the object's index where it is ``alone (K, M)``
+    (:func:`~estimator.worlds.frozen.alone`: placed at its glide's end only). They start from the
+    batch's poses, which the worlds hold (held objects are never pushed out of penetration)."""
     kk, ii = np.nonzero(held)
     if len(kk) == 0:
         return {}
@@ -311,7 +315,7 @@ def _glides(pws: list[ParticleWorld], batch: BatchInput, held: np.ndarray,
     out: dict[int, list[tuple]] = {}
     for h, (k, i) in enumerate(zip(kk.tolist(), ii.tolist())):
         out.setdefault(k, []).append((pws[k].world.uids[i], com[h].tolist(), orn[h].tolist(),
-                                      lin[h].tolist(), ang[h].tolist()))
+                                      lin[h].tolist(), ang[h].tolist(), i if alone[k, i] else None))
     return out
 
 

@@ -147,6 +147,7 @@ class _Shard:
             w = self.worlds[k].world
             dyn = [int(i) for i in w.dynamic_indices]
             w.set_poses(w.parked_pose[dyn], dyn)
+            self.worlds[k].forget()
             for cache in self._vis_caches.values():
                 cache.pop(k, None)
         for k in np.flatnonzero(active).tolist():
