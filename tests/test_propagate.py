@@ -231,7 +231,7 @@ def test_a_settled_load_that_is_frozen_stays_exactly_where_it_was_loaded():
 def test_what_a_frozen_object_reads_back_is_what_pybullet_holds():
     """Objects out of collision for an update are not read again (they cannot have moved): what the
     update returns for them is still, bit for bit, what pybullet holds, over updates that freeze
-    them, move the ball about (awake, away from them) and reload one of them."""
+    them, move the ball about (awake, away from them) and reload one of them asleep."""
     with World(STACK, PhysicsSettings(sleeping=True)) as w:
         pw, out = _settled(w)
         frozen = 0
@@ -245,6 +245,8 @@ def test_what_a_frozen_object_reads_back_is_what_pybullet_holds():
                             0.045, lazy=True, freeze=True)
             frozen += len(pw.frozen)
             assert j != 4 or 2 in pw.frozen
+            if j == 4:  # loaded asleep and frozen: it did not move at all
+                assert np.abs(out.poses[2] - poses[2]).max() < 1e-9 and np.all(out.velocities[2] == 0.0)
             p, v, b = w.read_state()
             assert np.array_equal(out.poses[1:], p[1:]) and np.array_equal(out.velocities[1:], v[1:])
             assert np.array_equal(out.aabbs[1:], b[1:])

@@ -105,6 +105,7 @@ class ParticleWorld:
         self._params: np.ndarray | None = None
         self._params_key: bytes = b""
         self._read: tuple[list, list, list] | None = None  # the last read of its dynamic objects
+        self._stale: set[int] = set()  # objects whose parameters were left for later (frozen)
 
     def read(self, skip: set[int] | None = None) -> tuple[list[float], list[float], list[float]]:
         """:meth:`~physics.world.World.read_raw` of its dynamic objects, in order; those in ``skip``
@@ -145,22 +146,22 @@ class ParticleWorld:
         from those last applied; not yet to the objects in ``skip`` (frozen for the update: nothing
         can touch them), which get theirs at a later call that does not skip them."""
         key = params.tobytes()
-        if key == self._params_key:
+        if key == self._params_key and (not self._stale or self._stale.issubset(skip)):
             return
         w = self.world
         if self._params is None:
             self._params = np.full_like(params, np.nan)
         rows = np.flatnonzero(np.any(params != self._params, axis=1)[w.dynamic_indices])
-        stale = False
+        self._stale = set()
         for i in w.dynamic_indices[rows].tolist():
             if i in skip:
-                stale = True
+                self._stale.add(i)
                 continue
             row = params[i]
             w.set_dynamics(i, lateral_friction=row[0], rolling_friction=row[1],
                            spinning_friction=row[2], restitution=row[3], mass=row[4])
             self._params[i] = row
-        self._params_key = b"" if stale else key
+        self._params_key = key
 
 
 def assemble(w0: World, dyn: list[int], read: list[tuple[list, list, list]],
