@@ -7,6 +7,9 @@ from estimator.worlds.batch import PARAM_NAMES, PER_PARTICLE, BatchInput, Partic
 from helpers import TABLE_TOP, table_scene
 from physics.world import World
 
+BOX = {"id": "box", "box": {"size": [0.06, 0.06, 0.06]}, "pose": {"position": [0, 0, TABLE_TOP + 0.03]}}
+PARAMS = np.tile([0.5, 0.001, 0.0, 0.1, 0.2], (2, 1))  # the table's row and the box's (PARAM_NAMES)
+
 
 def test_the_per_particle_fields_are_the_batch_inputs_but_the_visibility_query():
     names = [f.name for f in dataclasses.fields(BatchInput)]
@@ -14,10 +17,9 @@ def test_the_per_particle_fields_are_the_batch_inputs_but_the_visibility_query()
 
 
 def test_a_particle_world_applies_only_the_parameters_that_changed():
-    box = {"id": "box", "box": {"size": [0.06, 0.06, 0.06]}, "pose": {"position": [0, 0, TABLE_TOP + 0.03]}}
-    with World(table_scene(box)) as w:
+    with World(table_scene(BOX)) as w:
         pw = ParticleWorld(w)
-        params = np.tile([0.5, 0.001, 0.0, 0.1, 0.2], (2, 1))
+        params = PARAMS.copy()
         pw.apply_params(params)
         assert np.isclose(w.get_dynamics(1)["lateral_friction"], 0.5) and np.isclose(w.get_dynamics(1)["mass"], 0.2)
         calls = []
@@ -75,10 +77,9 @@ def test_a_read_takes_the_skipped_objects_from_the_last_read_and_asks_pybullet_t
 
 
 def test_a_frozen_object_gets_its_new_parameters_once_it_is_no_longer_skipped():
-    box = {"id": "box", "box": {"size": [0.06, 0.06, 0.06]}, "pose": {"position": [0, 0, TABLE_TOP + 0.03]}}
-    with World(table_scene(box)) as w:
+    with World(table_scene(BOX)) as w:
         pw = ParticleWorld(w)
-        params = np.tile([0.5, 0.001, 0.0, 0.1, 0.2], (2, 1))
+        params = PARAMS.copy()
         pw.apply_params(params)
         new = params.copy()
         new[1, 0] = 0.9
