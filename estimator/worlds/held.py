@@ -57,9 +57,10 @@ def glide_paths(world: World, start: np.ndarray, end: np.ndarray, indices: np.nd
                 n_steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Paths of held objects gliding from link-frame poses ``start`` to ``end`` ``(H, 7)`` (objects
     ``indices (H,)`` of ``world``'s scene) over ``n_steps`` steps: linearly in position, along the
-    shortest arc in orientation. Returns centre-of-mass positions ``(H, n + 1, 3)`` (m, scene frame)
-    and orientations ``(H, n + 1, 4)`` before each step (the last entry: after the last step), and
-    the constant linear ``(H, 3)`` (m/s) and angular ``(H, 3)`` (rad/s) velocities."""
+    shortest arc in orientation. Returns the centre-of-mass frames' positions ``(H, n + 1, 3)`` (m,
+    scene frame) and orientations ``(H, n + 1, 4)`` (what pybullet sets: turned from the link
+    frame's where an object's inertial frame is) before each step (the last entry: after the last
+    step), and the constant linear ``(H, 3)`` (m/s) and angular ``(H, 3)`` (rad/s) velocities."""
     n = max(1, int(n_steps))
     frac = (np.arange(n + 1) / n)[None, :, None]  # pose before step s is at frac[s - 1]; after the last, at 1
     rv = quat_to_rotvec(quat_multiply(end[:, 3:], quat_conjugate(start[:, 3:])))  # (H, 3) shortest rotation
@@ -67,7 +68,8 @@ def glide_paths(world: World, start: np.ndarray, end: np.ndarray, indices: np.nd
     orn = quat_multiply(quat_from_rotvec(frac * rv[:, None, :]), np.broadcast_to(start[:, None, 3:], pos.shape[:2] + (4,)))
     off = world.com_frame(np.concatenate([pos, orn], axis=-1).swapaxes(0, 1), None, indices)[0]
     dt = n * world.settings.time_step
-    return off.swapaxes(0, 1)[..., :3], orn, (end[:, :3] - start[:, :3]) / dt, rv / dt
+    off = off.swapaxes(0, 1)
+    return off[..., :3], off[..., 3:], (end[:, :3] - start[:, :3]) / dt, rv / dt
 
 
 class HeldObjects:
@@ -152,11 +154,12 @@ class HeldObjects:
                 cv = w.get_velocities(ch)
                 cv[:, :3] = self.tvel[i, :3]
                 w.set_velocities(cv, ch)
-        com = w.com_positions(self.target[indices], indices) + w.origin
+        com = w.com_frame(self.target[indices], None, indices)[0]  # (what pybullet sets)
+        com[:, :3] += w.origin
         for k, i in enumerate(indices):
             v = self.tvel[i].tolist()
-            pos = (com[k][None, :] + lag[k]).tolist()
-            orn = [self.target[i, 3:].tolist()] * (self.n + 1)
+            pos = (com[k, None, :3] + lag[k]).tolist()
+            orn = [com[k, 3:].tolist()] * (self.n + 1)
             self.items.append((w.uids[i], pos, orn, v[:3], v[3:]))
 
     def _carried(self, i: int, indices: list[int]) -> list[tuple]:
