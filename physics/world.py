@@ -175,13 +175,6 @@ class World:
         raw[:, :3] -= self.origin
         return self.link_frame(raw, None, idx)[0]
 
-    def com_positions(self, poses: np.ndarray, indices) -> np.ndarray:
-        """Centre-of-mass positions ``(n, 3)`` of objects ``indices`` placed at link-frame ``poses``
-        ``(n, 7)`` (pybullet reports and integrates the centre of mass; same frame as ``poses``)."""
-        idx = self._indices(indices)
-        poses = np.asarray(poses, dtype=float).reshape(len(idx), 7)
-        return self.com_frame(poses, None, idx)[0][:, :3].copy()
-
     def set_poses(self, poses: np.ndarray, indices=None) -> None:
         """Teleport objects ``indices`` to link-frame ``poses`` ``(n, 7)``. Velocities are kept.
         Sleeping bodies are not woken (see :func:`physics.sleep.wake`)."""

@@ -3,7 +3,7 @@ import pytest
 
 from estimator.worlds.held import HeldObjects, depenetrate, glide_paths
 from helpers import TABLE_TOP, table_scene
-from physics.transforms import quat_angle, quat_from_rotvec
+from physics.transforms import carry_pose, quat_angle, quat_from_rotvec
 from physics.world import World
 
 SCENE = table_scene({"id": "box", "box": {"size": [0.1, 0.1, 0.1]}, "pose": {"position": [0, 0, TABLE_TOP + 0.05]}})
@@ -62,11 +62,13 @@ def test_hand_offset_walk_variance_follows_the_ornstein_uhlenbeck_law():
 
 
 @pytest.mark.parametrize("moving", [False, True])
-def test_a_jump_without_arrays_lands_where_the_array_jump_does(moving):
-    """An object that becomes held jumps to its target with its contents carried rigidly: the
-    jump from the caller's centre-of-mass targets (plain floats) against the one that converts
-    link frames with arrays, for a box turned by its jump, moving or not, with a teddy on it (the
-    teddy's centre of mass off its link origin, the teddy turning)."""
+@pytest.mark.parametrize("turning", [False, True])
+def test_a_jump_lands_at_the_target_with_its_contents_carried_rigidly(moving, turning):
+    """An object that becomes held jumps to its target (plain floats, from the caller's
+    centre-of-mass targets) with its contents carried rigidly: its link frame and velocity, and its
+    content's, are those of the rigid carry computed with arrays on link frames
+    (:func:`physics.transforms.carry_pose`), for a box turned by its jump, moving or not, turning
+    or not, with a teddy on it (the teddy's centre of mass off its link origin, the teddy turning)."""
     scene = table_scene({"id": "box", "box": {"size": [0.2, 0.2, 0.04]},
                          "pose": {"position": [0, 0, TABLE_TOP + 0.02], "orientation": [0, 0, 0.2, 0.9797959]}},
                         {"id": "teddy", "urdf": "pybullet_data://teddy_vhacd.urdf", "mass": 0.1,
@@ -76,25 +78,26 @@ def test_a_jump_without_arrays_lands_where_the_array_jump_does(moving):
     target[:, 6] = 1.0
     target[1] = [0.1, -0.05, TABLE_TOP + 0.12, *quat_from_rotvec(np.array([0.1, -0.2, 0.6]))]
     tvel = np.zeros((3, 6))
-    tvel[1, :3] = [0.3, -0.1, 0.2]
+    tvel[1] = [0.3, -0.1, 0.2, *([0.3, 0.0, -0.5] if turning else [0.0] * 3)]
     contents = np.zeros((3, 3), dtype=bool)
     contents[2, 1] = True  # the teddy is on the box
-    out = []
-    for fast in (False, True):
-        with World(scene) as w:
-            w.set_velocities(np.array([[0.05, 0.0, -0.1, 0.5, -1.0, 2.0]]), [2])  # the teddy turns
-            com = w.com_frame(target[None])[0][0]
-            start = com[:, :3] + w.origin - (tvel[:, :3] * (n * w.settings.time_step) if moving else 0.0)
-            h = HeldObjects(w, target, tvel, contents, n, moving, *((start.tolist(), com[:, 3:]) if fast else ()))
-            h.jump([1], s)
-            first = (w.get_poses([1, 2]), w.get_velocities([1, 2]))
-            h.apply(n + 1)
-            out.append(first + (w.get_poses([1]),))
-    (p0, v0, e0), (p1, v1, e1) = out[0], out[1]
-    assert np.allclose(p0, p1, atol=1e-12) and np.allclose(v0, v1, atol=1e-12)
-    assert np.allclose(e0, e1, atol=1e-12)
-    assert np.allclose(e1[0], target[1], atol=1e-9) or np.allclose(e1[0, 3:], -target[1, 3:], atol=1e-9)
-    assert not np.allclose(p1[1], [0.05, 0, TABLE_TOP + 0.07, 0, 0, 0, 1])  # the teddy was carried
+    with World(scene) as w:
+        spin = np.array([[0.05, 0.0, -0.1, 0.5, -1.0, 2.0]])
+        w.set_velocities(spin, [2])  # the teddy turns
+        dt = w.settings.time_step
+        box_at = target[1].copy()  # where the target is before step s + 1
+        if moving:
+            box_at[:3] += (s - n) * dt * tvel[1, :3]
+        teddy_at = carry_pose(w.get_poses([2])[0], w.get_poses([1])[0], box_at)
+        com = w.com_frame(target[None])[0][0]
+        start = com[:, :3] + w.origin - (tvel[:, :3] * (n * dt) if moving else 0.0)
+        h = HeldObjects(w, start.tolist(), com[:, 3:], tvel, contents, n, moving)
+        h.jump([1], s)
+        assert np.allclose(w.get_poses([1, 2]), [box_at, teddy_at], atol=1e-12)
+        assert np.allclose(w.get_velocities([1, 2]), [tvel[1], [*tvel[1, :3], *spin[0, 3:]]], atol=1e-12)
+        h.apply(n + 1)
+        end = w.get_poses([1])[0]
+    assert np.allclose(end, target[1], atol=1e-9) or np.allclose(end[3:], -target[1, 3:], atol=1e-9)
 
 
 TURNED_URDF = """<?xml version="1.0"?>
@@ -108,8 +111,8 @@ TURNED_URDF = """<?xml version="1.0"?>
 
 def test_held_objects_end_at_their_target_when_their_inertial_frame_is_turned(tmp_path):
     """pybullet sets a body by its centre-of-mass frame, which a URDF may turn from the link frame
-    (here 0.7 rad about z): held by a glide, by a jump through arrays or by one in plain floats, the
-    object ends with its link frame at the target, not turned by that rotation."""
+    (here 0.7 rad about z): held by a glide, by a jump, or by a jump out of its parking, the object
+    ends with its link frame at the target, not turned by that rotation."""
     (tmp_path / "turned.urdf").write_text(TURNED_URDF)
     scene = table_scene({"id": "turned", "urdf": str(tmp_path / "turned.urdf"), "mass": 0.2,
                          "pose": {"position": [0, 0, TABLE_TOP + 0.2]}})
@@ -117,13 +120,14 @@ def test_held_objects_end_at_their_target_when_their_inertial_frame_is_turned(tm
     target[:, 6] = 1.0
     target[1] = [0.1, 0.05, TABLE_TOP + 0.3, *quat_from_rotvec(np.array([0.2, 0.0, 0.4]))]
     n = 12
-    for how in ("glide", "jump", "jump without arrays"):
+    for how in ("glide", "jump", "jump from its parking"):
         with World(scene) as w:
-            assert quat_angle(w.com_frame(target[None])[0][0, 1, 3:], target[1, 3:]) > 0.6  # the frames differ
             com = w.com_frame(target[None])[0][0]
-            fast = (com[:, :3] + w.origin).tolist(), com[:, 3:]
-            h = HeldObjects(w, target, np.zeros((2, 6)), np.zeros((2, 2), bool), n, False,
-                            *(fast if how == "jump without arrays" else ()))
+            assert quat_angle(com[1, 3:], target[1, 3:]) > 0.6  # the frames differ
+            if how == "jump from its parking":
+                w.set_poses(w.parked_pose[[1]], [1])
+                assert w.is_parked(1)
+            h = HeldObjects(w, (com[:, :3] + w.origin).tolist(), com[:, 3:], np.zeros((2, 6)), np.zeros((2, 2), bool), n)
             if how == "glide":
                 p, q, lin, ang = glide_paths(w, w.get_poses([1]), target[1:], np.array([1]), n)
                 h.glide(w.uids[1], (p[0] + w.origin).tolist(), q[0].tolist(), lin[0].tolist(), ang[0].tolist())
@@ -131,5 +135,6 @@ def test_held_objects_end_at_their_target_when_their_inertial_frame_is_turned(tm
                 h.jump([1], 3)
             h.apply(n + 1)
             got = w.get_poses([1])[0]
+            assert not w.is_parked(1)
             assert np.allclose(got[:3], target[1, :3], atol=1e-9), how
             assert quat_angle(got[3:], target[1, 3:]) < 1e-6, how

@@ -8,7 +8,7 @@ import numpy as np
 import pybullet as pb
 
 from physics.sleep import near, touching, wake
-from physics.transforms import carry_pose, quat_conjugate, quat_from_rotvec, quat_multiply, quat_to_rotvec
+from physics.transforms import quat_conjugate, quat_from_rotvec, quat_multiply, quat_to_rotvec
 from physics.world import World
 
 
@@ -81,27 +81,23 @@ class HeldObjects:
     become held during the update (a divergence) jump to their target at once and take their contents
     with them rigidly, rotation included, as Algorithm 1 does.
 
-    ``target (M, 7)``: the link-frame targets (scene frame); ``target_vel (M, 6)``: their
-    velocities (linear of the link origin, angular); ``contents (M, M)`` bool: ``[j, i]``, object
-    ``j`` is in ``i``. ``com_start`` (M lists of 3, client frame) and ``com_orn (M, 4)``: the same
-    targets' centre-of-mass positions at the update's start (``moving``: moved back by ``n_steps``
-    steps at their velocity; the target moving with ``moving``) and orientations, computed for all
-    the worlds at once by the caller; given, an object whose target does not turn (zero angular
-    velocity) jumps without array work, its contents carried in plain floats (the hot path of an
-    update in which many worlds see an object let go).
+    ``com_start`` (M lists of 3, client frame) and ``com_orn (M, 4)``: the centre-of-mass frames of
+    the targets (what pybullet sets), computed for all the worlds at once by the caller: positions
+    at the update's start (with ``moving``, the target moves at its velocity and reaches its pose at
+    the update's end: moved back by ``n_steps`` steps) and orientations. ``target_vel (M, 6)``:
+    the targets' velocities (linear of the link origin, angular); ``contents (M, M)`` bool:
+    ``[j, i]``, object ``j`` is in ``i``.
     """
 
-    def __init__(self, w: World, target: np.ndarray, target_vel: np.ndarray, contents: np.ndarray,
-                 n_steps: int, moving: bool = False, com_start: list | None = None,
-                 com_orn: np.ndarray | None = None):
+    def __init__(self, w: World, com_start: list, com_orn: np.ndarray, target_vel: np.ndarray,
+                 contents: np.ndarray, n_steps: int, moving: bool = False):
         self.w = w
-        self.target = target
+        self.com_start = com_start
+        self.com_orn = com_orn
         self.tvel = target_vel
         self.contents = contents
         self.n = max(1, int(n_steps))
         self.moving = bool(moving)
-        self.com_start = com_start
-        self.com_orn = com_orn
         self.items: list[tuple] = []  # (body id, per-step com positions, per-step orientations, lin, ang)
         self.ends: list[tuple] = []  # (index, body id, com position, orientation, lin, ang): placed at the end
 
@@ -121,52 +117,23 @@ class HeldObjects:
     def jump(self, indices: list[int], step: int | None = None) -> None:
         """Add objects that became held after step ``step`` (default: the last): move them (and their
         contents) to the target at once, waking them and what they touched (see
-        :attr:`PhysicsSettings.sleeping`). With ``moving``, a target moves at its velocity and
-        reaches ``target`` at the update's end: the objects follow it from where it is now."""
+        :attr:`PhysicsSettings.sleeping`), out of their parking if they were parked. With ``moving``,
+        a target moves at its velocity and reaches its pose at the update's end: the objects follow
+        it from where it is now. Plain floats: no array work (many worlds may see an object let go
+        at the same step)."""
         w = self.w
         if w.settings.sleeping:
             wake(w, sorted(set(indices) | set(touching(w, indices)) | set(
                 int(j) for i in indices for j in np.flatnonzero(self.contents[:, i]))))
         s = self.n if step is None else min(int(step), self.n)
         dt = w.settings.time_step
-        if self.com_start is not None:
-            rest = []
-            for i in indices:
-                if self.tvel[i, 3:].any() or w.is_parked(i):
-                    rest.append(i)
-                else:
-                    self._jump_bare(i, s, dt, self._carried(i, indices))
-            if not rest:
-                return
-            indices = rest
-        # the target's position before each step (n + 1 entries) relative to its end: -v (n - k) dt
-        lag = (np.arange(self.n + 1) - self.n)[None, :, None] * dt * (
-            self.tvel[indices, None, :3] if self.moving else np.zeros((len(indices), 1, 3)))
-        before = w.get_poses(indices)
-        now = self.target[indices].copy()
-        now[:, :3] += lag[:, s]
-        w.set_poses(now, indices)
-        w.set_velocities(self.tvel[indices], indices)
-        for k, i in enumerate(indices):
-            ch = [int(j) for j in np.flatnonzero(self.contents[:, i]) if j not in indices]
-            if ch:
-                w.set_poses(carry_pose(w.get_poses(ch), before[k], now[k]), ch)
-                cv = w.get_velocities(ch)
-                cv[:, :3] = self.tvel[i, :3]
-                w.set_velocities(cv, ch)
-        com = w.com_frame(self.target[indices], None, indices)[0]  # (what pybullet sets)
-        com[:, :3] += w.origin
-        for k, i in enumerate(indices):
-            v = self.tvel[i].tolist()
-            pos = (com[k, None, :3] + lag[k]).tolist()
-            orn = [com[k, 3:].tolist()] * (self.n + 1)
-            self.items.append((w.uids[i], pos, orn, v[:3], v[3:]))
+        for i in indices:
+            self._jump_one(i, s, dt, self._carried(i, indices))
 
     def _carried(self, i: int, indices: list[int]) -> list[tuple]:
-        """What object ``i`` carries when it jumps, for :meth:`_jump_bare`: ``(body id, centre-of-mass
-        position, orientation, angular velocity, link origin in the centre-of-mass frame)`` of its
-        contents (the held ones excepted: they are set on their own paths before the next step, and
-        those jumping with it)."""
+        """What object ``i`` carries when it jumps: ``(index, centre-of-mass position, orientation,
+        angular velocity)`` of its contents (the held ones excepted: they are set on their own paths
+        before the next step, and those jumping with it)."""
         w, c = self.w, self.w.client
         held = {item[0] for item in self.items}
         out = []
@@ -174,13 +141,13 @@ class HeldObjects:
             uid = w.uids[j]
             if uid not in held and j not in indices:
                 pos, orn = pb.getBasePositionAndOrientation(uid, physicsClientId=c)
-                out.append((uid, pos, orn, pb.getBaseVelocity(uid, physicsClientId=c)[1], w.link_origins[j].tolist()))
+                out.append((j, pos, orn, pb.getBaseVelocity(uid, physicsClientId=c)[1]))
         return out
 
-    def _jump_bare(self, i: int, s: int, dt: float, carried: list[tuple]) -> None:
-        """:meth:`jump` of object ``i`` (woken already) that does not turn and is not parked, to where
-        its target is before step ``s + 1``, from the caller's centre-of-mass targets, with what it
-        carries (:meth:`_carried`) moved rigidly with it. Plain floats: no array work."""
+    def _jump_one(self, i: int, s: int, dt: float, carried: list[tuple]) -> None:
+        """:meth:`jump` of object ``i`` (woken already) to where its target is before step ``s + 1``,
+        with what it carries (:meth:`_carried`) moved rigidly with it."""
+        w = self.w
         start = self.com_start[i]
         if self.moving:
             tv = self.tvel[i, :3].tolist()
@@ -190,24 +157,18 @@ class HeldObjects:
             path = [start] * (self.n + 1)
         orn = self.com_orn[i].tolist()
         v = self.tvel[i].tolist()
-        uid = self.w.uids[i]
-        c = self.w.client
+        lin = _com_velocity(v[:3], v[3:], orn, w.link_origins[i].tolist())
         if carried:  # a rigid motion of the centres of mass is that of the link frames
-            p0, q0 = pb.getBasePositionAndOrientation(uid, physicsClientId=c)
+            p0, q0 = pb.getBasePositionAndOrientation(w.uids[i], physicsClientId=w.client)
             turn = _qmul(orn, (-q0[0], -q0[1], -q0[2], q0[3]))  # before -> after
-            for child, pos, q, ang, o in carried:
+            for j, pos, q, ang in carried:
                 off = _qrot(turn, [pos[0] - p0[0], pos[1] - p0[1], pos[2] - p0[2]])
                 q = _qmul(turn, q)
-                pb.resetBasePositionAndOrientation(child, [path[s][a] + off[a] for a in range(3)], q,
-                                                   physicsClientId=c)
-                # its link origin takes the box's velocity; its centre of mass, at -R o from it, turns about it
-                d = _qrot(q, o)
-                lin = [v[0] - (ang[1] * d[2] - ang[2] * d[1]), v[1] - (ang[2] * d[0] - ang[0] * d[2]),
-                       v[2] - (ang[0] * d[1] - ang[1] * d[0])]
-                pb.resetBaseVelocity(child, lin, ang, physicsClientId=c)
-        pb.resetBasePositionAndOrientation(uid, path[s], orn, physicsClientId=c)
-        pb.resetBaseVelocity(uid, v[:3], v[3:], physicsClientId=c)
-        self.items.append((uid, path, [orn] * (self.n + 1), v[:3], v[3:]))
+                # its link origin takes the target's velocity, and it keeps its spin
+                w.load_com_state([j], [[path[s][a] + off[a] for a in range(3)] + q],
+                                 [_com_velocity(v[:3], ang, q, w.link_origins[j].tolist()) + list(ang)])
+        w.load_com_state([i], [path[s] + orn], [lin + v[3:]])
+        self.items.append((w.uids[i], path, [orn] * (self.n + 1), lin, v[3:]))
 
     def apply(self, s: int) -> None:
         """Place the held objects where they are before step ``s`` (1-based; ``n + 1``: the end)."""
@@ -223,6 +184,16 @@ class HeldObjects:
                 reset_vel(uid, lin, ang, physicsClientId=c)
             self.w.set_colliding([e[0] for e in self.ends if not self.w.is_parked(e[0])], True)
             self.ends = []
+
+
+def _com_velocity(lin: list, ang: list, orn: list, origin: list) -> list[float]:
+    """The velocity of a body's centre of mass (3 floats) when its link origin moves at ``lin`` and
+    it turns at ``ang`` (world frame), its centre-of-mass frame turned by ``orn`` (x, y, z, w) and
+    its link origin at ``origin`` in that frame (:attr:`~physics.world.World.link_origins`): the
+    centre is at ``-R o`` from the origin."""
+    d = _qrot(orn, origin)
+    return [lin[0] - (ang[1] * d[2] - ang[2] * d[1]), lin[1] - (ang[2] * d[0] - ang[0] * d[2]),
+            lin[2] - (ang[0] * d[1] - ang[1] * d[0])]
 
 
 def _qmul(a, b) -> list[float]:

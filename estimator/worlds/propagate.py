@@ -229,8 +229,7 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
             if probing:  # awake at rest, from loads or wakes (in a world never stepped, everything): probed
                 fresh = woken if pw.stepped else [i for i in dyn if not w.is_parked(i)]
                 probes += [w.uids[i] for i in fresh if not speed_l[k][i] and not held_l[k][i]]
-            held = HeldObjects(w, batch.target[k], batch.target_vel[k], batch.contents[k], n_steps, moving,
-                               target_l[k], target_orn[k])
+            held = HeldObjects(w, target_l[k], target_orn[k], batch.target_vel[k], batch.contents[k], n_steps, moving)
             for h in glides.get(k, ()):
                 held.glide(*h)
             helds.append(held)
@@ -274,8 +273,7 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
             late = np.flatnonzero(d_end[k] > d_sim_perc).tolist()
             modes_out[k, late] = HELD
             w = pws[k].world
-            HeldObjects(w, batch.target[k], batch.target_vel[k], batch.contents[k], n_steps, moving, target_l[k],
-                        target_orn[k]).jump(late)
+            HeldObjects(w, target_l[k], target_orn[k], batch.target_vel[k], batch.contents[k], n_steps, moving).jump(late)
             p, v, b = assemble(w0, dyn, [pws[k].read()], origins[k:k + 1])
             poses[k], vel[k], aabbs[k] = p[0], v[0], b[0]
     for k, i, d in switched_at:

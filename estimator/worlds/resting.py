@@ -69,13 +69,12 @@ def sleep_still(client: int, uids: list[int], scale: float, count: list[int]) ->
     path: direct pybullet calls); their number is added to ``count[0]``. Returns the others that are
     slower than the thresholds themselves, as ``(body id, speed^2, spin^2)``, for
     :func:`sleep_settling`."""
-    get_vel, change, asleep = pb.getBaseVelocity, pb.changeDynamics, pb.ACTIVATION_STATE_SLEEP
+    change, asleep = pb.changeDynamics, pb.ACTIVATION_STATE_SLEEP
     v_max, w_max = (REST_SPEED * scale) ** 2, (REST_SPIN * scale) ** 2
     v_rest, w_rest = REST_SPEED ** 2, REST_SPIN ** 2
     slow = []
     for uid in uids:
-        v, w = get_vel(uid, physicsClientId=client)
-        v2, w2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2], w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
+        v2, w2 = _squared_speeds(client, uid)
         if v2 < v_max and w2 < w_max:
             change(uid, -1, activationState=asleep, physicsClientId=client)
             count[0] += 1
@@ -90,13 +89,18 @@ def sleep_settling(client: int, slow: list[tuple[int, float, float]], count: lis
     unsupported) speeds up from the start, while one in balance only rings down from its contacts
     being made afresh (a mug loaded on the table reads 1.4 mm/s four steps later, less after
     eight). Their number is added to ``count[0]``."""
-    get_vel, change, asleep = pb.getBaseVelocity, pb.changeDynamics, pb.ACTIVATION_STATE_SLEEP
+    change, asleep = pb.changeDynamics, pb.ACTIVATION_STATE_SLEEP
     for uid, v2_before, w2_before in slow:
-        v, w = get_vel(uid, physicsClientId=client)
-        if (v[0] * v[0] + v[1] * v[1] + v[2] * v[2] <= v2_before
-                and w[0] * w[0] + w[1] * w[1] + w[2] * w[2] <= w2_before):
+        v2, w2 = _squared_speeds(client, uid)
+        if v2 <= v2_before and w2 <= w2_before:
             change(uid, -1, activationState=asleep, physicsClientId=client)
             count[0] += 1
+
+
+def _squared_speeds(client: int, uid: int) -> tuple[float, float]:
+    """Squared speed (m^2/s^2) and squared spin (rad^2/s^2) of body ``uid`` of pybullet client ``client``."""
+    v, w = pb.getBaseVelocity(uid, physicsClientId=client)
+    return v[0] * v[0] + v[1] * v[1] + v[2] * v[2], w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
 
 
 def restart_after_wake(w: World, rows: list[int], com_p: np.ndarray, com_v: np.ndarray, dt: float,
