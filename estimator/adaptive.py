@@ -2,7 +2,7 @@
 
 Pure functions on arrays (see :class:`~estimator.config.AdaptiveConfig` for the bound and its
 assumptions); the filter (:class:`~estimator.filter.SceneEstimator`) resamples to the count they
-give.
+give (under the compute budget's cap, :func:`~estimator.config.budget_cap`, when there is one).
 """
 from __future__ import annotations
 

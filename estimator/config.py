@@ -16,6 +16,7 @@ the full configuration in the same form (``scene-estimator config`` prints it).
 """
 from __future__ import annotations
 
+import math
 import os
 import re
 import typing
@@ -27,7 +28,7 @@ from physics.errors import ConfigError
 from physics.fields import _Fields, read_yaml_with_lines
 from physics.world import PhysicsSettings
 
-from .config_sections import AdaptiveConfig, HandConfig, NoiseConfig, ReasonerConfig
+from .config_sections import AdaptiveConfig, BudgetConfig, HandConfig, NoiseConfig, ReasonerConfig
 from .relations import RelationConfig
 
 SOLVER_RESIDUAL = 1e-6
@@ -41,8 +42,9 @@ on a few points of a mesh (pybullet_data's duck) is kicked whenever the filter m
 support (regularisation, process noise), rocks, and tips over in most particles while the true one
 stands (``tests/test_config.py``)."""
 
-__all__ = ["AdaptiveConfig", "EstimatorConfig", "HandConfig", "NoiseConfig", "ReasonerConfig", "config_from_dict",
-           "config_to_dict", "default_config", "load_config", "reasoning_due", "with_adaptive_count", "SOLVER_RESIDUAL"]
+__all__ = ["AdaptiveConfig", "BudgetConfig", "EstimatorConfig", "HandConfig", "NoiseConfig", "ReasonerConfig",
+           "config_from_dict", "config_to_dict", "default_config", "load_config", "reasoning_due", "with_adaptive_count",
+           "with_budget", "budget_cap", "SOLVER_RESIDUAL"]
 
 
 def reasoning_due(t_last: float | None, t: float, horizon: float) -> bool:
@@ -52,6 +54,32 @@ def reasoning_due(t_last: float | None, t: float, horizon: float) -> bool:
     return t_last is None or t >= t_last + horizon - 1e-9
 
 
+def budget_cap(cap: int, K: int, seconds: float, scaled: float, covered: float, config: BudgetConfig,
+               most: int) -> int:
+    """The particle cap after a reasoning step that took ``seconds`` (wall time) with ``K`` particles
+    to cover ``covered`` s of stream time (> 0), ``scaled`` s of it in work that scales with K (the
+    particle worlds; the rest, the main process's model and belief, taken as fixed), the cap having
+    been ``cap``; ``most``: the count configured.
+
+    The budget is ``config.load * covered``; the K it affords, ``K * (budget - fixed) / scaled``
+    (``fixed = seconds - scaled``). A step over the budget lowers the cap to that K (if lower); one
+    under ``config.slack`` times it raises the cap to ``K`` times ``min(config.grow, afforded / K)``
+    (if higher); otherwise the cap stays. Always within ``[min(config.min_particles, most), most]``
+    (a budget the fixed work alone exceeds leaves the minimum)."""
+    if not covered > 0:
+        raise ValueError(f"budget_cap: the stream time covered must be > 0, got {covered!r}")
+    seconds = max(seconds, 0.0)
+    scaled = min(max(scaled, 0.0), seconds)
+    budget = config.load * covered
+    afford = K * (budget - (seconds - scaled)) / scaled if scaled > 0 else math.inf
+    lo = min(config.min_particles, most)
+    if seconds > budget:
+        cap = min(cap, int(max(afford, 0.0)))
+    elif seconds < config.slack * budget:
+        cap = max(cap, math.ceil(K * min(config.grow, afford / K)))
+    return int(min(max(cap, lo), most))
+
+
 @dataclass(frozen=True)
 class EstimatorConfig:
     """Everything the estimator needs besides the scene.
@@ -59,6 +87,8 @@ class EstimatorConfig:
     * ``particles``: number of particle worlds K (1 with :meth:`NoiseConfig.off` is paper mode);
       with ``adaptive.enabled``, the count the filter starts with (clipped to its bounds).
     * ``adaptive``: a particle count that follows the belief's spread (:class:`AdaptiveConfig`).
+    * ``budget``: live use: the count is capped so that the steps keep up with the stream
+      (:class:`BudgetConfig`).
     * ``workers``: worker processes holding the particle worlds (0 = in this process; results do
       not depend on it).
     * ``worlds``: pybullet clients the K particle worlds are packed into, side by side (at most K;
@@ -175,6 +205,7 @@ class EstimatorConfig:
     visibility_threshold: float = 0.3
     hypothesis_min_p: float = 0.02
     adaptive: AdaptiveConfig = field(default_factory=AdaptiveConfig)
+    budget: BudgetConfig = field(default_factory=BudgetConfig)
 
     def __post_init__(self):
         if not isinstance(self.particles, int) or self.particles < 1:
@@ -203,9 +234,14 @@ class EstimatorConfig:
         return self.adaptive.max_particles if self.adaptive.enabled else self.particles
 
     @property
+    def varying_count(self) -> bool:
+        """Whether K may change during a run (an adaptive count, a budget)."""
+        return self.adaptive.enabled or self.budget.enabled
+
+    @property
     def paper_mode(self) -> bool:
         """True when this configuration is the paper's reasoner (one world, no noise)."""
-        return (self.particles == 1 and not self.adaptive.enabled and self.noise.is_off
+        return (self.particles == 1 and not self.varying_count and self.noise.is_off
                 and self.priors.release_on_loss == 1.0)
 
     @classmethod
@@ -232,9 +268,17 @@ def with_adaptive_count(config: EstimatorConfig, min_particles: int | None = Non
     return replace(config, adaptive=replace(a, enabled=True, min_particles=lo, max_particles=hi))
 
 
+def with_budget(config: EstimatorConfig, min_particles: int | None = None) -> EstimatorConfig:
+    """``config`` with the live compute budget on (:class:`BudgetConfig`; ``min_particles``: its
+    floor, default the configuration's)."""
+    b = config.budget
+    return replace(config, budget=replace(b, enabled=True, min_particles=b.min_particles if min_particles is None
+                                          else min_particles))
+
+
 SECTIONS: dict[str, type] = {"reasoner": ReasonerConfig, "noise": NoiseConfig, "priors": ModePriors,
                              "hands": HandConfig, "relations": RelationConfig, "physics": PhysicsSettings,
-                             "adaptive": AdaptiveConfig}
+                             "adaptive": AdaptiveConfig, "budget": BudgetConfig}
 """The nested sections of :class:`EstimatorConfig`, by field name."""
 
 BASES = ("paper", "particles")

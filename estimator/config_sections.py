@@ -1,9 +1,10 @@
 """The sections of the estimator's configuration (:class:`~estimator.config.EstimatorConfig`):
 the physics reasoner's parameters (:class:`ReasonerConfig`, the paper's Table I), the particle
 filter's perturbations and noise (:class:`NoiseConfig`; all zero is the paper's reasoner), how
-tracked hands are read (:class:`HandConfig`) and the adaptive particle count
-(:class:`AdaptiveConfig`). Frozen dataclasses with checked, documented defaults; a configuration
-file names them ``reasoner:``, ``noise:``, ``hands:`` and ``adaptive:``.
+tracked hands are read (:class:`HandConfig`), the adaptive particle count (:class:`AdaptiveConfig`)
+and the live compute budget (:class:`BudgetConfig`). Frozen dataclasses with checked, documented
+defaults; a configuration file names them ``reasoner:``, ``noise:``, ``hands:``, ``adaptive:`` and
+``budget:``.
 """
 from __future__ import annotations
 
@@ -363,3 +364,45 @@ class AdaptiveConfig:
             v = getattr(self, n)
             if not 0.0 < v < 1.0:
                 raise ValueError(f"AdaptiveConfig.{n} must be in (0, 1), got {v!r}")
+
+
+@dataclass(frozen=True)
+class BudgetConfig:
+    """A compute budget for live use (``run --live``, ``ros``): the particle count is capped so that
+    the reasoning steps keep up with the stream.
+
+    After each reasoning step the filter compares the wall time the step took with ``load`` times the
+    stream time it covered (the time it simulated, at least one horizon): the *budget*. A step over
+    it lowers the cap to the count the budget affords (the particle worlds' time scaling with K, the
+    rest taken as fixed), to no fewer than ``min_particles``; one under ``slack`` times the budget
+    raises it by at most the factor ``grow`` per step, up to the count configured (``particles``, or
+    ``adaptive.max_particles``); in between it stays (:func:`~estimator.config.budget_cap`). The
+    filter resamples to the cap as soon as it holds more particles, and back up when the cap allows
+    its count again. K then depends on the machine's speed and load: a run with a budget is not
+    reproducible, as a live run's merged frames are not.
+
+    * ``enabled``: False (the default) keeps K to what ``particles`` and ``adaptive`` say.
+    * ``min_particles``: the fewest particles the budget leaves (16: the Monte Carlo error of a
+      well-known object's mean position grows by ``sqrt(1 + 1/16)``, 3 %; below, frames are merged).
+    * ``load``: the fraction of the stream's time the steps may take (the rest observes frames and
+      writes estimates); ``slack``, ``grow``: as above.
+    """
+
+    enabled: bool = False
+    min_particles: int = 16
+    load: float = 0.8
+    slack: float = 0.6
+    grow: float = 1.25
+
+    def __post_init__(self):
+        if not isinstance(self.enabled, bool):
+            raise ValueError(f"BudgetConfig.enabled must be true or false, got {self.enabled!r}")
+        v = self.min_particles
+        if not isinstance(v, int) or isinstance(v, bool) or v < 2:
+            raise ValueError(f"BudgetConfig.min_particles must be an integer >= 2, got {v!r}")
+        if not 0.0 < self.load <= 1.0:
+            raise ValueError(f"BudgetConfig.load must be in (0, 1], got {self.load!r}")
+        if not 0.0 < self.slack < 1.0:
+            raise ValueError(f"BudgetConfig.slack must be in (0, 1), got {self.slack!r}")
+        if not self.grow > 1.0:
+            raise ValueError(f"BudgetConfig.grow must be > 1, got {self.grow!r}")

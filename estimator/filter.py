@@ -24,16 +24,21 @@ With :class:`~estimator.config.AdaptiveConfig` enabled the number of particles K
 resampling: each update computes the count the belief needs (:func:`~estimator.adaptive.particles_needed`,
 KLD-sampling) and resamples to it when it exceeds K or falls under ``shrink_below`` K (and, at
 every resampling, resamples to it). Particle ``i`` always lives in the same world slot; the pool
-parks the worlds of the slots beyond K and builds new ones as K first reaches them.
+parks the worlds of the slots beyond K and builds new ones as K first reaches them. With
+:class:`~estimator.config.BudgetConfig` enabled (live use), the count is also capped by what the
+machine affords: each step's wall time (the worlds' part of it scaling with K) against the stream
+time it covered sets the cap (:func:`~estimator.config.budget_cap`), and the filter resamples to
+it when it holds more.
 """
 from __future__ import annotations
 
 import logging
+import time
 
 import numpy as np
 
 from .collect import Belief, Collectors
-from .config import EstimatorConfig, reasoning_due
+from .config import EstimatorConfig, budget_cap, reasoning_due
 from .model import SceneModel
 from .resampling import effective_sample_size, keep_survivors_in_place, normalise_log_weights, systematic_resample
 from .worlds.pool import WorldPool
@@ -71,7 +76,9 @@ class SceneEstimator:
     (lateral / rolling / spinning friction, restitution, mass in kg), ``modes (K, M)`` int8
     (FREE / HELD), ``log_weights (K,)``, ``on_top (K, M, M+1)`` and ``is_in (K, M, M)`` (relations at
     the last update), ``event_t (K, M, 4)`` (latest Pick / Place / Release / Push times).
-    ``known (M,)``: objects with a pose or perceived since.
+    ``known (M,)``: objects with a pose or perceived since. ``cap``: the most particles the
+    compute budget allows now (the count configured without a budget); ``clock``: the wall clock
+    (s) the budget times the steps with.
     """
 
     poses = _StateField()
@@ -92,7 +99,7 @@ class SceneEstimator:
         K, M = cfg.initial_particles, len(scene.objects)
         self.M = M
         self.pool = WorldPool(scene, K, cfg.workers, cfg.physics, cfg.worlds,
-                              max_particles=cfg.max_particles if cfg.adaptive.enabled else None)
+                              max_particles=cfg.max_particles if cfg.varying_count else None)
         try:
             self.model = SceneModel(scene, cfg, self.pool.initial_params, mechanisms=mechanisms)
             self.state = self.model.initial_state(self.rng)
@@ -106,6 +113,8 @@ class SceneEstimator:
         self.reseeded = 0  # particles re-seeded from survivors (exploded simulations, dead workers)
         self.k_range = [K, K, 0]  # the fewest and the most particles over the updates, and their sum
         self.n_updates = 0
+        self.cap = cfg.max_particles
+        self.clock = time.perf_counter
         self.last_belief: Belief | None = None
         self.t_tick: float | None = None
 
@@ -186,6 +195,7 @@ class SceneEstimator:
         The step: the model proposes (its moves and the worlds' input), the worlds run, the model
         weighs (settles, and sums its terms) and commits the particles, the collectors make the
         belief; then resampling, when the effective sample size is low or the count must change."""
+        t_start = self.clock()
         t = self.model.inputs.t_frame
         if t is None or (self.t_tick is not None and not t > self.t_tick):
             raise ValueError("step() needs a frame observed since the last reasoning step")
@@ -193,9 +203,11 @@ class SceneEstimator:
         # the first update only places the objects; after a gap, at most max_gap is simulated
         dt = 0.0 if self.t_tick is None else min(t - self.t_tick, cfg.reasoner.max_gap)
         proposal = model.propose(self.state, dt, self.rng)
+        t_worlds = self.clock()
         out = self.pool.advance(proposal.batch, int(round(dt / cfg.physics.time_step)), cfg.reasoner.d_sim_perc,
                                 cfg.lazy_checks, proposal.moving_targets, proposal.cameras, proposal.move.fused,
                                 cfg.freeze_unreachable, cfg.sleep_loads)
+        t_worlds = self.clock() - t_worlds
         bad = ~out.finite  # exploded, or lost with their worker: weighed zero, then re-seeded
         if np.any(bad):
             log.warning("t=%.3f: %d particle simulation(s) exploded or lost; they are re-seeded from the "
@@ -206,13 +218,18 @@ class SceneEstimator:
         self.state = model.commit(self.state, proposal, weighed, self.rng)
         self.t_tick = t
         self.n_updates += 1
-        n = model.particles_needed(weighed.settled, weights) if cfg.adaptive.enabled else K
+        n = model.particles_needed(weighed.settled, weights) if cfg.adaptive.enabled else cfg.particles
         self.k_range = [min(self.k_range[0], K), max(self.k_range[1], K), self.k_range[2] + K]
         belief = self.collect(t, self.state, weighed.settled, weights, ess, model.known, proposal.perceived,
-                              proposal.detected, dt, model.inputs.last_hands, K if cfg.adaptive.enabled else None)
+                              proposal.detected, dt, model.inputs.last_hands, K if cfg.varying_count else None)
         self.last_belief = belief
+        if cfg.budget.enabled and dt > 0:
+            self.cap = budget_cap(self.cap, K, self.clock() - t_start, t_worlds, max(dt, cfg.reasoner.horizon),
+                                  cfg.budget, cfg.max_particles)
+        n = min(n, self.cap)
         reseed = K > 1 and np.any(bad) and np.any(weights > 0)
-        if K > 1 and (ess < cfg.resample_threshold * K or n > K or n < cfg.adaptive.shrink_below * K):
+        if K > 1 and (ess < cfg.resample_threshold * K or n > K or n < cfg.adaptive.shrink_below * K
+                      or K > self.cap):
             self._resample(weights, weighed.settled, proposal.perceived, n)
         elif reseed:
             self._reseed(bad, weights)

@@ -220,6 +220,7 @@ def test_bench_live_feeds_a_scenario_through_a_pipe_and_reports_latency(capsys):
         n = len(frames)
     assert r["scenario"] == "static_floating" and r["particles"] == 2 and r["frames"] == n
     assert 1 <= r["steps"] <= n and r["merged"] >= 0 and r["steps"] + r["merged"] <= n
+    assert r["k_min"] == 2 and r["k_mean"] == 2.0  # two particles: nothing for the budget to shed
     for name in ("latency_ms_median", "latency_ms_p95", "latency_ms_max", "update_ms_median", "rss_mb_end",
                  "realtime_factor", "stream_s", "busy_s"):
         assert math.isfinite(r[name]) and r[name] > 0, name
@@ -229,3 +230,5 @@ def test_bench_live_feeds_a_scenario_through_a_pipe_and_reports_latency(capsys):
     assert r["stream_s"] == pytest.approx(frames[-1].t - frames[0].t)
     assert main(["bench", "--particles", "2", "--live"]) == 2
     assert "--live feeds the streams of scenarios" in capsys.readouterr().err
+    assert main(["bench", "--scenario", "static_floating", "--fixed-particles"]) == 2
+    assert "--fixed-particles goes with --live" in capsys.readouterr().err

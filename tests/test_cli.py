@@ -421,6 +421,26 @@ def test_live_through_a_fifo_in_lockstep_is_the_run_without_it(files):
     assert all(json.loads(x)["latency"] >= 0 for x in lines.splitlines())
 
 
+def test_a_live_run_reports_its_particle_count_and_fixed_particles_keeps_it(files):
+    """With more particles than the budget's floor (16) a live run may shed them: each estimate line
+    says how many it used, within [16, K]; --fixed-particles keeps K (no count in the lines), and
+    without --live it is refused."""
+    tmp, scene, _ = files
+    obs = tmp / "long.jsonl"  # 8 s at twice its speed: steps go on well after the worlds are built
+    write_jsonl(obs, [{"t": round(k / 30, 4), "objects": {"box": {"position": [0.1, 0, TABLE_TOP + 0.04]}}}
+                      for k in range(240)])
+    args = ("--scene", scene, "--observations", obs, "--out", "-", "--particles", 24, "--workers", 0)
+    live = _run(*args, "--live", "--realtime", 2)
+    assert live.returncode == 0, live.stderr
+    ks = [json.loads(x)["particles"] for x in live.stdout.splitlines()]
+    assert len(ks) > 1 and all(16 <= k <= 24 for k in ks) and ks[0] == 24
+    assert "particles (budget): " in live.stderr
+    fixed = _run(*args, "--live", "--fixed-particles")
+    assert fixed.returncode == 0 and all("particles" not in json.loads(x) for x in fixed.stdout.splitlines())
+    res = _run(*args, "--fixed-particles")
+    assert res.returncode == 2 and "--fixed-particles goes with --live" in res.stderr
+
+
 def test_a_tcp_source_and_a_realtime_replay_give_the_estimates_of_the_file(files):
     import socket
     import threading

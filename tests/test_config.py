@@ -4,7 +4,17 @@ import numpy as np
 import pytest
 import yaml
 
-from estimator.config import EstimatorConfig, NoiseConfig, ReasonerConfig, config_to_dict, default_config, load_config
+from estimator.config import (
+    BudgetConfig,
+    EstimatorConfig,
+    NoiseConfig,
+    ReasonerConfig,
+    budget_cap,
+    config_to_dict,
+    default_config,
+    load_config,
+    with_budget,
+)
 from physics.errors import ConfigError
 
 
@@ -39,7 +49,8 @@ def test_bad_values_are_rejected(make):
 def test_configuration_files_round_trip_and_change_only_what_they_name(tmp_path):
     for cfg in (default_config(1), default_config(64),
                 dataclasses.replace(default_config(16), noise=NoiseConfig(friction_range=None, motion_noise=0.5),
-                                    workers=2, lazy_checks=False)):
+                                    workers=2, lazy_checks=False),
+                with_budget(default_config(64), min_particles=8)):
         text = yaml.safe_dump(config_to_dict(cfg), sort_keys=False)
         (tmp_path / "c.yaml").write_text(text)
         assert load_config(tmp_path / "c.yaml") == cfg
@@ -62,6 +73,7 @@ def test_configuration_files_round_trip_and_change_only_what_they_name(tmp_path)
     ("lazy_checks: 1\n", 1, "lazy_checks"),
     ("noise: [1, 2]\n", 1, "noise"),
     ("base: fast\n", 1, "base"),
+    ("budget:\n  enabled: true\n  load: 1.5\n", 3, "budget.load"),
 ])
 def test_bad_configuration_files_name_file_line_and_field(tmp_path, text, line, where):
     path = tmp_path / "bad.yaml"
@@ -97,6 +109,15 @@ def test_any_configuration_data_gives_a_configuration_or_a_config_error(data):
         assert str(exc)
         return
     assert isinstance(cfg, EstimatorConfig) and cfg.particles >= 1
+
+
+def test_the_budget_is_switched_on_keeping_its_floor_and_k_may_then_vary():
+    base = EstimatorConfig(particles=64, noise=NoiseConfig())
+    assert not base.varying_count and not base.budget.enabled
+    on = with_budget(base)
+    assert on.budget.enabled and on.budget.min_particles == 16 and on.varying_count and on.max_particles == 64
+    assert with_budget(base, min_particles=4).budget.min_particles == 4
+    assert not with_budget(default_config(1)).paper_mode  # one particle with a budget is not the paper's reasoner
 
 
 def test_the_adaptive_count_is_switched_on_within_bounds_a_low_maximum_lowering_the_minimum():
@@ -151,3 +172,37 @@ def test_a_duck_moved_along_its_support_stays_standing_in_the_particle_worlds():
     assert _tipped_over(settings) == 0
     # the test can fail: at the residual the worlds used to stop at, the solver's kicks tip it over
     assert _tipped_over(dataclasses.replace(settings, solver_residual_threshold=1e-4)) >= 4
+
+
+def test_the_budget_sheds_to_the_count_it_affords_and_grows_back_by_at_most_its_factor():
+    b = BudgetConfig(enabled=True, min_particles=16, load=0.8, slack=0.6, grow=1.25)
+    # all of it in the worlds: 256 particles took 0.2 s for 0.1 s of stream (budget 0.08 s): 102 fit
+    assert budget_cap(256, 256, 0.2, 0.2, 0.1, b, 256) == 102
+    # half of it fixed (the main process): 64 particles in 0.1 s, 0.05 s of it in the worlds; the
+    # 0.03 s left for the worlds afford 64 * 0.03 / 0.05 = 38.4 (not the 51 of a proportional cost)
+    assert budget_cap(64, 64, 0.1, 0.05, 0.1, b, 64) == 38
+    # fixed work alone over the budget: as few as allowed
+    assert budget_cap(64, 64, 0.12, 0.02, 0.1, b, 64) == 16
+    # a step between slack * budget and the budget leaves the cap as it was, whatever K
+    assert budget_cap(102, 102, 0.07, 0.07, 0.1, b, 256) == 102
+    assert budget_cap(200, 64, 0.07, 0.05, 0.1, b, 256) == 200
+    # under slack * budget (0.048 s): K grows by at most 1.25 per step, by less if that overshoots
+    assert budget_cap(102, 102, 0.01, 0.01, 0.1, b, 256) == 128  # ceil(102 * 1.25)
+    fast = BudgetConfig(enabled=True, load=0.8, slack=0.6, grow=4.0)
+    assert budget_cap(100, 100, 0.045, 0.045, 0.1, fast, 256) == 178  # ceil(100 * 0.08 / 0.045): the budget met
+    assert budget_cap(100, 100, 0.045, 0.03, 0.1, fast, 256) == 217  # ceil(100 * (0.08 - 0.015) / 0.03)
+    # a count held under the cap by something else (KLD) does not lower the cap when it grows
+    assert budget_cap(200, 20, 0.0, 0.0, 0.1, b, 256) == 200
+    # bounds: never under min_particles (nor over the count configured), never over the count configured
+    assert budget_cap(256, 256, 10.0, 10.0, 0.1, b, 256) == 16
+    assert budget_cap(20, 20, 10.0, 10.0, 0.1, b, 8) == 8
+    assert budget_cap(250, 250, 0.0, 0.0, 0.1, b, 256) == 256
+    with pytest.raises(ValueError):
+        budget_cap(10, 10, 0.1, 0.1, 0.0, b, 256)
+
+
+def test_the_budget_s_configuration_is_checked():
+    for bad in (dict(min_particles=1), dict(min_particles=2.5), dict(load=0.0), dict(load=1.5), dict(slack=1.0),
+                dict(grow=1.0), dict(enabled="yes")):
+        with pytest.raises(ValueError):
+            BudgetConfig(**bad)

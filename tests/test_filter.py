@@ -1043,7 +1043,7 @@ def test_a_rolling_balls_friction_posterior_follows_its_motion_beyond_the_prior(
 
 
 # -- the adaptive particle count (AdaptiveConfig) ------------------------------------------------------
-from estimator.config import AdaptiveConfig  # noqa: E402
+from estimator.config import AdaptiveConfig, with_budget  # noqa: E402
 
 
 def _adaptive(max_particles=512, workers=0):
@@ -1080,6 +1080,52 @@ def test_the_adaptive_count_gives_the_same_output_whatever_the_number_of_workers
     assert outs[0] == outs[1] == outs[2]
     ks = {json.loads(line)["particles"] for line in outs[0][0]}
     assert min(ks) == 16 and max(ks) == 160  # it shrank and grew in the run compared
+
+
+def _timed_by_k(est, cost):
+    """Make ``est``'s budget clock read that a step costs ``cost(t)`` s per particle, t the frame's
+    time (s): a machine of known speed, so that the count it affords is known."""
+    now = [0.0]
+    advance = est.pool.advance
+
+    def timed(batch, *args, **kwargs):
+        now[0] += cost(est.t_frame) * len(batch.poses)
+        return advance(batch, *args, **kwargs)
+
+    est.clock = lambda: now[0]
+    est.pool.advance = timed
+
+
+def test_a_budget_sheds_particles_while_the_steps_cannot_keep_up_and_takes_them_back_when_they_can():
+    """Steps every 0.1 s of stream time (30 Hz, horizon 0.08 s); a particle costs 0.08 / 20.5 s per
+    step for the first 1.5 s (20 particles load the machine 78 %, under the 80 % allowed), ten times
+    less after. The count falls from 64 to 20 at the first budgeted step and stays there; then it
+    grows by 1.25 per step back to 64, never beyond. The worlds it keeps are spread over both
+    workers."""
+    boxes = [dict(BOX, id=f"b{i}", pose={"position": [0.2 * i - 0.2, 0.1, TABLE_TOP + 0.03]}) for i in range(3)]
+    frs = frames(times(3.0), lambda t: {f"b{i}": [0.2 * i - 0.2, 0.1, TABLE_TOP + 0.03] for i in range(3)})
+    cfg = with_budget(EstimatorConfig(particles=64, workers=2, noise=NoiseConfig()), min_particles=8)
+    with SceneEstimator(table_scene(*boxes), cfg, np.random.default_rng(4)) as est:
+        _timed_by_k(est, lambda t: 0.08 / 20.5 if t < 1.5 else 0.008 / 20.5)
+        out = [(b.t, b.n_particles) for b in est.run(frs[:45])]
+        assert est.pool.shard_sizes == [12, 8]  # one slot per client in turn (8 clients), not slots 0-19
+        out += [(b.t, b.n_particles) for b in est.run(frs[45:])]
+    slow = [k for t, k in out if t < 1.5]
+    fast = [k for t, k in out if t >= 1.5]
+    assert slow[:2] == [64, 64] and set(slow[2:]) == {20}  # the first update simulates nothing: not timed
+    assert fast[:7] == [20, 25, 32, 40, 50, 63, 64] and set(fast[7:]) == {64}
+    assert max(k for _, k in out) == 64 and est.k_range[:2] == [20, 64]
+    # with an adaptive count, the budget caps what KLD-sampling asks for (a ball rolled out of view
+    # asks for hundreds, as the test above shows): the first step over 40 particles sets the cap,
+    # and from there no step runs more than 40
+    scene, frs, *_ = _flicked_ball()
+    cfg = with_budget(_adaptive(), min_particles=8)
+    with SceneEstimator(scene, cfg, np.random.default_rng(4)) as est:
+        _timed_by_k(est, lambda t: 0.08 / 40.5)
+        ks = [b.n_particles for b in est.run(frs)]
+    over = [i for i, k in enumerate(ks) if k > 40]
+    assert ks[:2] == [64, 16] and len(over) == 2, ks  # the first update (not timed) and one more
+    assert max(ks[over[1] + 1:]) == 40 and ks[-10:] == [40] * 10, ks
 
 
 def _filter_entries(est, frame):

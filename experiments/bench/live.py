@@ -14,6 +14,9 @@ A row (times in ms unless named ``_s``):
   waits for the step running when it came (if any), for the horizon to pass, and for its own step;
 * ``newest_latency_ms_p95``: per step, the latency of its newest frame (the step's own delay);
 * ``merged``: frames that would have started a step of their own and were folded into a later one;
+* ``k_mean``, ``k_min``: the particle count over the steps (a live run sheds particles while its
+  steps cannot keep up: :class:`~estimator.config.BudgetConfig`; ``bench --live --fixed-particles``
+  keeps K);
 * ``update_ms_median / p95``: the steps' durations (observing their frames included);
 * ``realtime_factor``: stream duration over the time the loop was busy (above 1: it keeps up);
 * ``p95_over_horizon``, ``p95_over_update``: the p95 latency over the reasoning horizon and over
@@ -42,7 +45,8 @@ from experiments.streams import paced
 from physics.scene import Scene
 
 LIVE_COLUMNS = [("scenario", "scenario", "{}"), ("particles", "K", "{}"), ("frames", "frames", "{}"),
-                ("steps", "steps", "{}"), ("merged", "merged", "{}"), ("realtime_factor", "real-time factor", "{:.2f}"),
+                ("steps", "steps", "{}"), ("merged", "merged", "{}"), ("k_mean", "K mean", "{:.0f}"),
+                ("k_min", "K min", "{}"), ("realtime_factor", "real-time factor", "{:.2f}"),
                 ("update_ms_median", "step median (ms)", "{:.1f}"), ("update_ms_p95", "step p95 (ms)", "{:.1f}"),
                 ("latency_ms_median", "latency median (ms)", "{:.1f}"),
                 ("latency_ms_p95", "latency p95 (ms)", "{:.1f}"), ("latency_ms_max", "latency max (ms)", "{:.1f}"),
@@ -95,8 +99,10 @@ def live_row(name: str, scene: Scene, frames: list[Frame], cfg: EstimatorConfig,
     p95 = float(np.percentile(lat, 95))
     step_med = 1e3 * float(np.median(seconds))
     shown = "auto" if cfg.adaptive.enabled else cfg.particles
+    k_min, _, k_total = est.k_range
     return {"scenario": name, "particles": shown, "workers": cfg.workers, "frames": loop.frames,
-            "steps": loop.steps, "merged": loop.merged, "stream_s": stream_s, "busy_s": loop.busy_seconds,
+            "steps": loop.steps, "merged": loop.merged,
+            "k_mean": k_total / max(est.n_updates, 1), "k_min": k_min, "stream_s": stream_s, "busy_s": loop.busy_seconds,
             "realtime_factor": stream_s / loop.busy_seconds if loop.busy_seconds > 0 else float("inf"),
             "update_ms_median": step_med, "update_ms_p95": 1e3 * float(np.percentile(seconds, 95)),
             "latency_ms_median": float(np.median(lat)), "latency_ms_p95": p95, "latency_ms_max": float(lat.max()),

@@ -32,7 +32,7 @@ from experiments.bench.timing import (
     TIMING_COLUMNS,
     bench_config,
 )
-from experiments.cli.common import particle_count
+from experiments.cli.common import add_fixed_particles_argument, live_config, particle_count
 
 
 def report(args, columns: list[tuple[str, str, str]], rows: Iterable[dict], meta: dict) -> int:
@@ -99,7 +99,9 @@ def add_bench_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--live", action="store_true",
                    help="with --scenario: feed each stream at its real rate through a pipe into the live loop "
                         "(run --live) and report the latency from a frame's arrival to the estimate that used it "
-                        "(median, p95, max) and the frames merged")
+                        "(median, p95, max), the frames merged and the particle count (shed while a step cannot "
+                        "keep up, as in run --live; --fixed-particles: not)")
+    add_fixed_particles_argument(p)
 
 
 def run_bench(args) -> int:
@@ -111,6 +113,8 @@ def run_bench(args) -> int:
         raise ValueError("--breakdown splits an update's time; --bag times whole runs: give one of them")
     if args.live and not args.scenario:
         raise ValueError("--live feeds the streams of scenarios: give --scenario NAME (or all)")
+    if args.fixed_particles and not args.live:
+        raise ValueError("--fixed-particles goes with --live (only a live run sheds particles)")
     if args.live and (args.bag or args.breakdown or args.updates is not None):
         raise ValueError("--live times whole streams at their real rate: drop --bag, --breakdown and --updates")
     if args.scenario:
@@ -156,6 +160,7 @@ def _scenario_bench(args) -> int:
         return report(args, BAG_COLUMNS, bag_table(names, configs), meta)
     if args.live:
         from experiments.bench.live import LIVE_COLUMNS, live_rows
-        meta.update(mode="live", load_average_at_start=list(os.getloadavg()))
+        meta.update(mode="live", load_average_at_start=list(os.getloadavg()), fixed_particles=bool(args.fixed_particles))
+        configs = [(k, live_config(cfg, args.fixed_particles)) for k, cfg in configs]
         return report(args, LIVE_COLUMNS, live_rows(names, configs), meta)
     return report(args, SCENARIO_COLUMNS, scenario_rows(names, configs, args.updates, args.breakdown), meta)

@@ -15,6 +15,7 @@ from estimator.config import (
     default_config,
     read_config_file,
     with_adaptive_count,
+    with_budget,
 )
 
 DEFAULT_PARTICLES = 64
@@ -114,6 +115,25 @@ def add_estimator_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--d-perc-prev", type=float, default=None, help=f"perception jump in m ({d.d_perc_prev})")
 
 
+def add_fixed_particles_argument(p: argparse.ArgumentParser, always_live: bool = False) -> None:
+    """``--fixed-particles`` (``run``, ``ros``, ``bench``): keep K fixed in a live run."""
+    p.add_argument("--fixed-particles", action="store_true", default=None,
+                   help=("keep the particle count fixed: by default a live run" if not always_live else
+                         "keep the particle count fixed: by default the node") +
+                        " sheds particles while its reasoning steps take more than 80 %% of the stream time they "
+                        "cover (down to 16, the configuration's budget.min_particles) and takes them back once "
+                        "they take under 48 %%; frames that arrive during a step are merged either way")
+
+
+def live_config(config: EstimatorConfig, fixed_particles: bool | None) -> EstimatorConfig:
+    """A live run's configuration: the compute budget on (:class:`~estimator.config.BudgetConfig`)
+    unless ``fixed_particles``, or unless it could not change K (the paper's reasoner, K at most the
+    budget's floor)."""
+    if fixed_particles or config.max_particles <= config.budget.min_particles:
+        return config
+    return with_budget(config)
+
+
 def print_summary(summary: dict, stream=None) -> None:
     """A readable timeline and the final poses."""
     stream = stream or sys.stdout
@@ -122,7 +142,8 @@ def print_summary(summary: dict, stream=None) -> None:
           f"reasoning steps in {summary['seconds']:.2f} s", file=stream)
     if summary.get("particles"):
         k = summary["particles"]
-        print(f"particles (adaptive): {k['min']} to {k['max']}, {k['mean']:.0f} on average", file=stream)
+        why = " and ".join(w for w, on in (("adaptive", k.get("adaptive", True)), ("budget", k.get("budget"))) if on)
+        print(f"particles ({why}): {k['min']} to {k['max']}, {k['mean']:.0f} on average", file=stream)
     if summary.get("rejected"):
         print(f"{summary['rejected']} detection(s) outside the scene's workspace rejected as outliers", file=stream)
     if summary.get("reseeded") or summary.get("worker_restarts"):

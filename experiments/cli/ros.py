@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from experiments.cli.common import add_estimator_arguments
+from experiments.cli.common import add_estimator_arguments, add_fixed_particles_argument
 from experiments.ros.parameters import PARAMETERS  # noqa: F401  (the options ~name may set)
 
 
@@ -22,6 +22,7 @@ def add_ros_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--world-frame", help="the scene's TF frame (default: world, or the topics file's)")
     add_estimator_arguments(p)
     p.set_defaults(seed=None)  # None: not given, so that ~seed can set it
+    add_fixed_particles_argument(p, always_live=True)
     p.add_argument("--name", default="scene_estimator",
                    help="node name; the outputs are published under /NAME/ (default scene_estimator)")
     p.add_argument("--reset-after", metavar="SECONDS", type=float, default=None,

@@ -17,7 +17,13 @@ import numpy as np
 from estimator.config import EstimatorConfig, config_to_dict
 from estimator.filter import SceneEstimator
 from estimator.observations import ObservationReader
-from experiments.cli.common import add_estimator_arguments, build_config, print_summary
+from experiments.cli.common import (
+    add_estimator_arguments,
+    add_fixed_particles_argument,
+    build_config,
+    live_config,
+    print_summary,
+)
 from experiments.live import MIN_TIMELINE_WINDOW, TIMELINE_WINDOW, FrameQueue, LiveLoop
 from experiments.streams import (
     STDIO,
@@ -226,9 +232,10 @@ def run_stream(scene_path: str, observations_path: str | None, config: Estimator
                "recoveries": est.recoveries, "rejected": est.rejected_detections,
                "reseeded": est.reseeded, "worker_restarts": est.pool.restarts,
                "late": getattr(reader, "late", 0), "output_closed": output_closed}
-    if est.config.adaptive.enabled and est.n_updates:
+    if est.config.varying_count and est.n_updates:
         lo, hi, total = est.k_range
-        summary["particles"] = {"min": lo, "mean": total / est.n_updates, "max": hi}
+        summary["particles"] = {"min": lo, "mean": total / est.n_updates, "max": hi,
+                                "adaptive": est.config.adaptive.enabled, "budget": est.config.budget.enabled}
     if loop is not None:
         summary["live"] = {"steps": loop.steps, "merged": loop.merged, "max_latency_s": loop.max_latency,
                            "latency_s_median": float(np.median(latencies)) if latencies else None}
@@ -267,7 +274,9 @@ def add_run_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--live", action="store_true",
                    help="take frames as they arrive and never fall behind the newest by more than one reasoning "
                         "step: frames that arrive during a step are merged into the next (counted; estimate lines "
-                        "get 'merged' and 'latency')")
+                        "get 'merged', 'latency' and 'particles'), and particles are shed while the steps cannot "
+                        "keep up (see --fixed-particles)")
+    add_fixed_particles_argument(p)
     p.add_argument("--realtime", metavar="SPEED", nargs="?", type=float, const=1.0, default=None,
                    help="replay the stream at stream time (frame t made available at start + t / SPEED; "
                         "default speed 1)")
@@ -317,6 +326,10 @@ def cmd_run(args) -> int:
     _check_run_paths(args)
     options = StreamOptions(live=args.live, realtime=args.realtime, timeline_window=args.timeline_window)
     config = build_config(args)
+    if args.fixed_particles and not args.live:
+        raise ValueError("--fixed-particles goes with --live (only a live run sheds particles)")
+    if args.live:
+        config = live_config(config, args.fixed_particles)
     to_stdout = STDIO in (args.out, args.timeline)
     report = sys.stderr if to_stdout else sys.stdout  # standard output carries the data then
     with StopSignals() as signals:

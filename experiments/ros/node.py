@@ -267,7 +267,8 @@ class RosNode:
     def _publish_diagnostics(self, loop: LiveLoop | None) -> None:
         live = {"frames": self.frames + (loop.frames if loop else 0), "steps": self.steps + (loop.steps if loop else 0),
                 "merged": self.merged + (loop.merged if loop else 0)}
-        doc = {"node": self.callerid, "particles": self.config.particles, "seed": self.seed,
+        doc = {"node": self.callerid, "particles": loop.estimator.K if loop else self.config.particles,
+               "seed": self.seed,
                "ready": bool(self._subs), **live, "estimates": self.estimates, "restarts": self.resets,
                "bad": self.bad.to_json()}
         self.publishers.diagnostics(doc)
@@ -310,7 +311,7 @@ def _parameters(rospy, args) -> None:
 
 def run_node(args, ros) -> int:
     """``scene-estimator ros``: wait for the master, start the node, run until shut down."""
-    from experiments.cli.common import build_config
+    from experiments.cli.common import build_config, live_config
     from experiments.ros.topics import default_topics, load_topics
     from experiments.streams import StopSignals, Terminated
     from physics.scene import load_scene
@@ -326,7 +327,7 @@ def run_node(args, ros) -> int:
     scene = load_scene(str(args.scene))
     topics = (load_topics(str(args.topics), scene.object_ids, args.world_frame) if args.topics
               else default_topics(scene.object_ids, args.world_frame or "world"))
-    config = build_config(args)
+    config = live_config(build_config(args), args.fixed_particles)
     options = NodeOptions(name=args.name, reset_after=1.0 if args.reset_after is None else float(args.reset_after),
                           timeline_window=(TIMELINE_WINDOW if args.timeline_window is None
                                            else float(args.timeline_window)),
