@@ -183,6 +183,8 @@ def test_the_budget_sheds_to_the_count_it_affords_and_grows_back_by_at_most_its_
     assert budget_cap(64, 64, 0.1, 0.05, 0.1, b, 64) == 38
     # fixed work alone over the budget: as few as allowed
     assert budget_cap(64, 64, 0.12, 0.02, 0.1, b, 64) == 16
+    assert budget_cap(64, 64, 0.12, 0.0, 0.1, b, 64) == 16  # none of it in the worlds
+    assert budget_cap(32, 32, 0.01, 0.0, 0.1, b, 64) == 40  # ... and under the budget: grows by 1.25
     # a step between slack * budget and the budget leaves the cap as it was, whatever K
     assert budget_cap(102, 102, 0.07, 0.07, 0.1, b, 256) == 102
     assert budget_cap(200, 64, 0.07, 0.05, 0.1, b, 256) == 200
