@@ -20,6 +20,21 @@ def check_positive(obj, *names):
             raise ValueError(f"{type(obj).__name__}.{n} must be > 0, got {v!r}")
 
 
+def check_flags(obj, *names):
+    """Raises ``ValueError`` unless the fields ``names`` of ``obj`` are True or False."""
+    for n in names:
+        if not isinstance(getattr(obj, n), bool):
+            raise ValueError(f"{type(obj).__name__}.{n} must be true or false, got {getattr(obj, n)!r}")
+
+
+def check_counts(obj, lowest: int, *names):
+    """Raises ``ValueError`` unless the fields ``names`` of ``obj`` are integers of at least ``lowest``."""
+    for n in names:
+        v = getattr(obj, n)
+        if not isinstance(v, int) or isinstance(v, bool) or v < lowest:
+            raise ValueError(f"{type(obj).__name__}.{n} must be an integer >= {lowest}, got {v!r}")
+
+
 def check_nonneg(obj, *names):
     """Raises ``ValueError`` unless the fields ``names`` of ``obj`` are finite numbers of at least 0."""
     for n in names:
@@ -305,8 +320,7 @@ class HandConfig:
 
     def __post_init__(self):
         check_positive(self, "measurement_std", "accel_std", "restart_gap", "offset_time", "offset_gate")
-        if not isinstance(self.filtered, bool):
-            raise ValueError(f"HandConfig.filtered must be true or false, got {self.filtered!r}")
+        check_flags(self, "filtered")
 
 
 @dataclass(frozen=True)
@@ -350,12 +364,8 @@ class AdaptiveConfig:
     shrink_below: float = 0.5
 
     def __post_init__(self):
-        if not isinstance(self.enabled, bool):
-            raise ValueError(f"AdaptiveConfig.enabled must be true or false, got {self.enabled!r}")
-        for n in ("max_particles", "min_particles"):
-            v = getattr(self, n)
-            if not isinstance(v, int) or isinstance(v, bool) or v < 2:
-                raise ValueError(f"AdaptiveConfig.{n} must be an integer >= 2, got {v!r}")
+        check_flags(self, "enabled")
+        check_counts(self, 2, "max_particles", "min_particles")
         if self.max_particles < self.min_particles:
             raise ValueError(f"AdaptiveConfig.max_particles ({self.max_particles}) must be >= min_particles "
                              f"({self.min_particles})")
@@ -395,11 +405,8 @@ class BudgetConfig:
     grow: float = 1.25
 
     def __post_init__(self):
-        if not isinstance(self.enabled, bool):
-            raise ValueError(f"BudgetConfig.enabled must be true or false, got {self.enabled!r}")
-        v = self.min_particles
-        if not isinstance(v, int) or isinstance(v, bool) or v < 2:
-            raise ValueError(f"BudgetConfig.min_particles must be an integer >= 2, got {v!r}")
+        check_flags(self, "enabled")
+        check_counts(self, 2, "min_particles")
         if not 0.0 < self.load <= 1.0:
             raise ValueError(f"BudgetConfig.load must be in (0, 1], got {self.load!r}")
         if not 0.0 < self.slack < 1.0:
