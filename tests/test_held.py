@@ -22,6 +22,30 @@ def test_glide_paths_run_straight_along_the_shortest_arc_at_constant_velocity():
         assert np.allclose(lin[0], [0.19 / dt, 0, 0]) and np.allclose(ang[0], [0, 0, 0.5 / dt])
 
 
+def test_a_turning_glide_moves_an_offset_centre_of_mass_along_its_chord(tmp_path):
+    """pybullet's base velocity is the centre of mass's. An object whose centre of mass is 1 cm off
+    its link origin (TURNED_URDF), turned 0.4 rad about z while its link origin moves 5 cm along x:
+    the velocity set takes the centre of mass from its start to its end; without the turn it is the
+    link origin's exactly (bit for bit), and so it is for a box, whose centre is its origin."""
+    (tmp_path / "turned.urdf").write_text(TURNED_URDF)
+    scene = table_scene({"id": "turned", "urdf": str(tmp_path / "turned.urdf"), "mass": 0.2,
+                         "pose": {"position": [0, 0, TABLE_TOP + 0.2]}})
+    start = np.array([[0.0, 0.0, 1.0, 0, 0, 0, 1]])
+    turned = np.concatenate([[[0.05, 0.0, 1.0]], quat_from_rotvec(np.array([[0, 0, 0.4]]))], axis=1)
+    straight = np.array([[0.05, 0.0, 1.0, 0, 0, 0, 1]])
+    n = 10
+    with World(scene) as w:
+        T = n * w.settings.time_step
+        com, _, lin, _ = glide_paths(w, start, turned, np.array([1]), n)
+        assert np.allclose(lin[0] * T, com[0, -1] - com[0, 0], atol=1e-12)
+        assert np.linalg.norm(lin[0] - [0.05 / T, 0, 0]) * T > 1e-3  # the arc of a 1 cm lever through 0.4 rad
+        _, _, lin, _ = glide_paths(w, start, straight, np.array([1]), n)
+        assert np.array_equal(lin[0], (straight[0, :3] - start[0, :3]) / T)
+    with World(SCENE) as w:
+        _, _, lin, _ = glide_paths(w, start, turned, np.array([1]), n)
+        assert np.array_equal(lin[0], (turned[0, :3] - start[0, :3]) / T)
+
+
 def test_depenetrate_pushes_a_sunk_box_out_of_the_table():
     with World(SCENE) as w:
         w.set_poses([[0.0, 0.0, TABLE_TOP + 0.03, 0, 0, 0, 1]], [1])  # 2 cm into the table top

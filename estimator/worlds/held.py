@@ -60,7 +60,10 @@ def glide_paths(world: World, start: np.ndarray, end: np.ndarray, indices: np.nd
     shortest arc in orientation. Returns the centre-of-mass frames' positions ``(H, n + 1, 3)`` (m,
     scene frame) and orientations ``(H, n + 1, 4)`` (what pybullet sets: turned from the link
     frame's where an object's inertial frame is) before each step (the last entry: after the last
-    step), and the constant linear ``(H, 3)`` (m/s) and angular ``(H, 3)`` (rad/s) velocities."""
+    step), and the constant linear ``(H, 3)`` (m/s, of the centre of mass: what pybullet sets) and
+    angular ``(H, 3)`` (rad/s) velocities. The linear one takes the centre of mass from its start to
+    its end: the link origin's velocity, plus, for an object that turns with its centre of mass off
+    its link origin, the chord of the arc that centre makes about it."""
     n = max(1, int(n_steps))
     frac = (np.arange(n + 1) / n)[None, :, None]  # pose before step s is at frac[s - 1]; after the last, at 1
     rv = quat_to_rotvec(quat_multiply(end[:, 3:], quat_conjugate(start[:, 3:])))  # (H, 3) shortest rotation
@@ -69,7 +72,13 @@ def glide_paths(world: World, start: np.ndarray, end: np.ndarray, indices: np.nd
     off = world.com_frame(np.concatenate([pos, orn], axis=-1).swapaxes(0, 1), None, indices)[0]
     dt = n * world.settings.time_step
     off = off.swapaxes(0, 1)
-    return off[..., :3], off[..., 3:], (end[:, :3] - start[:, :3]) / dt, rv / dt
+    # the centre of mass about the link origin (R c) at the end less at the start: exactly zero
+    # unless the object turns with its centre off its link origin
+    ends = np.zeros((2, len(start), 7))
+    ends[..., 3:] = orn[:, [0, -1]].swapaxes(0, 1)
+    about = world.com_frame(ends, None, indices)[0][..., :3]
+    lever = about[1] - about[0]
+    return off[..., :3], off[..., 3:], (end[:, :3] - start[:, :3]) / dt + lever / dt, rv / dt
 
 
 class HeldObjects:
