@@ -43,8 +43,8 @@ support (regularisation, process noise), rocks, and tips over in most particles 
 stands (``tests/test_config.py``)."""
 
 __all__ = ["AdaptiveConfig", "BudgetConfig", "EstimatorConfig", "HandConfig", "NoiseConfig", "ReasonerConfig",
-           "config_from_dict", "config_to_dict", "default_config", "load_config", "reasoning_due", "with_adaptive_count",
-           "with_budget", "budget_cap", "SOLVER_RESIDUAL"]
+           "config_from_dict", "config_to_dict", "default_config", "load_config", "reasoning_due",
+           "with_adaptive_count", "with_budget", "budget_cap", "SOLVER_RESIDUAL"]
 
 
 def reasoning_due(t_last: float | None, t: float, horizon: float) -> bool:

@@ -101,8 +101,8 @@ def live_row(name: str, scene: Scene, frames: list[Frame], cfg: EstimatorConfig,
     shown = "auto" if cfg.adaptive.enabled else cfg.particles
     k_min, _, k_total = est.k_range
     return {"scenario": name, "particles": shown, "workers": cfg.workers, "frames": loop.frames,
-            "steps": loop.steps, "merged": loop.merged,
-            "k_mean": k_total / max(est.n_updates, 1), "k_min": k_min, "stream_s": stream_s, "busy_s": loop.busy_seconds,
+            "steps": loop.steps, "merged": loop.merged, "k_mean": k_total / max(est.n_updates, 1), "k_min": k_min,
+            "stream_s": stream_s, "busy_s": loop.busy_seconds,
             "realtime_factor": stream_s / loop.busy_seconds if loop.busy_seconds > 0 else float("inf"),
             "update_ms_median": step_med, "update_ms_p95": 1e3 * float(np.percentile(seconds, 95)),
             "latency_ms_median": float(np.median(lat)), "latency_ms_p95": p95, "latency_ms_max": float(lat.max()),

@@ -160,7 +160,8 @@ def _scenario_bench(args) -> int:
         return report(args, BAG_COLUMNS, bag_table(names, configs), meta)
     if args.live:
         from experiments.bench.live import LIVE_COLUMNS, live_rows
-        meta.update(mode="live", load_average_at_start=list(os.getloadavg()), fixed_particles=bool(args.fixed_particles))
+        meta.update(mode="live", load_average_at_start=list(os.getloadavg()),
+                    fixed_particles=bool(args.fixed_particles))
         configs = [(k, live_config(cfg, args.fixed_particles)) for k, cfg in configs]
         return report(args, LIVE_COLUMNS, live_rows(names, configs), meta)
     return report(args, SCENARIO_COLUMNS, scenario_rows(names, configs, args.updates, args.breakdown), meta)
