@@ -227,6 +227,7 @@ def test_bench_live_feeds_a_scenario_through_a_pipe_and_reports_latency(capsys):
     assert r["latency_ms_median"] <= r["latency_ms_p95"] <= r["latency_ms_max"]
     assert r["p95_over_horizon"] == pytest.approx(r["latency_ms_p95"] / 80.0)
     assert r["p95_over_update"] == pytest.approx(r["latency_ms_p95"] / r["update_ms_median"])
+    assert r["p95_over_update_p95"] == pytest.approx(r["latency_ms_p95"] / r["update_ms_p95"])
     assert r["stream_s"] == pytest.approx(frames[-1].t - frames[0].t)
     assert main(["bench", "--particles", "2", "--live"]) == 2
     assert "--live feeds the streams of scenarios" in capsys.readouterr().err
