@@ -70,9 +70,9 @@ def budget_cap(cap: int, K: int, seconds: float, scaled: float, covered: float, 
         raise ValueError(f"budget_cap: the stream time covered must be > 0, got {covered!r}")
     seconds = max(seconds, 0.0)
     scaled = min(max(scaled, 0.0), seconds)
-    room = config.load * covered - (seconds - scaled)  # what the budget leaves the worlds
-    afford = K * room / scaled if scaled > 0 else (math.inf if room > 0 else 0.0)
     budget = config.load * covered
+    room = budget - (seconds - scaled)  # what the budget leaves the worlds
+    afford = K * room / scaled if scaled > 0 else (math.inf if room > 0 else 0.0)
     lo = min(config.min_particles, most)
     if seconds > budget:
         cap = min(cap, int(max(afford, 0.0)))

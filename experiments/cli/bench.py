@@ -55,7 +55,8 @@ def report(args, columns: list[tuple[str, str, str]], rows: Iterable[dict], meta
 
 def particle_configs(args) -> list[tuple[int, EstimatorConfig]]:
     """``(K, configuration)`` for each ``--particles``: the ``--config`` file's or the particle filter's
-    defaults, with K particles and ``--workers`` workers."""
+    defaults, with K particles and ``--workers`` workers; with ``--live``, as ``run --live`` takes it
+    (:func:`~experiments.cli.common.live_config`)."""
     file_data = read_config_file(args.config) if args.config else None
     out = []
     for k in args.particles:
@@ -63,7 +64,7 @@ def particle_configs(args) -> list[tuple[int, EstimatorConfig]]:
         if file_data is not None:
             cfg = config_from_dict(file_data[0], path=args.config, lines=file_data[1],
                                    particles=None if k == "auto" else k, base="particles")
-        out.append((k, bench_config(k, args.workers, cfg)))
+        out.append((k, live_config(bench_config(k, args.workers, cfg), args.live, args.fixed_particles)))
     return out
 
 
@@ -113,8 +114,6 @@ def run_bench(args) -> int:
         raise ValueError("--breakdown splits an update's time; --bag times whole runs: give one of them")
     if args.live and not args.scenario:
         raise ValueError("--live feeds the streams of scenarios: give --scenario NAME (or all)")
-    if args.fixed_particles and not args.live:
-        raise ValueError("--fixed-particles goes with --live (only a live run sheds particles)")
     if args.live and (args.bag or args.breakdown or args.updates is not None):
         raise ValueError("--live times whole streams at their real rate: drop --bag, --breakdown and --updates")
     if args.scenario:
@@ -162,6 +161,5 @@ def _scenario_bench(args) -> int:
         from experiments.bench.live import LIVE_COLUMNS, live_rows
         meta.update(mode="live", load_average_at_start=list(os.getloadavg()),
                     fixed_particles=bool(args.fixed_particles))
-        configs = [(k, live_config(cfg, args.fixed_particles)) for k, cfg in configs]
         return report(args, LIVE_COLUMNS, live_rows(names, configs), meta)
     return report(args, SCENARIO_COLUMNS, scenario_rows(names, configs, args.updates, args.breakdown), meta)

@@ -9,6 +9,7 @@ import sys
 
 from estimator.config import (
     AdaptiveConfig,
+    BudgetConfig,
     EstimatorConfig,
     ReasonerConfig,
     config_from_dict,
@@ -116,20 +117,25 @@ def add_estimator_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def add_fixed_particles_argument(p: argparse.ArgumentParser, always_live: bool = False) -> None:
-    """``--fixed-particles`` (``run``, ``ros``, ``bench``): keep K fixed in a live run."""
+    """``--fixed-particles`` (``run``, ``ros``, ``bench``): keep K fixed in a live run. The help
+    states the budget's defaults (:class:`~estimator.config.BudgetConfig`)."""
+    b = BudgetConfig()
     p.add_argument("--fixed-particles", action="store_true", default=None,
-                   help=("keep the particle count fixed: by default a live run" if not always_live else
-                         "keep the particle count fixed: by default the node") +
-                        " sheds particles while its reasoning steps take more than 80 %% of the stream time they "
-                        "cover (down to 16, the configuration's budget.min_particles) and takes them back once "
-                        "they take under 48 %%; frames that arrive during a step are merged either way")
+                   help=f"keep the particle count fixed: by default {'the node' if always_live else 'a live run'} "
+                        f"sheds particles while its reasoning steps take more than {100 * b.load:.0f} %% of the "
+                        f"stream time they cover (down to {b.min_particles}, the configuration's "
+                        f"budget.min_particles) and takes them back once they take under "
+                        f"{100 * b.slack * b.load:.0f} %%; frames that arrive during a step are merged either way")
 
 
-def live_config(config: EstimatorConfig, fixed_particles: bool | None) -> EstimatorConfig:
-    """A live run's configuration: the compute budget on (:class:`~estimator.config.BudgetConfig`)
-    unless ``fixed_particles``, or unless it could not change K (the paper's reasoner, K at most the
-    budget's floor)."""
-    if fixed_particles or config.max_particles <= config.budget.min_particles:
+def live_config(config: EstimatorConfig, live: bool, fixed_particles: bool | None) -> EstimatorConfig:
+    """A run's configuration for ``--live`` / ``--fixed-particles``: live, the compute budget on
+    (:class:`~estimator.config.BudgetConfig`) unless ``fixed_particles``, or unless it could not
+    change K (the paper's reasoner, K at most the budget's floor); not live, ``config`` as it is.
+    ``--fixed-particles`` without ``--live`` is a ``ValueError``."""
+    if fixed_particles and not live:
+        raise ValueError("--fixed-particles goes with --live (only a live run sheds particles)")
+    if not live or fixed_particles or config.max_particles <= config.budget.min_particles:
         return config
     return with_budget(config)
 
@@ -142,7 +148,7 @@ def print_summary(summary: dict, stream=None) -> None:
           f"reasoning steps in {summary['seconds']:.2f} s", file=stream)
     if summary.get("particles"):
         k = summary["particles"]
-        why = " and ".join(w for w, on in (("adaptive", k.get("adaptive", True)), ("budget", k.get("budget"))) if on)
+        why = " and ".join(w for w in ("adaptive", "budget") if k[w])
         print(f"particles ({why}): {k['min']} to {k['max']}, {k['mean']:.0f} on average", file=stream)
     if summary.get("rejected"):
         print(f"{summary['rejected']} detection(s) outside the scene's workspace rejected as outliers", file=stream)

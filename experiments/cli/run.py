@@ -325,11 +325,7 @@ def cmd_run(args) -> int:
                 raise ValueError(f"--{name.replace('_', '-')} needs --bag")
     _check_run_paths(args)
     options = StreamOptions(live=args.live, realtime=args.realtime, timeline_window=args.timeline_window)
-    config = build_config(args)
-    if args.fixed_particles and not args.live:
-        raise ValueError("--fixed-particles goes with --live (only a live run sheds particles)")
-    if args.live:
-        config = live_config(config, args.fixed_particles)
+    config = live_config(build_config(args), args.live, args.fixed_particles)
     to_stdout = STDIO in (args.out, args.timeline)
     report = sys.stderr if to_stdout else sys.stdout  # standard output carries the data then
     with StopSignals() as signals:

@@ -327,7 +327,7 @@ def run_node(args, ros) -> int:
     scene = load_scene(str(args.scene))
     topics = (load_topics(str(args.topics), scene.object_ids, args.world_frame) if args.topics
               else default_topics(scene.object_ids, args.world_frame or "world"))
-    config = live_config(build_config(args), args.fixed_particles)
+    config = live_config(build_config(args), True, args.fixed_particles)
     options = NodeOptions(name=args.name, reset_after=1.0 if args.reset_after is None else float(args.reset_after),
                           timeline_window=(TIMELINE_WINDOW if args.timeline_window is None
                                            else float(args.timeline_window)),
