@@ -5,6 +5,7 @@ from scipy.stats import chi2
 
 from actions.modes import FREE, HELD
 from estimator.belief import (
+    chi2_quantile,
     compute_belief,
     headline_positions,
     pose_stats,
@@ -122,6 +123,19 @@ def test_a_one_mode_belief_is_its_mean():
                          modes[:1], on_top[:1], is_in[:1], [], 1.0, np.array([True, False]))
     assert np.array_equal(one.objects["cup"].position, poses[0, 1, :3])
     assert np.all(one.objects["cup"].position_cov == 0) and np.all(one.objects["cup"].mean_position_cov == 0)
+
+
+def test_chi2_quantile_is_scipy_stats_value_for_value():
+    """chi2_quantile (from scipy.special, so that the estimator does not import scipy.stats) gives
+    scipy.stats.chi2.ppf's values exactly, and region_radius_sq of a t gives the F quantile's."""
+    from scipy.stats import f as f_dist
+
+    levels = np.array([1e-3, 0.025, 0.5, 0.9, 0.95, 0.975, 1 - 1e-3])
+    for dof in (1, 2, 3, 6, 60, 3000):
+        assert np.array_equal(chi2_quantile(levels, dof), chi2.ppf(levels, dof))
+    assert isinstance(chi2_quantile(0.9, 3), float)
+    for nu in (2.5, 3.0, 7.0, 40.0):
+        assert np.array_equal(region_radius_sq(levels, nu), 3 * (nu - 2) / nu * f_dist.ppf(levels, 3, nu))
 
 
 def test_region_radius_is_chi2_for_a_gaussian_and_holds_its_level_for_a_student_t():

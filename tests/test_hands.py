@@ -32,6 +32,18 @@ def test_a_hand_that_moves_as_the_model_says_has_the_error_its_covariance_says()
     assert abs(np.mean(nees) - 3.0) < 3 * math.sqrt(2 * 3 / 300)
 
 
+def test_process_noise_is_filterpys_white_acceleration_value_for_value():
+    """The hands' process noise, written here so that the estimator does not import filterpy, is
+    filterpy's Q_discrete_white_noise (order [x, y, z, vx, vy, vz]) exactly."""
+    from filterpy.common import Q_discrete_white_noise
+
+    from estimator.model.hands import process_noise
+    for dt in (1 / 30, 0.08, 0.1, 2.0):
+        for accel_std in (0.5, 3.0, 7.3):
+            assert np.array_equal(process_noise(dt, accel_std), Q_discrete_white_noise(
+                dim=2, dt=dt, var=accel_std ** 2, block_size=3, order_by_dim=False))
+
+
 def test_a_still_hand_is_known_better_than_from_one_frame():
     """A still hand seen 1 cm off per axis for 1 s (300 seeded runs): the filtered position's RMS
     error per axis is under 0.8 cm (the model's white acceleration keeps it from averaging all 30

@@ -26,14 +26,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-from filterpy.kalman import KalmanFilter
-from scipy.stats import chi2
 
-from ..belief import Belief, region_radius_sq
+from ..belief import Belief, chi2_quantile, region_radius_sq
 from ..model.hands import process_noise, transition
 from ..observations import Detection, Frame
+
+if TYPE_CHECKING:  # filterpy's import pulls in most of scipy (a second): imported where a filter is made
+    from filterpy.kalman import KalmanFilter
 
 H_POS = np.hstack([np.eye(3), np.zeros((3, 3))])
 """Measurement matrix ``(3, 6)``: a detection measures the position block of the state."""
@@ -115,7 +117,7 @@ class TrackerConfig:
     @property
     def gate(self) -> float:
         """Gate on the squared Mahalanobis distance of a detection (chi-square, 3 dof)."""
-        return float(chi2.ppf(self.gate_probability, 3))
+        return float(chi2_quantile(self.gate_probability, 3))
 
 
 def moments(ob, region: float) -> tuple[np.ndarray, np.ndarray]:
@@ -127,7 +129,7 @@ def moments(ob, region: float) -> tuple[np.ndarray, np.ndarray]:
     mean = ob.position if ob.mean_position is None else ob.mean_position
     cov = np.asarray(ob.position_cov if ob.mean_position_cov is None else ob.mean_position_cov, float)
     if math.isfinite(ob.position_dof):
-        cov = cov * (region_radius_sq(region, ob.position_dof) / chi2.ppf(region, 3))
+        cov = cov * (region_radius_sq(region, ob.position_dof) / chi2_quantile(region, 3))
     return np.asarray(mean, float).reshape(3), cov.reshape(3, 3)
 
 
@@ -239,6 +241,8 @@ class PhysicsAwareTracker:
 
     def new_filter(self, z, r: np.ndarray) -> KalmanFilter:
         """A filter at position ``z (3,)`` with zero velocity, ``P = diag(r, velocity_std^2 I)``."""
+        from filterpy.kalman import KalmanFilter
+
         kf = KalmanFilter(dim_x=6, dim_z=3)
         kf.x = np.concatenate([np.asarray(z, float).reshape(3), np.zeros(3)]).reshape(6, 1)
         kf.P = np.zeros((6, 6))

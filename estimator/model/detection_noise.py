@@ -22,13 +22,14 @@ import math
 from collections import deque
 
 import numpy as np
-from scipy.stats import chi2
+
+from ..belief import chi2_quantile
 
 ONSET_FALSE_ALARM = 1e-3
 """Probability that one detection of a still object lies beyond :func:`onset_distance` of its
 resting position by noise alone (three axes, Gaussian)."""
 
-ONSET_SIGMAS = math.sqrt(float(chi2.ppf(1.0 - ONSET_FALSE_ALARM, 3)))
+ONSET_SIGMAS = math.sqrt(float(chi2_quantile(1.0 - ONSET_FALSE_ALARM, 3)))
 """The onset distance in noise standard deviations per axis: the square root of the chi-square
 (3 degrees of freedom) quantile at ``1 - ONSET_FALSE_ALARM`` (about 4.03)."""
 
@@ -80,4 +81,4 @@ class DetectionNoise:
 @functools.lru_cache(maxsize=None)
 def _median_ratio(k: int) -> float:
     """Median of a chi-square variable with ``k`` degrees of freedom, over ``k``."""
-    return float(chi2.ppf(0.5, k)) / k
+    return float(chi2_quantile(0.5, k)) / k

@@ -18,7 +18,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from filterpy.common import Q_discrete_white_noise
 
 from ..config import HandConfig
 
@@ -31,8 +30,13 @@ def transition(dt: float) -> np.ndarray:
 
 
 def process_noise(dt: float, accel_std: float) -> np.ndarray:
-    """White-acceleration process noise ``Q (6, 6)`` over ``dt`` s, ordered ``[x, y, z, vx, vy, vz]``."""
-    return Q_discrete_white_noise(dim=2, dt=dt, var=accel_std ** 2, block_size=3, order_by_dim=False)
+    """White-acceleration process noise ``Q (6, 6)`` over ``dt`` s, ordered ``[x, y, z, vx, vy, vz]``:
+    an acceleration of standard deviation ``accel_std`` (m/s^2) held over each step, per axis ``[[dt^4 /
+    4, dt^3 / 2], [dt^3 / 2, dt^2]] accel_std^2`` (filterpy's ``Q_discrete_white_noise(2, dt, var,
+    block_size=3, order_by_dim=False)``, value for value; written here so that the estimator does not
+    import filterpy, whose import pulls in most of scipy)."""
+    per_axis = np.array([[.25 * dt ** 4, .5 * dt ** 3], [.5 * dt ** 3, dt ** 2]])
+    return np.kron(per_axis, np.eye(3)) * accel_std ** 2
 
 
 class HandFilter:

@@ -10,7 +10,6 @@ import zlib
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import bootstrap, wilcoxon
 
 
 @dataclass(frozen=True)
@@ -46,6 +45,8 @@ def bootstrap_ci(values, rng: np.random.Generator, *, n_resamples: int = 2000, c
     est = float(statistic(v))
     if n < 2:
         return Interval(est, math.nan, math.nan, n)
+    from scipy.stats import bootstrap  # scipy.stats costs a second to import: only where it is used
+
     res = bootstrap((v,), statistic, n_resamples=n_resamples, confidence_level=confidence, method="percentile",
                     vectorized=True, axis=-1, rng=rng)
     return Interval(est, float(res.confidence_interval.low), float(res.confidence_interval.high), n)
@@ -82,6 +83,8 @@ def paired_wilcoxon(a, b, decimals: int = 12) -> PairedTest:
     med = float(np.median(d))
     if nz == 0:
         return PairedTest(n, 0, med, 0.0, 1.0)
+    from scipy.stats import wilcoxon
+
     res = wilcoxon(d, zero_method="wilcox", alternative="two-sided")
     return PairedTest(n, nz, med, float(res.statistic), float(res.pvalue))
 

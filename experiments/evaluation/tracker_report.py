@@ -20,7 +20,6 @@ import io
 import math
 
 import numpy as np
-from scipy.stats import beta
 
 from experiments.evaluation.stats import paired_wilcoxon
 from experiments.evaluation.tracking_metrics import nees_band
@@ -32,6 +31,8 @@ def clopper_pearson(hits: int, n: int, confidence: float = 0.95) -> tuple[float,
     """Exact binomial interval of ``hits / n`` (NaNs when ``n`` is 0)."""
     if n == 0:
         return math.nan, math.nan
+    from scipy.stats import beta  # scipy.stats costs a second to import: only where it is used
+
     a = (1.0 - confidence) / 2.0
     lo = 0.0 if hits == 0 else float(beta.ppf(a, hits, n - hits + 1))
     hi = 1.0 if hits == n else float(beta.ppf(1.0 - a, hits + 1, n - hits))

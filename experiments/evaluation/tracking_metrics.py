@@ -28,7 +28,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.stats import chi2
+
+from estimator.belief import chi2_quantile
 
 REAPPEAR_GAP = 0.3
 """A detection after at least this many seconds without one is a re-appearance (s)."""
@@ -71,7 +72,7 @@ def reappearance_scores(step_t: np.ndarray, est: np.ndarray, cov: np.ndarray, de
     step_t = np.asarray(step_t, float)
     detected = np.isfinite(det_pos).all(axis=-1)
     errors, inside = [], []
-    gate = chi2.ppf(gate_probability, 3)
+    gate = chi2_quantile(gate_probability, 3)
     for f, k in reappearances(det_t, detected, min_gap):
         i = int(np.searchsorted(step_t, det_t[f] - 1e-9, side="left")) - 1  # last step strictly before
         if i < 0:
@@ -112,4 +113,4 @@ def nees_band(trials: int, dof: int = 3, probability: float = 0.95) -> tuple[flo
     """Two-sided ``probability`` band of the average over ``trials`` of per-trial mean NEES (see the
     module docstring): ``chi2.ppf((1 -+ probability) / 2, dof * trials) / trials``."""
     a = (1.0 - probability) / 2.0
-    return (float(chi2.ppf(a, dof * trials) / trials), float(chi2.ppf(1.0 - a, dof * trials) / trials))
+    return (float(chi2_quantile(a, dof * trials) / trials), float(chi2_quantile(1.0 - a, dof * trials) / trials))
