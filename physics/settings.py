@@ -6,7 +6,6 @@ from dataclasses import dataclass
 
 import pybullet as pb
 
-
 FLOOR_FRICTION = 0.5
 """Lateral friction of the floor plane (Bullet's default for a body, stated here because the rolling
 friction a body realises on the floor depends on it: :func:`physics.bodies.bullet_rolling_friction`)."""

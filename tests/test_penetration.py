@@ -109,3 +109,29 @@ def test_the_box_prefilter_keeps_every_object_that_is_deep_inside(geometry):
         assert kept.sum() < n  # and it does leave some out
     assert geometry.may_be_inside(np.zeros((2, 3, 2, 3)) + [[0, 0, 5.0], [0.1, 0.1, 5.1]]).shape == (2, 3)
 
+
+
+def test_a_depth_asked_again_is_remembered_not_measured_again(monkeypatch):
+    """depth_of remembers the depth of each pose it measured (static geometry never moves): the same
+    poses asked again make no pybullet query and get the same depths; asked with another margin (other
+    static bodies in the box test) they are measured again; the memory holds at most DEPTH_MEMORY
+    poses per object."""
+    import pybullet as pb
+
+    import physics.penetration as pen
+    calls = []
+    closest = pb.getClosestPoints
+    monkeypatch.setattr(pb, "getClosestPoints", lambda *a, **k: calls.append(a) or closest(*a, **k))
+    rng = np.random.default_rng(5)
+    ducks = poses(*[[x, y, TABLE_TOP + z] for x, y, z in rng.uniform([-0.3, -0.3, -0.03], [0.3, 0.3, 0.02], (20, 3))])
+    with StaticGeometry(table_scene(BALL, BOX, DUCK)) as g, StaticGeometry(table_scene(BALL, BOX, DUCK)) as fresh:
+        first = g.depth_of(3, ducks)
+        n = len(calls)
+        assert n > 0 and np.any(first > 0)
+        assert np.array_equal(g.depth_of(3, ducks), first) and len(calls) == n
+        for beyond in (0.0, INVARIANT_DEPTH):  # another margin: what a geometry that never saw them says
+            assert np.array_equal(g.depth_of(3, ducks, beyond), fresh.depth_of(3, ducks, beyond))
+        monkeypatch.setattr(pen, "DEPTH_MEMORY", 30)
+        g.depth_of(3, ducks + [0.001, 0, 0, 0, 0, 0, 0])
+        assert len(g._depths[3]) <= 30
+        assert np.array_equal(g.depth_of(3, ducks), first)
