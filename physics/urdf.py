@@ -22,6 +22,7 @@ import tempfile
 import xml.etree.ElementTree as ET
 
 _CACHE: dict[tuple[str, str, float, int], str] = {}
+_REAL: dict[str, str] = {}  # a path as given -> the file it names (links resolved once per process)
 
 
 def _cache_dir() -> str:
@@ -55,10 +56,13 @@ _KINDS = {"collision": _strip_visuals, "visual": _visuals_as_collisions}
 
 def _copy(path: str, kind: str) -> str:
     """Path of a copy of the URDF ``path`` changed by ``_KINDS[kind]``, relative mesh file names made
-    absolute; written once per process and content (the file's path, modification time and size)
+    absolute; written once per process and content (the file's path, resolved once per process,
+    modification time and size)
     with an atomic rename, so that concurrent worker processes share the cache folder. A file that
     cannot be read or parsed as XML is returned unchanged: pybullet then reports it as it would have."""
-    real = os.path.realpath(path)
+    real = _REAL.get(path)
+    if real is None:  # (resolving a path reads each of its folders: 0.1 ms, for every body of every copy)
+        real = _REAL[path] = os.path.realpath(path)
     try:
         st = os.stat(real)
     except OSError:
