@@ -31,12 +31,6 @@ CLIP_DEPTH = 0.004
 geometry (a held box resting on the table, its detection a few millimetres low, is not moved), and
 stops it where it is at most this deep."""
 
-DEPTH_MEMORY = 4096
-"""The most penetration depths :meth:`StaticGeometry.depth_of` remembers per object (their poses and
-the static bodies measured as keys; forgotten all at once when full): an object at rest in its
-particle is asked about at the same pose, bit for bit, update after update, and static geometry
-never moves, so the answer stands."""
-
 BISECTIONS = 8
 """Halvings of a path in :meth:`StaticGeometry.clip`: the stop is found to within 1/256 of the path."""
 
@@ -67,7 +61,8 @@ class StaticGeometry:
             # each dynamic object's box in its link frame (centre, half extents), for the prefilter
             self._local = {}
             self._round = {int(m): scene.objects[int(m)].shape == "sphere" for m in w.dynamic_indices}
-            self._depths: dict[int, dict[tuple, float]] = {}  # per object: (pose, bodies) -> depth (depth_of)
+            # per object and margin, the last depth_of call's (pose, bodies) -> depth
+            self._depths: dict[tuple[int, float], dict[tuple, float]] = {}
             for m in w.dynamic_indices:
                 pose = np.array([[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]])
                 w.set_poses(pose, [int(m)])
@@ -134,16 +129,19 @@ class StaticGeometry:
         com[:, 3:] = quat_normalize(com[:, 3:])
         c, uid, statics = w.client, w.uids[m], self.static_uids
         reset, closest = pb.resetBasePositionAndOrientation, pb.getClosestPoints
-        # equal poses (many particles share a detection; an object at rest keeps its pose from one
-        # update to the next) are asked once: the depth of a pose does not change (DEPTH_MEMORY)
-        done = self._depths.setdefault(m, {})
-        if len(done) + len(rows) > DEPTH_MEMORY:
-            done.clear()
+        # equal poses are asked once: many particles share a detection, and an object at rest keeps
+        # its pose from one update to the next, so the answers of the last call with the same object
+        # and margin are kept (the depth of a pose does not change; memory: one call's poses)
+        last = self._depths.get((m, beyond), {})
+        done: dict[tuple, float] = {}
         moved = False
         for r, row, which in zip(rows.tolist(), com.tolist(), cand[rows].tolist()):
             key = (*row, *which)  # the pose, and the bodies its depth is measured into
             if key in done:
                 out[r] = done[key]
+                continue
+            if key in last:
+                out[r] = done[key] = last[key]
                 continue
             reset(uid, row[:3], row[3:], physicsClientId=c)
             moved = True
@@ -156,6 +154,7 @@ class StaticGeometry:
             out[r] = done[key] = -worst
         if moved:
             reset(uid, w.parked_pose[m, :3].tolist(), [0.0, 0.0, 0.0, 1.0], physicsClientId=c)
+        self._depths[(m, beyond)] = done
         return out
 
     def depths(self, poses: np.ndarray, objects: np.ndarray | None = None) -> np.ndarray:

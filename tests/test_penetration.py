@@ -112,13 +112,11 @@ def test_the_box_prefilter_keeps_every_object_that_is_deep_inside(geometry):
 
 
 def test_a_depth_asked_again_is_remembered_not_measured_again(monkeypatch):
-    """depth_of remembers the depth of each pose it measured (static geometry never moves): the same
-    poses asked again make no pybullet query and get the same depths; asked with another margin (other
-    static bodies in the box test) they are measured again; the memory holds at most DEPTH_MEMORY
-    poses per object."""
+    """depth_of keeps the answers of its last call per object and margin (static geometry never
+    moves): the same poses asked again make no pybullet query and get the same depths; other poses
+    asked in between replace what is kept (one call's poses, however long the run); asked with
+    another margin (other static bodies in the box test) they are measured as by a new geometry."""
     import pybullet as pb
-
-    import physics.penetration as pen
     calls = []
     closest = pb.getClosestPoints
     monkeypatch.setattr(pb, "getClosestPoints", lambda *a, **k: calls.append(a) or closest(*a, **k))
@@ -128,10 +126,13 @@ def test_a_depth_asked_again_is_remembered_not_measured_again(monkeypatch):
         first = g.depth_of(3, ducks)
         n = len(calls)
         assert n > 0 and np.any(first > 0)
-        assert np.array_equal(g.depth_of(3, ducks), first) and len(calls) == n
+        assert np.array_equal(g.depth_of(3, ducks[::-1]), first[::-1]) and len(calls) == n
         for beyond in (0.0, INVARIANT_DEPTH):  # another margin: what a geometry that never saw them says
             assert np.array_equal(g.depth_of(3, ducks, beyond), fresh.depth_of(3, ducks, beyond))
-        monkeypatch.setattr(pen, "DEPTH_MEMORY", 30)
-        g.depth_of(3, ducks + [0.001, 0, 0, 0, 0, 0, 0])
-        assert len(g._depths[3]) <= 30
-        assert np.array_equal(g.depth_of(3, ducks), first)
+        n = len(calls)
+        for k in range(1, 4):  # other poses: what is kept is the last call's, no more
+            g.depth_of(3, ducks + [0.001 * k, 0, 0, 0, 0, 0, 0])
+            assert len(g._depths[(3, 0.0)]) <= len(ducks)
+        assert len(calls) > n
+        n = len(calls)
+        assert np.array_equal(g.depth_of(3, ducks), first) and len(calls) > n
