@@ -117,6 +117,7 @@ class SceneEstimator:
         self.clock = time.perf_counter
         self.last_belief: Belief | None = None
         self.t_tick: float | None = None
+        self._pending: tuple | None = None  # a resampling deferred by step(defer=True): (method, args)
 
     # -- what the state, the model and the collectors hold ----------------------------------------------
     @property
@@ -186,7 +187,7 @@ class SceneEstimator:
         frame). Raises ``ValueError`` when ``frame.t`` does not increase."""
         self.model.observe(frame)
 
-    def step(self) -> Belief:
+    def step(self, defer: bool = False) -> Belief:
         """Run a reasoning step at the time of the last frame :meth:`observe` recorded, whether or not
         a horizon has passed since the previous step (it simulates the whole elapsed time, at most
         ``max_gap``); returns the belief. Raises ``ValueError`` before any frame, or when no frame
@@ -194,7 +195,13 @@ class SceneEstimator:
 
         The step: the model proposes (its moves and the worlds' input), the worlds run, the model
         weighs (settles, and sums its terms) and commits the particles, the collectors make the
-        belief; then resampling, when the effective sample size is low or the count must change."""
+        belief; then resampling, when the effective sample size is low or the count must change.
+        ``defer``: the resampling (or re-seeding) is left for :meth:`finish`, which the next step
+        runs first if no one has: the belief is out sooner, and a live loop resamples while it waits
+        for frames (:class:`~experiments.live.LiveLoop`). Until then :attr:`state` holds the weighed
+        particles the belief was made of. The results are the same either way."""
+        if self._pending is not None:
+            self.finish()
         t_start = self.clock()
         t = self.model.inputs.t_frame
         if t is None or (self.t_tick is not None and not t > self.t_tick):
@@ -228,14 +235,26 @@ class SceneEstimator:
                                   cfg.budget, cfg.max_particles)
         n = min(n, self.cap)
         reseed = K > 1 and np.any(bad) and np.any(weights > 0)
+        pending = None
         if K > 1 and (ess < cfg.resample_threshold * K or n > K or n < cfg.adaptive.shrink_below * K
                       or K > self.cap):
-            self._resample(weights, weighed.settled, proposal.perceived, n)
+            pending = (self._resample, (weights, weighed.settled, proposal.perceived, n))
         elif reseed:
-            self._reseed(bad, weights)
+            pending = (self._reseed, (bad, weights))
         if reseed:
             self.reseeded += int(bad.sum())
+        if defer:
+            self._pending = pending
+        elif pending is not None:
+            pending[0](*pending[1])
         return belief
+
+    def finish(self) -> None:
+        """Run the resampling (or re-seeding) the last :meth:`step` deferred, if any (see ``defer``)."""
+        if self._pending is not None:
+            run, args = self._pending
+            self._pending = None
+            run(*args)
 
     def _resample(self, weights: np.ndarray, settled, perceived: np.ndarray, n: int) -> None:
         """Systematic resampling to ``n`` particles (K changes with it); the state's arrays are taken

@@ -9,7 +9,9 @@ callback (:meth:`FrameQueue.put`: a ROS subscriber), stamping each with its arri
 every detection) and runs one reasoning step
 (:meth:`SceneEstimator.step <estimator.filter.SceneEstimator.step>`) at the newest frame when a
 step is due, i.e. when the horizon has passed since the last one. That step simulates the whole
-elapsed time (at most ``max_gap``).
+elapsed time (at most ``max_gap``). Its resampling is deferred (``step(defer=True)``): the belief
+is handed out first, and the loop resamples when it is next polled, before it waits for frames
+(:meth:`SceneEstimator.finish <estimator.filter.SceneEstimator.finish>`; the same beliefs either way).
 
 When the estimator keeps up, every take holds one frame and the loop does exactly what
 ``update(frame)`` does frame by frame (the same beliefs, bit for bit). When a step takes longer than
@@ -196,6 +198,7 @@ class LiveLoop:
         """Take every frame that has arrived (waiting up to ``timeout`` s for one; None: as long as
         it takes), observe them all, and run a reasoning step at the newest if one is due. Returns
         that step, or None (no frame, or no step due yet)."""
+        self.estimator.finish()  # the last step's resampling, while nothing waits for an estimate
         batch = self.queue.take(timeout)
         if not batch:
             return None
@@ -214,7 +217,7 @@ class LiveLoop:
         if not self._due:
             self.busy_seconds += clock() - t0
             return None
-        belief = est.step()
+        belief = est.step(defer=True)  # out before the resampling, which the next poll runs
         done = clock()
         if self.timeline_window is not None:
             est.timeline.forget_before(belief.t - self.timeline_window)

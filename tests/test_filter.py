@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from actions.modes import FREE
-from estimator.config import EstimatorConfig
+from estimator.config import EstimatorConfig, reasoning_due
 from estimator.filter import SceneEstimator
 from estimator.observations import Detection, Frame
 from helpers import TABLE_TOP, det, frames, table_scene
@@ -324,6 +324,36 @@ def test_same_seed_same_output_whatever_the_number_of_workers():
     c, tc = _run_json(2)
     assert a == b == c and ta == tb == tc
     assert any('"Pick"' in line for line in a)
+
+
+def test_a_deferred_resampling_waits_for_finish_and_changes_nothing():
+    """step(defer=True) returns the belief before resampling: until finish() (or the next step) the
+    state holds the weighed particles the belief was made of; the beliefs and the timeline are those
+    of an undeferred run, bit for bit."""
+    scene = table_scene(dict(BOX, pose={"position": [0.1, 0, TABLE_TOP + 0.03]}),
+                        {"id": "cup", "cylinder": {"radius": 0.03, "height": 0.08},
+                         "pose": {"position": [-0.2, 0.1, TABLE_TOP + 0.2]}})
+    cfg = EstimatorConfig(particles=6, workers=0, noise=NoiseConfig())
+    frs = frames(np.arange(0, 2.0, 1 / 30), lambda t: {"box": [0.1, 0.0, smooth(t, 0.4, 0.9, TABLE_TOP + 0.04,
+                                                                              TABLE_TOP + 0.3)]} if t < 1.4 else {})
+    expected, timeline = _run_json(0)
+    out, deferred = [], 0
+    with SceneEstimator(scene, cfg, np.random.default_rng(3)) as est:
+        for i, f in enumerate(frs):
+            est.observe(f)
+            if not reasoning_due(est.t_tick, f.t, cfg.reasoner.horizon):
+                continue
+            belief = est.step(defer=True)
+            out.append(json.dumps(belief.to_json()))
+            if est._pending is not None:
+                deferred += 1
+                weighed = est.state.log_weights.copy()
+                assert not np.all(weighed == weighed[0])  # not resampled yet: the weights are unequal
+                if i % 2:  # half the time finished here, half by the next step
+                    est.finish()
+                    assert est._pending is None and np.all(est.state.log_weights == 0.0)
+        assert deferred > 0
+        assert out == expected and est.timeline.to_json() == timeline
 
 
 def test_exploded_particles_and_total_weight_collapse_never_give_nan():

@@ -146,11 +146,11 @@ def test_a_slow_estimator_never_falls_more_than_one_step_behind(monkeypatch):
         horizon = est.config.reasoner.horizon
         step = est.step
 
-        def slow_step():
+        def slow_step(defer=False):
             with fed_lock:
                 lags.append(fed[-1] - est.t_frame)
             time.sleep(0.25)
-            return step()
+            return step(defer)
 
         monkeypatch.setattr(est, "step", slow_step)
         q = FrameQueue()
