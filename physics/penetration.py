@@ -115,6 +115,8 @@ class StaticGeometry:
         into the static bodies and the floor; 0 for non-finite and parked poses, and (skipped by the
         box test) for poses that cannot be more than ``beyond`` (m) deep."""
         poses = np.asarray(poses, dtype=float).reshape(-1, 7)
+        if len(poses) > 1 and np.all(poses == poses[:1]):  # one pose for all (a detection every particle
+            return np.full(len(poses), self.depth_of(m, poses[:1], beyond)[0])  # shares): tested once
         w = self.world
         out = np.zeros(len(poses))
         ok = np.all(np.isfinite(poses), axis=1) & (poses[:, 2] > -PARK_DEPTH)

@@ -136,3 +136,11 @@ def test_a_depth_asked_again_is_remembered_not_measured_again(monkeypatch):
         assert len(calls) > n
         n = len(calls)
         assert np.array_equal(g.depth_of(3, ducks), first) and len(calls) > n
+        # one pose asked for every row (a detection all particles share): measured once
+        deep = int(np.argmax(first))
+        n = len(calls)
+        once = fresh.depth_of(3, ducks[deep:deep + 1] + [0.002, 0, 0, 0, 0, 0, 0])
+        one_query = len(calls) - n
+        n = len(calls)
+        shared = np.repeat(ducks[deep:deep + 1] + [0.002, 0, 0, 0, 0, 0, 0], 30, axis=0)
+        assert np.array_equal(g.depth_of(3, shared), np.full(30, once[0])) and len(calls) - n == one_query
