@@ -66,12 +66,14 @@ class DetectionNoise:
         if dof < 1 or not math.isfinite(scatter):
             return
         self._samples.append(scatter * scatter / _median_ratio(int(dof)))
-        if len(self._samples) >= self.min_samples:
-            self._std = math.sqrt(float(np.median(np.fromiter(self._samples, dtype=float))))
+        self._std = None  # the median is taken when read (an update adds one per object seen)
 
     @property
     def std(self) -> float:
         """The estimate (m per axis); NaN before ``min_samples`` scatters."""
+        if self._std is None:
+            self._std = (math.sqrt(float(np.median(np.fromiter(self._samples, dtype=float))))
+                         if len(self._samples) >= self.min_samples else math.nan)
         return self._std
 
     def __len__(self) -> int:

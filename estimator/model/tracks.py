@@ -25,15 +25,16 @@ def fit_line(history, since: float, t: float) -> tuple[np.ndarray, float, np.nda
         return np.zeros(3), 0.0, latest, math.nan, 0
     ts = np.array([p[0] for p in pts])
     xs = np.array([p[1] for p in pts])
-    dt = ts - ts.mean()
+    t_mean, x_mean = ts.mean(), xs.mean(axis=0)
+    dt = ts - t_mean
     sxx = float(dt @ dt)
     if sxx <= 1e-12:
         return np.zeros(3), 0.0, latest, math.nan, 0
-    slope = dt @ (xs - xs.mean(axis=0)) / sxx
-    resid = xs[:, :2] - xs.mean(axis=0)[:2] - dt[:, None] * slope[None, :2]
+    slope = dt @ (xs - x_mean) / sxx
+    resid = xs[:, :2] - x_mean[:2] - dt[:, None] * slope[None, :2]
     dof = 2 * (len(pts) - 2)
     scatter = math.sqrt(float(np.sum(resid ** 2)) / dof) if dof > 0 else math.nan
-    return slope, sxx, xs.mean(axis=0)[:2] + slope[:2] * (t - ts.mean()), scatter, max(dof, 0)
+    return slope, sxx, x_mean[:2] + slope[:2] * (t - t_mean), scatter, max(dof, 0)
 
 
 def fit_acceleration(history, since: float, t: float, sigma: float,
