@@ -167,8 +167,8 @@ class LiveLoop:
     ``timeline_window`` (s of stream time): after each step the estimator's timeline forgets the
     facts and events older than this (:meth:`~estimator.timeline.Timeline.forget_before`; None: it
     keeps all). Totals: :attr:`frames`, :attr:`steps`, :attr:`merged`, :attr:`max_latency` (s),
-    :attr:`busy_seconds` (time spent observing and stepping). Memory does not grow with the stream:
-    frames are released once observed, the timeline holds its window.
+    :attr:`busy_seconds` (time spent observing, stepping and resampling). Memory does not grow with
+    the stream: frames are released once observed, the timeline holds its window.
     """
 
     def __init__(self, estimator, queue: FrameQueue, on_frame: Callable[[Frame], None] | None = None,
@@ -198,11 +198,13 @@ class LiveLoop:
         """Take every frame that has arrived (waiting up to ``timeout`` s for one; None: as long as
         it takes), observe them all, and run a reasoning step at the newest if one is due. Returns
         that step, or None (no frame, or no step due yet)."""
+        clock = self.queue.clock
+        t0 = clock()
         self.estimator.finish()  # the last step's resampling, while nothing waits for an estimate
+        self.busy_seconds += clock() - t0
         batch = self.queue.take(timeout)
         if not batch:
             return None
-        clock = self.queue.clock
         t0 = clock()
         est = self.estimator
         for a in batch:
@@ -235,3 +237,4 @@ class LiveLoop:
             step = self.poll(timeout=None)
             if step is not None:
                 yield step
+        self.estimator.finish()

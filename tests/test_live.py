@@ -89,6 +89,7 @@ def test_frame_by_frame_the_live_loop_is_update_exactly():
     frames = [frame(k) for k in range(90)]
     with estimator() as ref:
         expected = [b.to_json() for b in ref.run(frames)]
+        ref_poses, ref_logw = ref.state.poses.copy(), ref.state.log_weights.copy()
     q = FrameQueue()
     got = []
     with estimator() as est:
@@ -99,6 +100,9 @@ def test_frame_by_frame_the_live_loop_is_update_exactly():
             if step is not None:
                 assert step.merged == 0 and step.frames >= 1
                 got.append(step.belief.to_json())
+        q.close()
+        assert loop.poll() is None and est._pending is None  # the last step's resampling, run by the poll
+        assert np.array_equal(est.state.poses, ref_poses) and np.array_equal(est.state.log_weights, ref_logw)
     assert got == expected and len(got) == 30
     assert loop.merged == 0 and loop.steps == 30 and loop.frames == 90
 
