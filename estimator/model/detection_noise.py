@@ -58,7 +58,7 @@ class DetectionNoise:
             raise ValueError(f"DetectionNoise needs window >= 1 and 1 <= min_samples <= window, got {window}, {min_samples}")
         self.min_samples = int(min_samples)
         self._samples: deque[float] = deque(maxlen=int(window))
-        self._std = math.nan
+        self._std: float | None = None  # the median of the samples, taken when read (std)
 
     def add(self, scatter: float, dof: int) -> None:
         """One scatter (m per axis) over ``dof`` degrees of freedom; non-finite values or ``dof < 1``
@@ -66,7 +66,7 @@ class DetectionNoise:
         if dof < 1 or not math.isfinite(scatter):
             return
         self._samples.append(scatter * scatter / _median_ratio(int(dof)))
-        self._std = None  # the median is taken when read (an update adds one per object seen)
+        self._std = None  # taken again when read (an update adds one per object seen)
 
     @property
     def std(self) -> float:
