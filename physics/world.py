@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 import pybullet as pb
 
-from .bodies import apply_dynamics, create_body
+from .bodies import create_body
 from .rays import ray_cast
 from .scene import ObjectSpec, Scene
 from .settings import PhysicsSettings, connect
@@ -343,10 +343,12 @@ class World:
                      rolling_friction: float | None = None, spinning_friction: float | None = None,
                      restitution: float | None = None, mass: float | None = None) -> None:
         """Change physical parameters of object ``index``; ``None`` leaves a parameter unchanged."""
-        uid = self.uids[index]
-        apply_dynamics(self.client, uid, lateral_friction, rolling_friction, spinning_friction, restitution)
-        if mass is not None and not self.static[index]:
-            pb.changeDynamics(uid, -1, mass=float(mass), physicsClientId=self.client)
+        values = (("lateralFriction", lateral_friction), ("rollingFriction", rolling_friction),
+                  ("spinningFriction", spinning_friction), ("restitution", restitution),
+                  ("mass", None if self.static[index] else mass))
+        kw = {k: float(v) for k, v in values if v is not None}
+        if kw:  # one call (the hot path of a particle's parameters): the same state as one per kind
+            pb.changeDynamics(self.uids[index], -1, physicsClientId=self.client, **kw)
 
     def get_dynamics(self, index: int) -> dict[str, float]:
         """Mass (kg), lateral / rolling / spinning friction and restitution of object ``index``."""

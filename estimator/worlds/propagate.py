@@ -197,12 +197,13 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
             if woken and pw.contactless:  # contacts a freeze made Bullet forget: the boxes that touch
                 stale = pw.contactless if pw.contactless.isdisjoint(rows) else None
                 woken += [j for j in near(w, rows, 0.0) if (stale is None or j in stale) and j not in woken]
-            if True in reset_l[k]:
+            if True in reset_l[k]:  # (row_p: this world's centre-of-mass poses as lists, made once)
                 loads = [i for i in dyn if reset_l[k][i]]
                 if sleeping and n_steps > 0:
                     restart += restart_after_wake(w, asleep(w, [i for i in loads if speed_l[k][i]]), com_p[k],
                                                   com_v[k], dt, w0.settings.gravity)
-                w.load_com_state(loads, com_p[k, loads].tolist(), com_v[k, loads].tolist())
+                row_p, row_v = com_p[k].tolist(), com_v[k].tolist()
+                w.load_com_state(loads, [row_p[i] for i in loads], [row_v[i] for i in loads])
             if woken:
                 wake(w, woken)
             if True in depen_l[k]:
@@ -218,8 +219,7 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
                     # g dt^2): set back where it was loaded, at rest, after that step
                     slept = [i for i in fz if reset_l[k][i]]
                     sleep(w, slept)
-                    restart += [(w.uids[i], com_p[k, i, :3].tolist(), com_p[k, i, 3:].tolist(), [0.0] * 3,
-                                 [0.0] * 3) for i in slept]
+                    restart += [(w.uids[i], row_p[i][:3], row_p[i][3:], [0.0] * 3, [0.0] * 3) for i in slept]
                 pw.thaw([i for i in pw.frozen if i not in fz])  # woken since
                 w.set_colliding([i for i in fz if i not in pw.frozen], False)
                 pw.frozen = fz
@@ -311,9 +311,10 @@ def _glides(pws: list[ParticleWorld], batch: BatchInput, held: np.ndarray, alone
     com, orn, lin, ang = glide_paths(w0, batch.poses[kk, ii], batch.target[kk, ii], ii, n_steps)
     com = com + np.array([pws[k].world.origin for k in kk.tolist()])[:, None, :]
     out: dict[int, list[tuple]] = {}
-    for h, (k, i) in enumerate(zip(kk.tolist(), ii.tolist())):
-        out.setdefault(k, []).append((pws[k].world.uids[i], com[h].tolist(), orn[h].tolist(),
-                                      lin[h].tolist(), ang[h].tolist(), i if alone[k, i] else None))
+    # one conversion per array for all the paths (a call per path and array cost more than the paths)
+    rows = zip(kk.tolist(), ii.tolist(), com.tolist(), orn.tolist(), lin.tolist(), ang.tolist(), alone[kk, ii].tolist())
+    for k, i, c, o, v, a, lone in rows:
+        out.setdefault(k, []).append((pws[k].world.uids[i], c, o, v, a, i if lone else None))
     return out
 
 
