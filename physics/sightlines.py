@@ -12,6 +12,10 @@ from .rays import ray_cast
 from .transforms import quat_rotate
 from .world import World
 
+RAY_BEYOND = 1.05
+"""A sightline's ray goes from the camera to this many times its sample point's distance: a little
+beyond the point, so that the object is hit (:meth:`Sightlines.cast`)."""
+
 SOLID_DEPTH = 0.005
 """How far inside a box-shaped object (m) its :func:`~physics.visibility.solid_box` lies: a ray
 through it surely meets the object (pybullet's ray test reports a hit for it) and no margin or
@@ -93,6 +97,24 @@ class Sightlines:
         out[v_idx[ok], g_idx[ok], o_idx[ok], p_idx[ok]] = True
         return out
 
+    def reached(self, sel: np.ndarray) -> np.ndarray:
+        """``(G, B)`` bool: the boxes (1 mm wider) that the segments of the rays of ``sel`` meet
+        (:meth:`cast`'s segments, a little beyond the point: every ray it casts for them is part of
+        one), the rays' own objects' included: the only bodies those ray tests can hit (all False
+        without ``boxes``)."""
+        if self.boxes is None:
+            return np.zeros((len(self.origins), 0), dtype=bool)
+        out = np.zeros(self.boxes.shape[:2], dtype=bool)
+        if not sel.any():
+            return out
+        v_idx, g_idx, o_idx, p_idx = np.nonzero(sel)
+        cam = self.positions[v_idx]
+        end = cam + (self.pts[g_idx, o_idx, p_idx] - cam) * RAY_BEYOND
+        lo, hi = self.boxes[:, :, 0] - 1e-3, self.boxes[:, :, 1] + 1e-3
+        enter, leave = segment_spans(cam, end, lo[g_idx], hi[g_idx])
+        np.logical_or.at(out, g_idx, enter <= leave)
+        return out
+
     def hidden_by_solids(self, sel: np.ndarray) -> np.ndarray:
         """The rays of ``sel`` that go through a solid box of another object (from outside it)
         before they enter their own object's box: hidden (none without ``solids``)."""
@@ -132,7 +154,7 @@ class Sightlines:
         """Camera and end ``(N, 3)`` (scene frame) of the rays, and where they enter their object's
         box, 1 mm wider, as a fraction of their length ``(N,)``."""
         cam = self.positions[v_idx]
-        end = cam + (self.pts[g_idx, o_idx, p_idx] - cam) * 1.05
+        end = cam + (self.pts[g_idx, o_idx, p_idx] - cam) * RAY_BEYOND
         own = self.boxes[g_idx, self.indices[o_idx]][:, None]  # (N, 1, 2, 3)
         return cam, end, segment_spans(cam, end, own[..., 0, :] - 1e-3, own[..., 1, :] + 1e-3)[0][:, 0]
 
@@ -168,7 +190,7 @@ class Sightlines:
         (the object is hit)."""
         cam = self.positions[v_idx]
         start = cam + self.origins[g_idx]
-        return start, start + (self.pts[g_idx, o_idx, p_idx] - cam) * 1.05
+        return start, start + (self.pts[g_idx, o_idx, p_idx] - cam) * RAY_BEYOND
 
     def _first_hits(self, g_idx: np.ndarray, start: np.ndarray, end: np.ndarray) -> np.ndarray:
         """Body id ``(N,)`` first hit by each ray ``start -> end (N, 3)`` of world ``g_idx (N,)``

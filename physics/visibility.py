@@ -12,6 +12,7 @@ can reach its own object (hidden); other rays are first cast only as far as thei
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pybullet as pb
@@ -143,7 +144,8 @@ def rays_clear_of(camera: Camera, centres: np.ndarray, radii: np.ndarray, others
 
 def visible_fractions(worlds: list[World], camera: Camera, indices, local_points: dict[int, np.ndarray],
                       poses: np.ndarray, need: np.ndarray | None = None, boxes: np.ndarray | None = None,
-                      convex: np.ndarray | None = None, solids: Solids | None = None) -> np.ndarray:
+                      convex: np.ndarray | None = None, solids: Solids | None = None,
+                      before_cast: Callable[[np.ndarray], None] | None = None) -> np.ndarray:
     """Fraction ``(G, n)`` of each object's sample points that the camera sees, in each of the G
     worlds (copies of one scene, usually sharing a client: all their rays go to pybullet in one
     batched ray test).
@@ -165,8 +167,12 @@ def visible_fractions(worlds: list[World], camera: Camera, indices, local_points
             (exactly what the ray test would say: nothing else is on the segment).
         solids: with ``boxes``, boxes inside objects (:func:`seen_points`): a sightline through
             another object's solid before it reaches its own object's box is hidden, without a ray.
+        before_cast: with ``boxes``, called before the ray tests with the ``(G, B)`` bool of the
+            boxes their segments meet (:meth:`~physics.sightlines.Sightlines.reached`): the bodies
+            they can hit, which must then be in collision detection (see :func:`seen_points`).
     """
-    seen, counts = seen_points(worlds, [camera], indices, local_points, poses, need, boxes, convex, solids=solids)
+    seen, counts = seen_points(worlds, [camera], indices, local_points, poses, need, boxes, convex, solids=solids,
+                               before_cast=before_cast)
     return seen[0] / np.maximum(counts, 1)
 
 
@@ -199,7 +205,8 @@ LAST_ROUND_RAYS = 100
 def seen_points(worlds: list[World], cameras: list[Camera], indices, local_points: dict[int, np.ndarray],
                 poses: np.ndarray, need: np.ndarray | None = None, boxes: np.ndarray | None = None,
                 convex: np.ndarray | None = None, required: np.ndarray | None = None,
-                solids: Solids | None = None) -> tuple[np.ndarray, np.ndarray]:
+                solids: Solids | None = None,
+                before_cast: Callable[[np.ndarray], None] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Number of each object's sample points that each camera sees in each world ``(V, G, n)``
     (int), and each object's number of sample points ``(n,)``; arguments as
     :func:`visible_fractions`, for V ``cameras`` (all their rays of a client go to pybullet in one
@@ -215,7 +222,10 @@ def seen_points(worlds: list[World], cameras: list[Camera], indices, local_point
     With ``required (n,)`` (int), a count is exact only as far as it says whether it reaches
     ``required``: rays are cast in rounds, each of as many as a count needs to be decided either
     way (none is wasted: a count is never decided before its round's last ray), until every count
-    has reached ``required`` or can no longer reach it."""
+    has reached ``required`` or can no longer reach it. ``before_cast(reached)``: called before each
+    batch of ray tests, with ``boxes``, with the boxes their segments meet ``(G, B)`` bool (a body
+    out of collision detection is missed by rays: a caller that keeps bodies out can put back only
+    those)."""
     indices = [int(i) for i in np.atleast_1d(indices)]
     G, n, V = len(worlds), len(indices), len(cameras)
     counts = _point_counts(indices, local_points)
@@ -240,6 +250,8 @@ def seen_points(worlds: list[World], cameras: list[Camera], indices, local_point
         seen += clear.sum(axis=-1)
         sel &= ~(clear | rays.hidden_by_solids(sel & ~clear))
     if required is None:
+        if before_cast is not None and boxes is not None and sel.any():
+            before_cast(rays.reached(sel))
         return seen + rays.cast(sel).sum(axis=-1), counts
     required = np.asarray(required, dtype=int)
     while True:
@@ -252,6 +264,8 @@ def seen_points(worlds: list[World], cameras: list[Camera], indices, local_point
         k = np.where(open_, np.minimum(required - seen, left - (required - seen) + 1), 0)
         k = np.where(open_, left, 0) if left[open_].sum() <= LAST_ROUND_RAYS else k
         pick = sel & (np.cumsum(sel, axis=-1) <= k[..., None])
+        if before_cast is not None and boxes is not None:
+            before_cast(rays.reached(pick))
         seen += rays.cast(pick).sum(axis=-1)
         sel &= ~pick
 

@@ -364,3 +364,46 @@ def test_a_pool_with_room_for_more_looks_at_its_particles_in_their_own_slots():
             assert np.array_equal(got, want)
             with pytest.raises(ValueError):
                 pool.look(poses[:5], np.arange(3), np.array([ball]), cams)
+
+
+def test_rays_put_back_only_the_frozen_objects_they_may_hit_and_see_what_all_rays_see():
+    """After an update that froze two resting blocks, the visibility rays to the ball (moved, so
+    its sightlines are tested again) put back in collision detection the block between the camera
+    and the ball where a ray test may hit it, and leave the block far from every sightline frozen;
+    the fractions equal ray tests with every object in collision detection."""
+    from physics.world import PhysicsSettings
+
+    cam = {"position": [1.5, 0.0, 1.0], "target": [0.0, 0.0, 0.7]}
+    scene = table_scene({"id": "ball", "sphere": {"radius": 0.04}, "pose": {"position": [0.0, 0.0, TABLE_TOP + 0.04]}},
+                        {"id": "wall", "box": {"size": [0.04, 0.2, 0.12]},
+                         "pose": {"position": [0.25, 0.0, TABLE_TOP + 0.06]}},
+                        {"id": "far", "box": {"size": [0.05, 0.05, 0.05]},
+                         "pose": {"position": [-0.4, 0.35, TABLE_TOP + 0.025]}},
+                        camera=cam)
+    k, m = 3, 4
+    with WorldPool(scene, k, 0, PhysicsSettings(sleeping=True), worlds=1) as pool:
+        shard = pool._local
+        out = pool.run(batch(k, m, np.repeat(shard.worlds[0].world.get_poses()[None], k, axis=0)), 60, 0.045,
+                       freeze=True)  # everything loaded: it settles
+        for _ in range(4):  # nothing loaded: the blocks come to rest and are put to sleep
+            rest = batch(k, m, out.poses)
+            rest.velocities, rest.reset = out.velocities, np.zeros((k, m), bool)
+            out = pool.run(rest, 24, 0.045, freeze=True)
+        assert np.all(out.velocities[:, 2:] == 0.0)
+        poses, vel = out.poses.copy(), out.velocities.copy()
+        poses[:, 1, 0] -= 0.01 * (1 + np.arange(k))  # the ball moved (loaded at rest); the blocks were not
+        vel[:, 1] = 0.0
+        moved = batch(k, m, poses)
+        moved.velocities, moved.reset = vel, np.any(poses != out.poses, axis=-1)
+        moved.vis_query = np.array([False, True, False, False])
+        again = pool.run(moved, 24, 0.045, freeze=True)
+        frozen = [set(pw.frozen) for pw in shard.worlds]
+        for pw in shard.worlds:
+            pw.thaw()
+        ref = visible_fractions([pw.world for pw in shard.worlds], shard.camera, [1], shard.points,
+                                again.poses[:, [1]])
+    # the far block stayed out everywhere; the wall is back where a ray test could hit it (where the
+    # box tests decided every sightline, as through the wall's solid core, no ray is cast)
+    assert all(3 in f for f in frozen) and any(2 not in f for f in frozen)
+    assert np.array_equal(again.visible[:, 1], ref[:, 0])
+    assert np.all(ref[:, 0] < 1.0)  # the wall hides some of the ball

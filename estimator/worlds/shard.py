@@ -237,6 +237,18 @@ class _Shard:
             self.worlds[k].thaw()
         return [self.worlds[k].world for k in slots]
 
+    def _thaw_reached(self, slots: list[int], reached: np.ndarray) -> None:
+        """Put back in collision detection the objects frozen in the worlds of ``slots`` that the
+        coming ray tests may hit: ``reached (len(slots), M)`` bool, the boxes their segments meet
+        (:meth:`~physics.sightlines.Sightlines.reached`). The others stay out: the rays cannot meet
+        them, and the next update need not freeze them again (a change of a body's collision filter
+        takes it out of Bullet's world and back in)."""
+        for j, k in enumerate(slots):
+            pw = self.worlds[k]
+            if pw.frozen:
+                row = reached[j]
+                pw.thaw([i for i in pw.frozen if row[i]])
+
     def _visibility(self, camera: Camera, poses: np.ndarray, finite: np.ndarray, q: np.ndarray,
                     slots: list[int], boxes: np.ndarray | None = None) -> np.ndarray:
         """Visible fractions ``(K, len(q))`` of objects ``q`` in the worlds of ``slots`` (K of them)
@@ -272,11 +284,15 @@ class _Shard:
         todo = np.flatnonzero(need.any(axis=1)).tolist()
         if todo:
             shortcuts = {}
-            if boxes is not None:
+            ray_slots = [slots[k] for k in todo]
+            if boxes is not None:  # the frozen objects the rays may meet are put back before they are cast
                 convex = np.array([self.scene.objects[int(i)].shape in CONVEX_SHAPES for i in q])
-                shortcuts = dict(boxes=boxes[todo], convex=convex, solids=Solids.posed(self.solids, poses[todo]))
-            fresh = visible_fractions(self._ray_worlds([slots[k] for k in todo]), camera, q, self.points,
-                                      poses[np.ix_(todo, q)], need[todo], **shortcuts)
+                shortcuts = dict(boxes=boxes[todo], convex=convex, solids=Solids.posed(self.solids, poses[todo]),
+                                 before_cast=lambda reached: self._thaw_reached(ray_slots, reached))
+                worlds = [self.worlds[k].world for k in ray_slots]
+            else:
+                worlds = self._ray_worlds(ray_slots)
+            fresh = visible_fractions(worlds, camera, q, self.points, poses[np.ix_(todo, q)], need[todo], **shortcuts)
             vis[todo] = np.where(need[todo], fresh, vis[todo])
         for k in np.flatnonzero(finite).tolist():
             row = np.full(poses.shape[1], np.nan)
