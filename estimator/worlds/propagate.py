@@ -312,7 +312,8 @@ def _glides(pws: list[ParticleWorld], batch: BatchInput, held: np.ndarray, alone
     com = com + np.array([pws[k].world.origin for k in kk.tolist()])[:, None, :]
     out: dict[int, list[tuple]] = {}
     # one conversion per array for all the paths (a call per path and array cost more than the paths)
-    rows = zip(kk.tolist(), ii.tolist(), com.tolist(), orn.tolist(), lin.tolist(), ang.tolist(), alone[kk, ii].tolist())
+    rows = zip(kk.tolist(), ii.tolist(), com.tolist(), orn.tolist(), lin.tolist(), ang.tolist(),
+               alone[kk, ii].tolist())
     for k, i, c, o, v, a, lone in rows:
         out.setdefault(k, []).append((pws[k].world.uids[i], c, o, v, a, i if lone else None))
     return out
