@@ -6,6 +6,7 @@ positions in metres, quaternions ``(x, y, z, w)``, velocities in m/s and rad/s. 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import chain
 
 import numpy as np
 
@@ -113,18 +114,22 @@ class ParticleWorld:
         since (frozen, asleep and out of collision detection, and not loaded), whose last read was
         this world's. :meth:`forget` the last read when something else moves them."""
         last = self._read
-        if not skip or last is None:
+        fresh = self.dynamic if not skip or last is None else [i for i in self.dynamic if i not in skip]
+        if len(fresh) == len(self.dynamic):
             out = self.world.read_raw(self.dynamic)
-        else:
-            read_raw = self.world.read_raw
+        else:  # the others asked of pybullet at once, then interleaved with the last read's
+            new = self.world.read_raw(fresh) if fresh else ([], [], [])
             flat_p, flat_v, flat_b = [], [], []
+            n = 0
             for j, i in enumerate(self.dynamic):
                 if i in skip:
-                    flat_p += last[0][7 * j:7 * j + 7]
-                    flat_v += last[1][6 * j:6 * j + 6]
-                    flat_b += last[2][6 * j:6 * j + 6]
+                    src, r = last, j
                 else:
-                    read_raw((i,), flat_p, flat_v, flat_b)
+                    src, r = new, n
+                    n += 1
+                flat_p += src[0][7 * r:7 * r + 7]
+                flat_v += src[1][6 * r:6 * r + 6]
+                flat_b += src[2][6 * r:6 * r + 6]
             out = (flat_p, flat_v, flat_b)
         self._read = out
         return out
@@ -138,6 +143,8 @@ class ParticleWorld:
         in collision detection (rays then see them); one parked since stays out."""
         if self.frozen:
             back = self.frozen if indices is None else [i for i in self.frozen if i in indices]
+            if not back:
+                return
             self.world.set_colliding([i for i in back if not self.world.is_parked(i)], True)
             self.frozen = [i for i in self.frozen if i not in back]
 
@@ -180,7 +187,8 @@ def assemble(w0: World, dyn: list[int], read: list[tuple[list, list, list]],
         poses[:, st] = sp[st]
         poses[:, st, :3] += origins
         aabbs[:, st] = sb[st] + origins[:, None]
-    poses[:, dyn] = np.array([r[0] for r in read]).reshape(K, D, 7)
-    vel[:, dyn] = np.array([r[1] for r in read]).reshape(K, D, 6)
-    aabbs[:, dyn] = np.array([r[2] for r in read]).reshape(K, D, 2, 3)
+    # the flat lists read into arrays at once (no shape to discover, as np.array of nested lists must)
+    for j, (out, shape) in enumerate(((poses, (D, 7)), (vel, (D, 6)), (aabbs, (D, 2, 3)))):
+        n = K * int(np.prod(shape))
+        out[:, dyn] = np.fromiter(chain.from_iterable(r[j] for r in read), dtype=float, count=n).reshape(K, *shape)
     return poses, vel, aabbs
