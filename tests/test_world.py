@@ -201,3 +201,32 @@ def test_bodies_out_of_collision_stay_asleep_in_place_and_collide_again_once_put
         wake(w, [2])  # awake and out of collision: b falls through a and the table
         w.step(60)
         assert w.get_poses([2])[0, 2] < TABLE_TOP - 0.1
+
+
+def test_set_dynamics_in_one_call_is_the_state_of_one_call_per_kind():
+    """A particle's five parameters go to pybullet in one changeDynamics call per object; the world
+    then holds what a call for the frictions and restitution followed by one for the mass gives:
+    the same dynamics, and the same fall onto the table and roll, bit for bit."""
+    import pybullet as pb
+
+    scene = table_scene({"id": "ball", "sphere": {"radius": 0.03}, "pose": {"position": [0.0, 0.0, TABLE_TOP + 0.2]}},
+                        {"id": "box", "box": {"size": [0.05, 0.05, 0.05]},
+                         "pose": {"position": [0.1, 0.0, TABLE_TOP + 0.1]}})
+    values = dict(lateral_friction=0.37, rolling_friction=0.002, spinning_friction=0.004, restitution=0.3, mass=0.21)
+    with World(scene) as one, World(scene) as two:
+        for i in (1, 2):
+            one.set_dynamics(i, **values)
+            pb.changeDynamics(two.uids[i], -1, lateralFriction=0.37, rollingFriction=0.002, spinningFriction=0.004,
+                              restitution=0.3, physicsClientId=two.client)
+            pb.changeDynamics(two.uids[i], -1, mass=0.21, physicsClientId=two.client)
+            assert one.get_dynamics(i) == two.get_dynamics(i)
+            assert one.get_dynamics(i)["mass"] == 0.21
+        start = one.get_poses()
+        v = np.zeros((3, 6))
+        v[1, 0] = 0.5  # the ball thrown along x: it lands and rolls
+        one.set_velocities(v)
+        two.set_velocities(v)
+        one.step(240)
+        two.step(240)
+        assert np.array_equal(one.get_poses(), two.get_poses())
+        assert one.get_poses()[1, 0] - start[1, 0] > 0.1  # it moved: the parameters were at work
