@@ -100,7 +100,7 @@ class Sightlines:
     def reached(self, sel: np.ndarray) -> np.ndarray:
         """``(G, B)`` bool: the boxes (1 mm wider) that the segments of the rays of ``sel`` meet
         (:meth:`cast`'s segments, a little beyond the point: every ray it casts for them is part of
-        one), the rays' own objects' included: the only bodies those ray tests can hit (all False
+        one), the rays' own objects' included: the only bodies those ray tests can hit (no column
         without ``boxes``)."""
         if self.boxes is None:
             return np.zeros((len(self.origins), 0), dtype=bool)

@@ -257,7 +257,9 @@ class _Shard:
         they can before any ray is cast (:func:`~physics.visibility.seen_points`: the same answer
         as the rays, for fewer of them). An object keeps the answer of its world's
         last ray tests when it has not moved (bit for bit) and nothing that moved since came near its
-        rays (:func:`~physics.visibility.rays_clear_of`): most of a resting scene casts no ray."""
+        rays (:func:`~physics.visibility.rays_clear_of`): most of a resting scene casts no ray. With
+        ``boxes``, of the objects frozen in a world only those the rays to be cast may hit are put
+        back in collision detection (:meth:`_thaw_reached`); without, all of them."""
         key = camera_key(camera.spec)
         cache = self._vis_caches.pop(key, {})
         self._vis_caches[key] = cache  # the most recent last
