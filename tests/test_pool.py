@@ -5,6 +5,7 @@ from estimator.worlds.pool import BatchInput, WorldPool, shard_bounds
 from estimator.worlds.propagate import PARTS
 from helpers import TABLE_TOP, table_scene
 from physics.visibility import first_copies, visible_fractions
+from physics.world import PhysicsSettings
 
 SCENE = table_scene({"id": "box", "box": {"size": [0.1, 0.1, 0.1]}, "pose": {"position": [0, 0, TABLE_TOP + 0.2]}})
 
@@ -282,7 +283,6 @@ def test_looks_with_copies_and_shortcuts_equal_plain_ray_tests_for_any_worker_co
 def test_a_shard_keeps_a_bounded_number_of_cameras_the_scenes_always_first_built():
     from estimator.worlds.shard import CACHED_CAMERAS, _Shard
     from physics.scene import CameraSpec
-    from physics.world import PhysicsSettings
 
     scene = table_scene({"id": "cube", "box": {"size": [0.05] * 3}, "pose": {"position": [0, 0, TABLE_TOP + 0.025]}},
                         camera={"position": [1.0, 0.0, 1.2], "target": [0.0, 0.0, 0.7]})
@@ -371,8 +371,6 @@ def test_rays_put_back_only_the_frozen_objects_they_may_hit_and_see_what_all_ray
     its sightlines are tested again) put back in collision detection the block between the camera
     and the ball where a ray test may hit it, and leave the block far from every sightline frozen;
     the fractions equal ray tests with every object in collision detection."""
-    from physics.world import PhysicsSettings
-
     cam = {"position": [1.5, 0.0, 1.0], "target": [0.0, 0.0, 0.7]}
     scene = table_scene({"id": "ball", "sphere": {"radius": 0.04}, "pose": {"position": [0.0, 0.0, TABLE_TOP + 0.04]}},
                         {"id": "wall", "box": {"size": [0.04, 0.2, 0.12]},
