@@ -16,6 +16,10 @@ RAY_BEYOND = 1.05
 """A sightline's ray goes from the camera to this many times its sample point's distance: a little
 beyond the point, so that the object is hit (:meth:`Sightlines.cast`)."""
 
+BOX_PAD = 1e-3
+"""How much wider (m, on every side) the boxes are that the box tests of :class:`Sightlines` meet a
+segment with: rounding."""
+
 SOLID_DEPTH = 0.005
 """How far inside a box-shaped object (m) its :func:`~physics.visibility.solid_box` lies: a ray
 through it surely meets the object (pybullet's ray test reports a hit for it) and no margin or
@@ -89,7 +93,7 @@ class Sightlines:
         v_idx, g_idx, o_idx, p_idx = np.nonzero(sel)
         p_sel = self.pts[g_idx, o_idx, p_idx]
         cam = self.positions[v_idx]
-        lo, hi = self.boxes[:, :, 0] - 1e-3, self.boxes[:, :, 1] + 1e-3
+        lo, hi = self.boxes[:, :, 0] - BOX_PAD, self.boxes[:, :, 1] + BOX_PAD
         enter, leave = segment_spans(cam, p_sel, lo[g_idx], hi[g_idx])
         meets = enter <= leave  # (N, B)
         meets[np.arange(len(o_idx)), self.indices[o_idx]] = False  # the object does not hide itself
@@ -108,9 +112,8 @@ class Sightlines:
         if not sel.any():
             return out
         v_idx, g_idx, o_idx, p_idx = np.nonzero(sel)
-        cam = self.positions[v_idx]
-        end = cam + (self.pts[g_idx, o_idx, p_idx] - cam) * RAY_BEYOND
-        lo, hi = self.boxes[:, :, 0] - 1e-3, self.boxes[:, :, 1] + 1e-3
+        cam, end = self._ends(v_idx, g_idx, o_idx, p_idx)
+        lo, hi = self.boxes[:, :, 0] - BOX_PAD, self.boxes[:, :, 1] + BOX_PAD
         enter, leave = segment_spans(cam, end, lo[g_idx], hi[g_idx])
         np.logical_or.at(out, g_idx, enter <= leave)
         return out
@@ -150,13 +153,17 @@ class Sightlines:
         outside = np.any(np.abs(cam_local) > solids.half + SOLID_DEPTH + 0.01, axis=-1)
         return centre, axes, cam_local, outside
 
+    def _ends(self, v_idx, g_idx, o_idx, p_idx) -> tuple[np.ndarray, np.ndarray]:
+        """Camera and end ``(N, 3)`` (scene frame) of the rays, a little beyond their points."""
+        cam = self.positions[v_idx]
+        return cam, cam + (self.pts[g_idx, o_idx, p_idx] - cam) * RAY_BEYOND
+
     def _own_entry(self, v_idx, g_idx, o_idx, p_idx) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Camera and end ``(N, 3)`` (scene frame) of the rays, and where they enter their object's
         box, 1 mm wider, as a fraction of their length ``(N,)``."""
-        cam = self.positions[v_idx]
-        end = cam + (self.pts[g_idx, o_idx, p_idx] - cam) * RAY_BEYOND
+        cam, end = self._ends(v_idx, g_idx, o_idx, p_idx)
         own = self.boxes[g_idx, self.indices[o_idx]][:, None]  # (N, 1, 2, 3)
-        return cam, end, segment_spans(cam, end, own[..., 0, :] - 1e-3, own[..., 1, :] + 1e-3)[0][:, 0]
+        return cam, end, segment_spans(cam, end, own[..., 0, :] - BOX_PAD, own[..., 1, :] + BOX_PAD)[0][:, 0]
 
     def hidden_before_box(self, sel: np.ndarray) -> np.ndarray:
         """The rays of ``sel`` that hit another body before they enter their object's box, 1 mm

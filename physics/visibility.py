@@ -249,10 +249,13 @@ def seen_points(worlds: list[World], cameras: list[Camera], indices, local_point
         clear = rays.clear(sel)
         seen += clear.sum(axis=-1)
         sel &= ~(clear | rays.hidden_by_solids(sel & ~clear))
+    def cast(mask: np.ndarray) -> np.ndarray:  # the ray tests, the caller told first what they may hit
+        if before_cast is not None and boxes is not None and mask.any():
+            before_cast(rays.reached(mask))
+        return rays.cast(mask)
+
     if required is None:
-        if before_cast is not None and boxes is not None and sel.any():
-            before_cast(rays.reached(sel))
-        return seen + rays.cast(sel).sum(axis=-1), counts
+        return seen + cast(sel).sum(axis=-1), counts
     required = np.asarray(required, dtype=int)
     while True:
         left = sel.sum(axis=-1)
@@ -264,9 +267,7 @@ def seen_points(worlds: list[World], cameras: list[Camera], indices, local_point
         k = np.where(open_, np.minimum(required - seen, left - (required - seen) + 1), 0)
         k = np.where(open_, left, 0) if left[open_].sum() <= LAST_ROUND_RAYS else k
         pick = sel & (np.cumsum(sel, axis=-1) <= k[..., None])
-        if before_cast is not None and boxes is not None:
-            before_cast(rays.reached(pick))
-        seen += rays.cast(pick).sum(axis=-1)
+        seen += cast(pick).sum(axis=-1)
         sel &= ~pick
 
 

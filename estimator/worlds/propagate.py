@@ -197,12 +197,12 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
             if woken and pw.contactless:  # contacts a freeze made Bullet forget: the boxes that touch
                 stale = pw.contactless if pw.contactless.isdisjoint(rows) else None
                 woken += [j for j in near(w, rows, 0.0) if (stale is None or j in stale) and j not in woken]
-            if True in reset_l[k]:  # (row_p: this world's centre-of-mass poses as lists, made once)
+            if True in reset_l[k]:
                 loads = [i for i in dyn if reset_l[k][i]]
                 if sleeping and n_steps > 0:
                     restart += restart_after_wake(w, asleep(w, [i for i in loads if speed_l[k][i]]), com_p[k],
                                                   com_v[k], dt, w0.settings.gravity)
-                row_p, row_v = com_p[k].tolist(), com_v[k].tolist()
+                row_p, row_v = com_p[k].tolist(), com_v[k].tolist()  # lists, once (also for the slept below)
                 w.load_com_state(loads, [row_p[i] for i in loads], [row_v[i] for i in loads])
             if woken:
                 wake(w, woken)

@@ -230,24 +230,20 @@ class _Shard:
                 self.groups[j].restore_state(sid)
                 self.groups[j].remove_state(sid)
 
-    def _ray_worlds(self, slots: list[int]) -> list[World]:
+    def _ray_worlds(self, slots: list[int], reached: np.ndarray | None = None) -> list[World]:
         """The worlds of ``slots``, ready for ray tests: what was frozen there is back in collision
-        detection (:meth:`~estimator.worlds.batch.ParticleWorld.thaw`; rays miss a body out of it)."""
-        for k in slots:
-            self.worlds[k].thaw()
-        return [self.worlds[k].world for k in slots]
-
-    def _thaw_reached(self, slots: list[int], reached: np.ndarray) -> None:
-        """Put back in collision detection the objects frozen in the worlds of ``slots`` that the
-        coming ray tests may hit: ``reached (len(slots), M)`` bool, the boxes their segments meet
-        (:meth:`~physics.sightlines.Sightlines.reached`). The others stay out: the rays cannot meet
-        them, and the next update need not freeze them again (a change of a body's collision filter
-        takes it out of Bullet's world and back in)."""
+        detection (:meth:`~estimator.worlds.batch.ParticleWorld.thaw`; rays miss a body out of it).
+        With ``reached (len(slots), M)`` bool, the boxes the coming rays' segments meet
+        (:meth:`~physics.sightlines.Sightlines.reached`), only the objects it marks: the rays cannot
+        hit the others, which stay out, and the next update need not freeze them again (a change of
+        a body's collision filter takes it out of Bullet's world and back in)."""
         for j, k in enumerate(slots):
             pw = self.worlds[k]
-            if pw.frozen:
-                row = reached[j]
-                pw.thaw([i for i in pw.frozen if row[i]])
+            if reached is None:
+                pw.thaw()
+            elif pw.frozen:
+                pw.thaw([i for i in pw.frozen if reached[j, i]])
+        return [self.worlds[k].world for k in slots]
 
     def _visibility(self, camera: Camera, poses: np.ndarray, finite: np.ndarray, q: np.ndarray,
                     slots: list[int], boxes: np.ndarray | None = None) -> np.ndarray:
@@ -259,7 +255,7 @@ class _Shard:
         last ray tests when it has not moved (bit for bit) and nothing that moved since came near its
         rays (:func:`~physics.visibility.rays_clear_of`): most of a resting scene casts no ray. With
         ``boxes``, of the objects frozen in a world only those the rays to be cast may hit are put
-        back in collision detection (:meth:`_thaw_reached`); without, all of them."""
+        back in collision detection (:meth:`_ray_worlds`); without, all of them."""
         key = camera_key(camera.spec)
         cache = self._vis_caches.pop(key, {})
         self._vis_caches[key] = cache  # the most recent last
@@ -290,7 +286,7 @@ class _Shard:
             if boxes is not None:  # the frozen objects the rays may meet are put back before they are cast
                 convex = np.array([self.scene.objects[int(i)].shape in CONVEX_SHAPES for i in q])
                 shortcuts = dict(boxes=boxes[todo], convex=convex, solids=Solids.posed(self.solids, poses[todo]),
-                                 before_cast=lambda reached: self._thaw_reached(ray_slots, reached))
+                                 before_cast=lambda reached: self._ray_worlds(ray_slots, reached))
                 worlds = [self.worlds[k].world for k in ray_slots]
             else:
                 worlds = self._ray_worlds(ray_slots)
