@@ -1,4 +1,5 @@
 """The command line end to end."""
+import argparse
 import dataclasses
 import json
 import os
@@ -542,3 +543,43 @@ def test_run_with_an_adaptive_particle_count_reports_k_per_estimate(files, capsy
     assert main(["run", "--scene", str(scene), "--observations", str(obs), "--particles", "32",
                  "--max-particles", "64"]) == 2
     assert "go with --particles auto" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, starts", [
+    (["run", "--scene", "s.yaml", "--particles", "64"], True),
+    (["bench", "--scenario", "all"], True),
+    (["ros", "--scene", "s.yaml"], True),
+    (["run", "--scene", "s.yaml", "--workers", "0"], False),
+    (["run", "--workers=0", "--scene", "s.yaml"], False),
+    (["run", "--scene", "s.yaml", "--workers", "2"], True),
+    (["simulate", "cluttered_table"], False),
+    (["evaluate", "--scenarios", "all"], False),
+    ([], False)])
+def test_commands_that_build_worlds_in_workers_start_their_fork_server_first(monkeypatch, argv, starts):
+    import estimator.worlds.processes as processes
+    from experiments.cli import _start_worker_server
+
+    calls = []
+    monkeypatch.setattr(processes, "start_worker_server", lambda: calls.append(1))
+    _start_worker_server(argv)
+    assert calls == ([1] if starts else [])
+
+
+def test_a_command_imports_its_own_code_and_the_help_lists_every_command():
+    code = ("import sys, contextlib, io\n"
+            "from experiments.cli import main\n"
+            "with contextlib.redirect_stdout(io.StringIO()):\n"
+            "    main(['config', '--particles', '4', '--json'])\n"
+            "print(' '.join(sorted(m for m in sys.modules if m.startswith('experiments.cli.'))))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert "experiments.cli.run" in out  # config's own module
+    assert not {"experiments.cli.search_eval", "experiments.cli.fit", "experiments.cli.evaluate"} & set(out)
+    from experiments.cli import COMMANDS, build_parser
+
+    text = subprocess.run([sys.executable, "-m", "experiments.cli", "--help"], capture_output=True, text=True,
+                          check=True).stdout
+    assert all(name in text for name, *_ in COMMANDS)
+    full = build_parser()  # every command with its arguments (the documentation's)
+    sub = next(a for a in full._actions if isinstance(a, argparse._SubParsersAction))
+    assert set(sub.choices) == {name for name, *_ in COMMANDS}
+    assert all(len(p._actions) > 1 for p in sub.choices.values())  # more than --help each

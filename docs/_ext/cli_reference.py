@@ -9,9 +9,9 @@ Usage in a MyST page::
     ```{cli-reference} run
     ```
 
-The parser is built inside :func:`experiments.cli.main`; the directive runs ``main`` with
-``ArgumentParser.parse_args`` replaced, for that call only, by one that hands the fully built parser
-back instead of parsing (nothing is run).
+The parser is :func:`experiments.cli.build_parser` with every subcommand's arguments, the one
+``main`` builds (``main`` adds only the invoked subcommand's, so that a command imports only its own
+code; nothing is run).
 """
 from __future__ import annotations
 
@@ -21,29 +21,11 @@ from docutils import nodes
 from docutils.parsers.rst import Directive
 
 
-class _Captured(Exception):
-    def __init__(self, parser: argparse.ArgumentParser):
-        super().__init__("parser captured")
-        self.parser = parser
-
-
 def build_parser() -> argparse.ArgumentParser:
-    """The ``scene-estimator`` parser with every subcommand, as ``main`` builds it."""
-    import experiments.cli as cli
+    """The ``scene-estimator`` parser with every subcommand and its arguments."""
+    from experiments.cli import build_parser as cli_parser
 
-    original = argparse.ArgumentParser.parse_args
-
-    def capture(self, *args, **kwargs):
-        raise _Captured(self)
-
-    argparse.ArgumentParser.parse_args = capture
-    try:
-        cli.main([])
-    except _Captured as done:
-        return done.parser
-    finally:
-        argparse.ArgumentParser.parse_args = original
-    raise RuntimeError("experiments.cli.main returned without parsing its arguments")
+    return cli_parser(every=True)
 
 
 def subcommands(parser: argparse.ArgumentParser) -> dict[str, tuple[str, argparse.ArgumentParser]]:

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import multiprocessing as mp
 import time
 
 import numpy as np
@@ -25,6 +24,7 @@ from physics.visibility import first_copies
 from physics.world import PhysicsSettings
 
 from .batch import PER_PARTICLE, BatchInput, BatchOutput
+from .processes import worker_context
 from .shard import _Shard, _worker_main
 from .shared_batch import SharedBatch
 from .world_cache import WorldCache
@@ -103,7 +103,7 @@ class WorldPool:
             self._local = _Shard(scene, settings, self.groups, self._used)
             self.initial_params, self.scene_boxes = self._local.initial_params(), self._local.scene_boxes
             return
-        self._ctx = mp.get_context("spawn")
+        self._ctx = worker_context()  # forked from a server that has the worker's imports (processes)
         self._runs = [self.groups[a:b] for a, b in shard_bounds(len(self.groups), workers)]
         self._bounds = [(run[0][0], run[-1][1]) for run in self._runs]
         self._buffer = self._ctx.RawArray("b", SharedBatch.nbytes(n_slots, len(scene.objects)))

@@ -11,61 +11,83 @@ rospy).
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
 import sys
 
+WORKER_COMMANDS = frozenset({"run", "bench", "track", "search", "ros"})
+"""The commands whose particle worlds run in worker processes unless ``--workers 0`` (by default one
+per core when there is more than one particle)."""
 
-def main(argv: list[str] | None = None) -> int:
-    from experiments.streams import EXIT_SIGINT, EXIT_SIGTERM, Terminated, silence_stdout
 
+def _command(argv: list[str]) -> str | None:
+    """The subcommand named by ``argv`` (its first word not an option: the top-level parser has no
+    option but ``--help``), or None."""
+    return next((a for a in argv if not a.startswith("-")), None)
+
+
+def _start_worker_server(argv: list[str]) -> None:
+    """For a command of :data:`WORKER_COMMANDS`, start the server its workers are forked from
+    (:func:`estimator.worlds.processes.start_worker_server`) before the command's own imports, which
+    it then runs beside. With ``--workers 0``, or without workers at all (one particle), the server
+    only idles; it ends with the command."""
+    if _command(argv) not in WORKER_COMMANDS:
+        return
+    for a, b in zip(argv, argv[1:] + [""]):
+        if a == "--workers=0" or (a == "--workers" and b == "0"):
+            return
+    from estimator.worlds.processes import start_worker_server
+
+    start_worker_server()
+
+
+COMMANDS: tuple[tuple[str, str, str, str, str], ...] = (
+    ("run", "estimate a recorded observation stream", "run", "add_run_arguments", "cmd_run"),
+    ("config", "print the estimator configuration (all fields) that `run` would use", "run",
+     "add_config_arguments", "cmd_config"),
+    ("demo", "run the built-in example", "demo", "add_demo_arguments", "run_demo"),
+    ("simulate", "simulate a scenario with ground truth", "simulate", "add_simulate_arguments", "run_simulate"),
+    ("evaluate", "statistical evaluation over scenarios, seeds and methods", "evaluate", "add_evaluate_arguments",
+     "run_evaluate"),
+    ("bench", "update time against bare pybullet stepping", "bench", "add_bench_arguments", "run_bench"),
+    ("track", "Kalman pose tracker over a stream, kept alive by the estimator with --feedback", "track",
+     "add_track_arguments", "run_track"),
+    ("fit-priors", "fit the held-object priors (with --regions: the position regions) on simulated "
+     "scenarios (seeds 100-119)", "fit", "add_fit_arguments", "run_fit"),
+    ("predictability", "which scenarios let anyone say where their objects end, to 5 cm (twins moved "
+     "by the tracker's noise at each object's last sighting, its parameters drawn again)", "predictability",
+     "add_predictability_arguments", "run_predictability"),
+    ("search", "where to look first for a hidden object: ranked places and a look plan", "search",
+     "add_search_arguments", "run_search"),
+    ("search-eval", "the search experiment: a simulated robot camera looks for hidden objects, by method",
+     "search_eval", "add_search_eval_arguments", "run_search_eval"),
+    ("ros", "a live ROS 1 node: perception topics in (as `run --bag --topics`), estimates out (TF, poses "
+     "with covariance, RViz markers, the estimate line); needs rospy", "ros", "add_ros_arguments", "run_ros"))
+"""Each subcommand: (name, one-line help, its module in ``experiments.cli``, the function that adds
+its arguments, the function that runs it)."""
+
+
+def build_parser(command: str | None = None, every: bool = True) -> argparse.ArgumentParser:
+    """The ``scene-estimator`` parser. Every subcommand is listed; the arguments are added (and the
+    subcommand's module imported) for every one with ``every``, else only for ``command`` (a
+    subcommand's name, or None for none): a command imports its own code, not all of the others'."""
     parser = argparse.ArgumentParser(prog="scene-estimator", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
-    from experiments.cli.common import add_estimator_arguments
-    from experiments.cli.run import add_run_arguments, cmd_config, cmd_run
-
-    p_run = sub.add_parser("run", help="estimate a recorded observation stream")
-    add_run_arguments(p_run)
-    p_run.set_defaults(func=cmd_run)
-    p_cfg = sub.add_parser("config", help="print the estimator configuration (all fields) that `run` would use")
-    add_estimator_arguments(p_cfg)
-    p_cfg.add_argument("--json", action="store_true", help="JSON instead of YAML")
-    p_cfg.set_defaults(func=cmd_config)
-    from experiments.cli.demo import add_demo_arguments, run_demo
-
-    p_demo = sub.add_parser("demo", help="run the built-in example")
-    add_demo_arguments(p_demo)
-    p_demo.set_defaults(func=run_demo)
-    from experiments.cli.bench import add_bench_arguments, run_bench
-    from experiments.cli.evaluate import add_evaluate_arguments, run_evaluate
-    from experiments.cli.fit import add_fit_arguments, run_fit
-    from experiments.cli.predictability import add_predictability_arguments, run_predictability
-    from experiments.cli.ros import add_ros_arguments, run_ros
-    from experiments.cli.search import add_search_arguments, run_search
-    from experiments.cli.search_eval import add_search_eval_arguments, run_search_eval
-    from experiments.cli.simulate import add_simulate_arguments, run_simulate
-    from experiments.cli.track import add_track_arguments, run_track
-
-    for name, text, add, run in [
-            ("simulate", "simulate a scenario with ground truth", add_simulate_arguments, run_simulate),
-            ("evaluate", "statistical evaluation over scenarios, seeds and methods", add_evaluate_arguments,
-             run_evaluate),
-            ("bench", "update time against bare pybullet stepping", add_bench_arguments, run_bench),
-            ("track", "Kalman pose tracker over a stream, kept alive by the estimator with --feedback",
-             add_track_arguments, run_track),
-            ("fit-priors", "fit the held-object priors (with --regions: the position regions) on simulated "
-             "scenarios (seeds 100-119)", add_fit_arguments, run_fit),
-            ("predictability", "which scenarios let anyone say where their objects end, to 5 cm (twins moved "
-             "by the tracker's noise at each object's last sighting, its parameters drawn again)",
-             add_predictability_arguments, run_predictability),
-            ("search", "where to look first for a hidden object: ranked places and a look plan",
-             add_search_arguments, run_search),
-            ("search-eval", "the search experiment: a simulated robot camera looks for hidden objects, by method",
-             add_search_eval_arguments, run_search_eval),
-            ("ros", "a live ROS 1 node: perception topics in (as `run --bag --topics`), estimates out (TF, poses "
-             "with covariance, RViz markers, the estimate line); needs rospy", add_ros_arguments, run_ros)]:
+    for name, text, module, add, run in COMMANDS:
         p_sub = sub.add_parser(name, help=text)
-        add(p_sub)
-        p_sub.set_defaults(func=run)
+        if every or name == command:
+            mod = importlib.import_module(f"experiments.cli.{module}")
+            getattr(mod, add)(p_sub)
+            p_sub.set_defaults(func=getattr(mod, run))
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    _start_worker_server(argv)
+    from experiments.streams import EXIT_SIGINT, EXIT_SIGTERM, Terminated, silence_stdout
+
+    parser = build_parser(_command(argv), every=False)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s: %(message)s")
     try:

@@ -375,6 +375,12 @@ def cmd_run(args) -> int:
     return 0
 
 
+def add_config_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``config``: the estimator's, as ``run`` takes them, and ``--json``."""
+    add_estimator_arguments(p)
+    p.add_argument("--json", action="store_true", help="JSON instead of YAML")
+
+
 def cmd_config(args) -> int:
     """Print the effective estimator configuration (every field) as YAML, or JSON with --json."""
     cfg = build_config(args)
