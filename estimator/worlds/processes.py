@@ -4,9 +4,9 @@ Where the platform has it (Linux, macOS), a worker is forked from multiprocessin
 single-threaded process that has imported the worker's code (:data:`WORKER_MODULES`: numpy, pybullet,
 the worlds) once. A worker then starts building within a few tens of milliseconds of the pool's
 construction, where a spawned one first spends 0.3-0.4 s (two at once on two cores, measured here)
-in a fresh interpreter importing that code. The server is forked
-from nothing but itself, so the caller's threads (a ROS node's, a live viewer's) are never forked;
-it ends when the process that started it ends. Elsewhere (Windows) workers are spawned.
+in a fresh interpreter importing that code. The server is forked from nothing but itself, so the
+caller's threads (a ROS node's, a live viewer's) are never forked; it ends when the process that
+started it ends. Elsewhere (Windows) workers are spawned.
 
 :func:`start_worker_server` starts the server ahead of time, so that its imports run while the caller
 does its own start-up (the command line calls it first thing for the commands that build worlds in
