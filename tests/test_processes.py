@@ -1,5 +1,6 @@
 import multiprocessing as mp
 import os
+import subprocess
 import sys
 
 import numpy as np
@@ -72,5 +73,5 @@ def test_this_module_imports_nothing_heavy():
     """The command line imports it before its own imports: it must not bring numpy or pybullet in."""
     code = ("import sys; import estimator.worlds.processes; "
             "print(' '.join(m for m in ('numpy', 'pybullet', 'physics') if m in sys.modules))")
-    out = os.popen(f"{sys.executable} -c \"{code}\"").read().strip()
-    assert out == ""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == ""

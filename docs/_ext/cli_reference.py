@@ -9,9 +9,9 @@ Usage in a MyST page::
     ```{cli-reference} run
     ```
 
-The parser is :func:`experiments.cli.build_parser` with every subcommand's arguments, the one
-``main`` builds (``main`` adds only the invoked subcommand's, so that a command imports only its own
-code; nothing is run).
+The parser is :func:`experiments.cli.build_parser` with every subcommand's arguments (``main``
+builds it with the invoked subcommand's only, so that a command imports only its own code); nothing
+is run.
 """
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ def build_parser() -> argparse.ArgumentParser:
     """The ``scene-estimator`` parser with every subcommand and its arguments."""
     from experiments.cli import build_parser as cli_parser
 
-    return cli_parser(every=True)
+    return cli_parser()
 
 
 def subcommands(parser: argparse.ArgumentParser) -> dict[str, tuple[str, argparse.ArgumentParser]]:

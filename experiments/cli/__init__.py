@@ -14,6 +14,7 @@ import argparse
 import importlib
 import logging
 import sys
+from typing import Iterable
 
 WORKER_COMMANDS = frozenset({"run", "bench", "track", "search", "ros"})
 """The commands whose particle worlds run in worker processes unless ``--workers 0`` (by default one
@@ -67,15 +68,16 @@ COMMANDS: tuple[tuple[str, str, str, str, str], ...] = (
 its arguments, the function that runs it)."""
 
 
-def build_parser(command: str | None = None, every: bool = True) -> argparse.ArgumentParser:
-    """The ``scene-estimator`` parser. Every subcommand is listed; the arguments are added (and the
-    subcommand's module imported) for every one with ``every``, else only for ``command`` (a
-    subcommand's name, or None for none): a command imports its own code, not all of the others'."""
+def build_parser(commands: Iterable[str] | None = None) -> argparse.ArgumentParser:
+    """The ``scene-estimator`` parser. Every subcommand is listed; its arguments are added, and its
+    module imported, for those named in ``commands`` (default: all). ``main`` names only the one
+    invoked: a command imports its own code, not all of the others'."""
+    chosen = None if commands is None else set(commands)
     parser = argparse.ArgumentParser(prog="scene-estimator", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     for name, text, module, add, run in COMMANDS:
         p_sub = sub.add_parser(name, help=text)
-        if every or name == command:
+        if chosen is None or name in chosen:
             mod = importlib.import_module(f"experiments.cli.{module}")
             getattr(mod, add)(p_sub)
             p_sub.set_defaults(func=getattr(mod, run))
@@ -87,7 +89,8 @@ def main(argv: list[str] | None = None) -> int:
     _start_worker_server(argv)
     from experiments.streams import EXIT_SIGINT, EXIT_SIGTERM, Terminated, silence_stdout
 
-    parser = build_parser(_command(argv), every=False)
+    command = _command(argv)
+    parser = build_parser([command] if command else [])
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s: %(message)s")
     try:
