@@ -83,10 +83,11 @@ def collision_shape(client: int, spec: ObjectSpec) -> int:
 
 
 def apply_dynamics(client: int, uid: int, friction: float | None, rolling: float | None,
-                   spinning: float | None, restitution: float | None) -> None:
-    """Set lateral / rolling / spinning friction and restitution of body ``uid``; None keeps one."""
+                   spinning: float | None, restitution: float | None, mass: float | None = None) -> None:
+    """Set lateral / rolling / spinning friction, restitution and mass (kg) of body ``uid`` in one
+    ``changeDynamics`` call (the state one call per kind gives); None keeps one."""
     values = {"lateralFriction": friction, "rollingFriction": rolling, "spinningFriction": spinning,
-              "restitution": restitution}
+              "restitution": restitution, "mass": mass}
     kw = {k: float(v) for k, v in values.items() if v is not None}
     if kw:
         pb.changeDynamics(uid, -1, physicsClientId=client, **kw)

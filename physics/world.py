@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 import pybullet as pb
 
-from .bodies import create_body
+from .bodies import apply_dynamics, create_body
 from .rays import ray_cast
 from .scene import ObjectSpec, Scene
 from .settings import PhysicsSettings, connect
@@ -343,12 +343,9 @@ class World:
                      rolling_friction: float | None = None, spinning_friction: float | None = None,
                      restitution: float | None = None, mass: float | None = None) -> None:
         """Change physical parameters of object ``index``; ``None`` leaves a parameter unchanged."""
-        values = (("lateralFriction", lateral_friction), ("rollingFriction", rolling_friction),
-                  ("spinningFriction", spinning_friction), ("restitution", restitution),
-                  ("mass", None if self.static[index] else mass))
-        kw = {k: float(v) for k, v in values if v is not None}
-        if kw:  # one call (the hot path of a particle's parameters): the same state as one per kind
-            pb.changeDynamics(self.uids[index], -1, physicsClientId=self.client, **kw)
+        # one call (the hot path of a particle's parameters); a static object keeps its zero mass
+        apply_dynamics(self.client, self.uids[index], lateral_friction, rolling_friction, spinning_friction,
+                       restitution, mass=None if self.static[index] else mass)
 
     def get_dynamics(self, index: int) -> dict[str, float]:
         """Mass (kg), lateral / rolling / spinning friction and restitution of object ``index``."""

@@ -33,10 +33,11 @@ def _servers() -> list[psutil.Process]:
 
 
 def test_the_start_method_is_the_fork_server_where_the_platform_has_one():
-    expected = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
-    assert start_method() == expected
-    assert worker_context().get_start_method() == expected
-    assert "estimator.worlds.shard" in WORKER_MODULES  # the workers' entry point is imported once, by the server
+    if sys.platform.startswith("linux"):  # Linux always has one
+        assert start_method() == "forkserver"
+    assert start_method() in mp.get_all_start_methods()
+    assert worker_context().get_start_method() == start_method()
+    assert pool_module._worker_main.__module__ in WORKER_MODULES  # the workers' entry point, imported by the server
 
 
 @pytest.mark.skipif(start_method() != "forkserver", reason="this platform spawns its workers")

@@ -21,13 +21,6 @@ from docutils import nodes
 from docutils.parsers.rst import Directive
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The ``scene-estimator`` parser with every subcommand and its arguments."""
-    from experiments.cli import build_parser as cli_parser
-
-    return cli_parser()
-
-
 def subcommands(parser: argparse.ArgumentParser) -> dict[str, tuple[str, argparse.ArgumentParser]]:
     """name -> (one-line help, subparser), in the order ``main`` adds them."""
     out = {}
@@ -123,6 +116,8 @@ class CliReference(Directive):
     has_content = False
 
     def run(self):
+        from experiments.cli import build_parser
+
         parser = build_parser()
         subs = subcommands(parser)
         names = self.arguments or list(subs)

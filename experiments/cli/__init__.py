@@ -30,8 +30,8 @@ def _command(argv: list[str]) -> str | None:
 def _start_worker_server(argv: list[str]) -> None:
     """For a command of :data:`WORKER_COMMANDS`, start the server its workers are forked from
     (:func:`estimator.worlds.processes.start_worker_server`) before the command's own imports, which
-    it then runs beside. With ``--workers 0``, or without workers at all (one particle), the server
-    only idles; it ends with the command."""
+    it then runs beside; not with ``--workers 0`` (``--workers=0``). A command that turns out to
+    have no workers (one particle) leaves the server idle; it ends with the command."""
     if _command(argv) not in WORKER_COMMANDS:
         return
     for a, b in zip(argv, argv[1:] + [""]):
