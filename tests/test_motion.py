@@ -81,6 +81,38 @@ def test_a_teleported_container_carries_its_contents_and_a_held_one_leaves_them_
     assert np.all(vel[:, 1, :3] == 0.0)  # paper mode: teleported at rest, contents too
 
 
+
+def test_each_particle_carries_only_what_its_own_containers_hold():
+    """Two boxes (objects 0 and 1) teleported at once, 5 cm and 10 cm along x; what is in them
+    differs per particle: in particle 0 the ball (2) is in box 0, in particle 1 the cube (3) is in
+    box 1 and the ball in box 0, in particle 2 nothing is in anything. A teleported object is
+    never carried (box 1 in box 0 in particle 2 stays where its own teleport puts it). Each content
+    moves with its own particle's container, and only there."""
+    K, M = 3, 4
+    poses = np.zeros((K, M, 7))
+    poses[..., 6] = 1.0
+    poses[:, 2, :3] = [0.01, 0.0, 0.02]
+    poses[:, 3, :3] = [0.5, 0.0, 0.02]
+    vel = np.zeros((K, M, 6))
+    is_in = np.zeros((K, M, M), bool)
+    is_in[0, 2, 0] = True
+    is_in[1, 2, 0] = is_in[1, 3, 1] = True
+    is_in[2, 1, 0] = True
+    positions = np.array([[0.05, 0.0, 0.0], [0.6, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    poses[:, 1, :3] = [0.5, 0.0, 0.0]
+    gliding = np.zeros((K, M), bool)
+    gliding[1, 1] = True  # box 1 held in particle 1: the cube keeps its velocity
+    vel[:, 3, :3] = [0.0, 0.2, 0.0]
+    perc_vel = np.array([[0.3, 0.0, 0.0], [0.0, 0.4, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    place(poses, vel, np.array([0, 1]), np.zeros(M, bool), is_in, positions, np.tile([0.0, 0.0, 0.0, 1.0], (M, 1)),
+          np.zeros(M, bool), perc_vel, NoiseConfig.off(), np.random.default_rng(0), gliding=gliding)
+    assert np.allclose(poses[:, 0, :3], [0.05, 0.0, 0.0]) and np.allclose(poses[:, 1, :3], [0.6, 0.0, 0.0])
+    assert np.allclose(poses[[0, 1], 2, :3], [0.06, 0.0, 0.02]) and np.allclose(poses[2, 2, :3], [0.01, 0.0, 0.02])
+    assert np.allclose(poses[1, 3, :3], [0.6, 0.0, 0.02]) and np.allclose(poses[[0, 2], 3, :3], [0.5, 0.0, 0.02])
+    assert np.allclose(vel[[0, 1], 2, :3], [0.3, 0.0, 0.0]) and np.all(vel[2, 2] == 0.0)
+    assert np.allclose(vel[:, 3, :3], [0.0, 0.2, 0.0])  # carried while gliding in particle 1, elsewhere not at all
+    assert np.allclose(vel[:, 1, :3], [0.0, 0.4, 0.0])  # teleported itself: its own perceived velocity
+
 def test_objects_teleported_in_motion_get_their_velocity_error_per_particle():
     """``vel_std`` (m/s) spreads the horizontal velocity of objects teleported in motion, per axis
     within the chi-square 3-sigma band of 4000 particles, around the perceived velocity (mean within

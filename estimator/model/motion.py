@@ -93,16 +93,17 @@ def place(poses: np.ndarray, vel: np.ndarray, idx: np.ndarray, newly_known: np.n
         flat = level[idx]
         new[:, flat, 2], new[:, flat, 3:] = poses[:, idx[flat], 2], poses[:, idx[flat], 3:]
         drawn[:, flat, 2] = 0.0
-    moved = set(int(i) for i in idx)
-    for j, b in enumerate(idx):
+    placed = np.zeros(poses.shape[1], dtype=bool)
+    placed[idx] = True
+    for j, b in enumerate(np.asarray(idx).tolist()):  # one container at a time, all particles at once
         if newly_known[b]:
             continue
-        for k in range(K):
-            children = [a for a in np.flatnonzero(is_in[k, :, b]) if a not in moved]
-            if children:
-                poses[k, children] = carry_pose(poses[k, children], poses[k, b], new[k, j])
-                if gliding is None or not gliding[k, b]:  # a held container glides on: what it carries
-                    vel[k, children, :3] = perc_vel[b, :3]  # keeps its own velocity (it lags, rolls)
+        kk, aa = np.nonzero(is_in[:, :, b] & ~placed)  # its contents not placed themselves
+        if len(kk):
+            poses[kk, aa] = carry_pose(poses[kk, aa], poses[kk, b], new[kk, j])
+            free = np.ones(len(kk), dtype=bool) if gliding is None else ~gliding[kk, b]
+            # a held container glides on: what it carries keeps its own velocity (it lags, rolls)
+            vel[kk[free], aa[free], :3] = perc_vel[b, :3]
     poses[:, idx] = new
     spin = vel[:, idx, 3:].copy()
     vel[:, idx] = 0.0
