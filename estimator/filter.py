@@ -264,9 +264,9 @@ class SceneEstimator:
         anc = keep_survivors_in_place(systematic_resample(weights, self.rng, n))
         own, kernels = self.model.before_resampling(self.state, settled, perceived, weights)
         before, self.state = self.state, self.state.take(anc, own)
-        self.model.after_resampling(self.state, kernels, self.rng)
+        slid = self.model.after_resampling(self.state, kernels, self.rng)
         # (slots beyond n: the pool parks their worlds at its next run)
-        self.pool.follow(anc, self.model.carried_at_rest(before, self.state, anc, own, self.pool.scene_boxes))
+        self.pool.follow(anc, self.model.carried_at_rest(before, self.state, anc, own, self.pool.scene_boxes, slid))
 
     def _reseed(self, bad: np.ndarray, weights: np.ndarray) -> None:
         """Particles ``bad (K,)`` take the state (and weight) of survivors drawn by ``weights (K,)``

@@ -83,19 +83,24 @@ class StaticGeometry:
         self.close()
 
     # -- queries --------------------------------------------------------------------------------------
+    def box(self, m: int, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A box ``lo, hi (N, 3)`` (m) that holds dynamic object ``m`` at each of the link-frame
+        ``poses (N, 7)``: its link-frame box turned with the pose (the box of its eight corners),
+        or for a sphere its own box."""
+        centre, half = self._local[m]
+        poses = np.asarray(poses, dtype=float).reshape(-1, 7)
+        if self._round[m]:
+            return poses[:, :3] + centre - half, poses[:, :3] + centre + half
+        R = quat_to_matrix(poses[:, 3:])  # (N, 3, 3)
+        mid = poses[:, :3] + R @ centre
+        ext = np.abs(R) @ half
+        return mid - ext, mid + ext
+
     def _candidates(self, m: int, poses: np.ndarray, margin: float = 0.0) -> np.ndarray:
         """``(N, S)`` bool: which static bodies, their boxes shrunk by ``margin`` (m), the box of object
-        ``m`` at ``poses (N, 7)`` overlaps (its link-frame box turned with the pose, or for a sphere
-        its own box: a superset of the bodies it is more than ``margin`` deep into)."""
-        centre, half = self._local[m]
-        if self._round[m]:
-            lo = poses[:, :3] + centre - half
-            hi = poses[:, :3] + centre + half
-        else:  # the box turned: centre R c, half extents |R| h (the box of its eight corners)
-            R = quat_to_matrix(poses[:, 3:])  # (N, 3, 3)
-            mid = poses[:, :3] + R @ centre
-            ext = np.abs(R) @ half
-            lo, hi = mid - ext, mid + ext
+        ``m`` at ``poses (N, 7)`` overlaps (:meth:`box`: a superset of the bodies it is more than
+        ``margin`` deep into)."""
+        lo, hi = self.box(m, poses)
         return np.all((lo[:, None, :] <= self._static_hi[None] - margin)
                       & (hi[:, None, :] >= self._static_lo[None] + margin), axis=2)
 
@@ -271,6 +276,40 @@ class StaticGeometry:
                 pushed[key] = self._push_out(m, poses[r])
             poses[r] = pushed[key]
         return poses, deep
+
+    def static_top(self, bodies) -> np.ndarray:
+        """Heights (m) of the tops of the boxes of the static bodies ``bodies`` (indices into
+        :attr:`static_uids`; the floor's is 0)."""
+        return self._static_hi[np.asarray(bodies, dtype=int), 2]
+
+    def near_static(self, m: int, poses: np.ndarray, margin: float) -> np.ndarray:
+        """``(N, S)`` bool: the static bodies whose boxes come within ``margin`` (m) of the box of
+        dynamic object ``m`` (:meth:`box`) at each of the link-frame ``poses (N, 7)``."""
+        return self._candidates(m, np.asarray(poses, dtype=float).reshape(-1, 7), -margin)
+
+    def under(self, m: int, poses: np.ndarray, reach: float) -> np.ndarray:
+        """What static geometry holds dynamic object ``m`` up at each of the link-frame ``poses (N,
+        7)``: rays straight down from the top of its box (:meth:`box`), at the box's centre and its
+        four corners, to ``reach`` (m) under its bottom. ``(N, 5, 5)``: per pose and ray, ``[static
+        body (its index in :attr:`static_uids`; -1: none within reach), height of the hit (m), normal
+        there (3)]`` (NaN where none). The dynamic objects' copies are parked far away: only static
+        bodies are hit."""
+        lo, hi = self.box(m, poses)
+        mid = 0.5 * (lo + hi)
+        xy = np.stack([mid[:, :2], lo[:, :2], np.stack([lo[:, 0], hi[:, 1]], axis=-1),
+                       np.stack([hi[:, 0], lo[:, 1]], axis=-1), hi[:, :2]], axis=1)  # (N, 5, 2)
+        n = len(lo)
+        top = np.broadcast_to(hi[:, None, 2:], (n, 5, 1))
+        bottom = np.broadcast_to(lo[:, None, 2:] - reach, (n, 5, 1))
+        starts = np.concatenate([xy, top], axis=-1).reshape(-1, 3).tolist()
+        ends = np.concatenate([xy, bottom], axis=-1).reshape(-1, 3).tolist()
+        index = {u: i for i, u in enumerate(self.static_uids)}
+        out = np.full((n * 5, 5), np.nan)
+        out[:, 0] = -1
+        for r, hit in enumerate(pb.rayTestBatch(starts, ends, physicsClientId=self.world.client)):
+            if hit[0] in index:
+                out[r] = [index[hit[0]], hit[3][2], *hit[4]]
+        return out.reshape(n, 5, 5)
 
     def _push_out(self, m: int, pose: np.ndarray, rounds: int = 3) -> np.ndarray:
         """``pose (7,)`` moved out of the static geometry it is inside of, along the deepest contact's

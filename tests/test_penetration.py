@@ -144,3 +144,26 @@ def test_a_depth_asked_again_is_remembered_not_measured_again(monkeypatch):
         n = len(calls)
         shared = np.repeat(ducks[deep:deep + 1] + [0.002, 0, 0, 0, 0, 0, 0], 30, axis=0)
         assert np.array_equal(g.depth_of(3, shared), np.full(30, once[0])) and len(calls) - n == one_query
+
+
+def test_what_holds_an_object_up_moves_with_it_along_a_flat_top_only(geometry):
+    """The box resting on the table URDF's top (1.5 m x 1 m): the rays under its box's centre and
+    corners all meet the table at its top with the normal up, slid 5 cm along the top as well.
+    Half over the table's edge (x = 0.75 m, the box's centre 1 cm in), two corners find nothing
+    within reach. The table's box reaches a millimetre above its top; the only static body near
+    the box is the table, and none near it high in the air."""
+    rest = TABLE_TOP + 0.02
+    at = poses([0.2, 0.1, rest], [0.25, 0.1, rest], [0.74, 0.1, rest], [0.2, 0.1, rest + 0.5])
+    under = geometry.under(2, at, 0.02)
+    assert under.shape == (4, 5, 5)
+    table = geometry.static_uids.index(geometry.world.uids[0])
+    assert np.all(under[:2, :, 0] == table)
+    assert np.allclose(under[:2, :, 1], TABLE_TOP, atol=1e-6) and np.allclose(under[:2, :, 2:], [0, 0, 1], atol=1e-9)
+    assert np.all(under[2, [0, 1, 2], 0] == table) and np.all(under[2, [3, 4], 0] == -1)  # the corners past x = 0.75
+    assert np.all(np.isnan(under[2, [3, 4], 1:])) and np.all(under[3, :, 0] == -1)
+    assert 0.0 <= geometry.static_top([table])[0] - TABLE_TOP <= 0.002
+    near = geometry.near_static(2, at, 0.02)
+    assert near.shape == (4, len(geometry.static_uids))
+    assert np.all(near[:3, table]) and near[:3].sum() == 3 and not near[3].any()
+    lo, hi = geometry.box(2, at[:1])
+    assert np.allclose(lo, [[0.15, 0.07, TABLE_TOP]]) and np.allclose(hi, [[0.25, 0.13, TABLE_TOP + 0.04]])

@@ -5,7 +5,13 @@ import pytest
 from actions.modes import HELD
 from estimator.config import EstimatorConfig, NoiseConfig
 from estimator.model.params import param_bounds
-from estimator.model.regularisation import bounding_radii, carried_at_rest, regularisation_kernels, regularise
+from estimator.model.regularisation import (
+    bounding_radii,
+    carried_at_rest,
+    regularisation_kernels,
+    regularise,
+    slid_at_rest,
+)
 from model_helpers import BALL, CRATE, CUP, MYSTERY, TABLE, make
 
 
@@ -97,3 +103,57 @@ def test_an_object_kept_by_its_particle_is_carried_at_rest_with_its_level_suppor
     assert mask[:, BALL].tolist() == [True, True, False, False, False, True]
     assert mask[:, [TABLE, CRATE, CUP, MYSTERY]].sum() == 0
     assert carried_at_rest(model, st, after, anc, np.zeros(5, bool), radii) is None
+
+
+def test_a_hidden_object_slid_along_a_flat_static_top_at_rest_counts_as_at_rest_there():
+    """The cup stands alone on the table (a static box) in six particles, each moved to another
+    place. Only the one slid 6 mm along the top (its height 2 micrometres off, within the
+    tolerance) slid at rest. Not the one moved half over the table's edge (the table no longer
+    holds it up under two corners of its box), the one moving, the one moved within 2 cm of the
+    crate, the one turned, the one raised 1 mm."""
+    model = make(EstimatorConfig(particles=6))
+    assert model.geometry is not None
+    st = model.initial_state(np.random.default_rng(0))
+    st.velocities[:] = 0.0
+    st.on_top[:], st.is_in[:] = False, False
+    st.on_top[:, CUP, TABLE] = True
+    st.is_in[:, BALL, CRATE] = True
+    before = st.poses[:, CUP].copy()
+    st.poses[0, CUP, :3] += [0.005, -0.003, 2e-6]
+    st.poses[1, CUP, :2] = [0.5, 0.3]
+    st.poses[2, CUP, :2] += 0.004
+    st.velocities[2, CUP, 0] = 0.01
+    st.poses[3, CUP, :2] = [0.19, 0.0]
+    st.poses[4, CUP, :2] += 0.004
+    st.poses[4, CUP, 3:] = [np.sin(0.01), 0.0, 0.0, np.cos(0.01)]
+    st.poses[5, CUP, :3] += [0.004, 0.0, 0.001]
+    slid = slid_at_rest(model, st, CUP, np.arange(6), before, np.ones(6, bool))
+    assert slid.tolist() == [True, False, False, False, False, False]
+    # not when the worlds did not make it where it was (displaced without physics since)
+    assert not slid_at_rest(model, st, CUP, np.arange(6), before, np.zeros(6, bool)).any()
+    model.close()
+
+
+def test_regularise_loads_the_copies_it_only_slid_at_rest_and_jolts_the_others():
+    """Jittered along the table (a kernel with no vertical part but the regulariser's), the cup's
+    copies slid at rest: their height is their own again bit for bit, they are not jolted (not
+    pushed out of penetration, which would wake them) and the resampling hands them to the pool as
+    at rest (:meth:`SceneModel.carried_at_rest`). The ball's copies, in the crate, are jolted."""
+    nz = NoiseConfig(regularisation=0.5, max_jitter_std=0.01, param_jitter=0.0)
+    model = make(EstimatorConfig(particles=50, noise=nz))
+    st = model.initial_state(np.random.default_rng(1))
+    st.velocities[:] = 0.0
+    st.on_top[:], st.is_in[:] = False, False
+    st.on_top[:, CUP, TABLE] = True
+    st.is_in[:, BALL, CRATE] = True
+    before = st.take(np.arange(50))
+    chol = np.diag([0.004, 0.004, 1e-6])
+    slid = regularise(model, st, {CUP: chol, BALL: chol}, np.random.default_rng(2))
+    assert slid[:, CUP].all() and not slid[:, [TABLE, CRATE, BALL, MYSTERY]].any()
+    assert np.array_equal(st.poses[:, CUP, 2], before.poses[:, CUP, 2])
+    assert np.all(st.poses[:, CUP, :2] != before.poses[:, CUP, :2])
+    assert not st.jolted[:, CUP].any() and st.jolted[:, BALL].all()
+    at_rest, poses = model.carried_at_rest(before, st, np.arange(50), np.zeros(5, bool),
+                                           np.tile([[-0.5, -0.5, 0.0], [0.5, 0.5, 0.2]], (5, 1, 1)), slid)
+    assert np.array_equal(at_rest, slid) and poses is st.poses
+    model.close()

@@ -55,19 +55,32 @@ def regularisation_kernels(model, poses: np.ndarray, weights: np.ndarray,
     return kernels_of(poses, mixed, hidden, nz.regularisation, nz.max_jitter_std)
 
 
-def regularise(model, state: ParticleState, kernels: dict[int, np.ndarray], rng: np.random.Generator) -> None:
+def regularise(model, state: ParticleState, kernels: dict[int, np.ndarray], rng: np.random.Generator) -> np.ndarray:
     """In place, after resampling: jitter the free copies of each hidden object with its kernel (a
     regularised particle filter: copies of one particle must not leave a hidden object with no
     spread; a jitter into static geometry stops at its surface, ``static_clip``), then the
-    physical parameters (Liu-West shrinkage, :func:`shrink_params`)."""
+    physical parameters (Liu-West shrinkage, :func:`shrink_params`). A jittered entry is
+    ``jolted`` (pushed out of what it penetrates before physics, loaded awake) unless it only slid
+    along static geometry at rest (:func:`slid_at_rest`; its height is then its own again, the
+    kernel's vertical part being a regulariser's micrometres for an object at rest on a support).
+    Returns ``(K, M)`` bool: the entries that slid."""
+    slid = np.zeros((model.K, model.M), dtype=bool)
+    jittered, start = [], state.poses.copy()
     for m, chol in kernels.items():
         free = is_free(state.modes[:, m])
         noise = rng.standard_normal((model.K, 3)) @ chol.T
         before = state.poses[free, m].copy()
+        was = state.jolted[free, m].copy()
         state.poses[free, m, :3] += noise[free]
         state.jolted[free, m] = True
         if model.geometry is not None and np.any(free):  # not into the table or under the floor
             state.poses[free, m] = model.geometry.clip(m, before, state.poses[free, m])[0]
+            jittered.append((m, np.flatnonzero(free), before, ~was))
+    for m, rows, before, fresh in jittered:  # once every object has its jitter (they must not meet)
+        still = slid_at_rest(model, state, m, rows, before, fresh, start)
+        state.poses[rows[still], m, 2] = before[still, 2]
+        state.jolted[rows[still], m] = False
+        slid[rows[still], m] = True
     nz = model.config.noise
     if nz.param_jitter > 0:
         dyn = np.flatnonzero(model.dynamic)
@@ -75,6 +88,86 @@ def regularise(model, state: ParticleState, kernels: dict[int, np.ndarray], rng:
         floor[model.surprise[dyn] > SURPRISE, :2] = nz.param_widen  # frictions: surprised by its motion
         state.params[:, dyn] = shrink_params(state.params[:, dyn], nz.param_jitter, model.param_bounds, rng,
                                              floor, model.perturbed[dyn])
+    return slid
+
+
+SLIDE_MARGIN = 0.02
+"""m: the clearance a jittered object needs from every other object's box and from every static
+body but its support (:func:`slid_at_rest`), and how far under it its support is looked for:
+more than Bullet's contact distance."""
+
+SLIDE_TOLERANCE = 1e-5
+"""m: how far what lies under an object slid along static geometry may differ from what lay
+under it before (:func:`slid_at_rest`: the ray tests' rounding), and how far the jitter may have
+moved it vertically (the kernel's regulariser, 1e-6 m of standard deviation, for an object at
+rest on a support: :func:`~estimator.model.noise.regularisation_kernels`)."""
+
+SUPPORT_TOP = 0.002
+"""m: how far above where it holds an object slid at rest its static support's box may reach
+(:func:`slid_at_rest`: no rim, wall or bump of the support's own body; pybullet's boxes of a
+URDF's bodies are a millimetre larger than their shapes)."""
+
+
+def slid_at_rest(model, state: ParticleState, m: int, rows: np.ndarray, before: np.ndarray,
+                 fresh: np.ndarray, start: np.ndarray | None = None) -> np.ndarray:
+    """Of object ``m``'s copies ``rows (n,)`` that the regularisation jittered from the link-frame
+    poses ``before (n, 7)`` to ``state.poses[rows, m]``, those that only slid along static geometry
+    at rest, and so are at rest where they are as surely as a world that made them at rest there
+    would have them, at their height before: ``(n,)`` bool.
+
+    Such a copy is ``fresh (n,)`` (not displaced without physics since a world made it) and at rest
+    (velocity exactly zero, as the worlds leave what sleeps); its orientation is unchanged and its
+    height within :data:`SLIDE_TOLERANCE` (the jitter moved it horizontally, and no static surface
+    stopped it); in its particle it rests on static bodies or the floor only, nothing rests on or
+    in it and it is in nothing; no other known dynamic object's box comes within
+    :data:`SLIDE_MARGIN` of its own (:meth:`~physics.penetration.StaticGeometry.box`), before (the
+    others where they were then: ``start (K, M, 7)``, the poses before any jitter; default the
+    state's) or after. And the static geometry around it is the same: one static body holds it up
+    under the centre and the corners of its box, before and after, at the same heights with the
+    same normals (to :data:`SLIDE_TOLERANCE`; :meth:`~physics.penetration.StaticGeometry.under`),
+    that body's box reaches no more than :data:`SUPPORT_TOP` above where it holds it, and no other
+    static body's box comes within :data:`SLIDE_MARGIN` of its own. A flat table top under the
+    whole of it gives that; an edge, a slope, a step, a rim or a wall within reach does not.
+
+    Physics would keep it where it is: it can be loaded asleep
+    (:meth:`~estimator.worlds.pool.WorldPool.follow`), and it costs its world no settling (a duck
+    woken at every resampling of ``cluttered_table`` cost a whole update of Bullet's steps in every
+    world). A few array operations and one batch of ray tests for all the copies."""
+    geometry, M = model.geometry, model.M
+    after = state.poses[rows, m].copy()
+    ok = np.asarray(fresh, dtype=bool).copy()
+    ok &= (np.abs(after[:, 2] - before[:, 2]) <= SLIDE_TOLERANCE) & np.all(after[:, 3:] == before[:, 3:], axis=1)
+    ok &= np.any(after[:, :2] != before[:, :2], axis=1)
+    after[:, 2] = before[:, 2]  # judged at its own height
+    ok &= ~np.any(state.velocities[rows, m] != 0.0, axis=1)
+    on = state.on_top[rows, m]  # (n, M + 1): the last column is the floor
+    fixed = np.append(model.static, True)
+    ok &= on.any(axis=1) & ~np.any(on & ~fixed, axis=1)
+    ok &= ~state.is_in[rows, m].any(axis=1)  # in nothing, and nothing in or on it
+    ok &= ~state.is_in[rows, :, m].any(axis=1) & ~state.on_top[rows, :, m].any(axis=1)
+    start = state.poses if start is None else start
+    for p, where in ((before, start), (after, state.poses)):  # boxes apart by the margin, on some axis
+        if not ok.any():
+            break
+        lo, hi = geometry.box(m, p)
+        for o in np.flatnonzero(model.dynamic & model.known & (np.arange(M) != m)).tolist():
+            lo_o, hi_o = geometry.box(o, where[rows, o])
+            ok &= np.any((lo - hi_o > SLIDE_MARGIN) | (lo_o - hi > SLIDE_MARGIN), axis=1)
+    if not ok.any():
+        return ok
+    idx = np.flatnonzero(ok)
+    both = np.concatenate([before[idx], after[idx]])
+    under = geometry.under(m, both, SLIDE_MARGIN)  # (2 n, 5, 5): before, then after
+    old, new = under[:len(idx)], under[len(idx):]
+    body = old[:, 0, 0].astype(int)
+    same = (body >= 0) & np.all(old[..., 0] == body[:, None], axis=1) & np.all(new[..., 0] == old[..., 0], axis=1)
+    same &= np.all(np.abs(new[..., 1:] - old[..., 1:]) <= SLIDE_TOLERANCE, axis=(1, 2))
+    same &= np.all(old[..., 1] >= geometry.static_top(np.maximum(body, 0))[:, None] - SUPPORT_TOP, axis=1)
+    others = geometry.near_static(m, both, SLIDE_MARGIN)  # (2 n, S)
+    others[np.arange(len(both)), np.concatenate([np.maximum(body, 0)] * 2)] = False
+    same &= ~others[:len(idx)].any(axis=1) & ~others[len(idx):].any(axis=1)
+    ok[idx[~same]] = False
+    return ok
 
 
 LEVEL_TILT = 1e-3

@@ -210,21 +210,28 @@ class SceneModel:
         return own, regularisation.regularisation_kernels(self, state.poses, weights, hidden & ~own)
 
     def after_resampling(self, state: ParticleState, kernels: dict[int, np.ndarray],
-                         rng: np.random.Generator) -> None:
+                         rng: np.random.Generator) -> np.ndarray:
         """In place on the resampled ``state`` (its K is the new count): regularisation
-        (:meth:`regularise`); nothing is weighed since."""
+        (:meth:`regularise`); nothing is weighed since. Returns ``(K, M)`` bool: the entries the
+        jitter only slid along static geometry at rest
+        (:func:`~estimator.model.regularisation.slid_at_rest`), for :meth:`carried_at_rest`."""
         self.K = len(state.log_weights)
         self.weighed = np.zeros(self.M, dtype=bool)
-        regularisation.regularise(self, state, kernels, rng)
+        return regularisation.regularise(self, state, kernels, rng)
 
     def carried_at_rest(self, before: ParticleState, after: ParticleState, ancestors: np.ndarray,
-                        own: np.ndarray, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+                        own: np.ndarray, boxes: np.ndarray, slid: np.ndarray | None = None
+                        ) -> tuple[np.ndarray, np.ndarray] | None:
         """The entries resampling carried along at rest, for the worlds to load asleep
-        (:func:`~estimator.model.regularisation.carried_at_rest`); ``boxes (M, 2, 3)``: the
-        objects' bounding boxes (m) at the scene's poses (the pool's ``scene_boxes``)."""
+        (:func:`~estimator.model.regularisation.carried_at_rest`), and those its jitter slid along
+        static geometry at rest (``slid (K, M)``, :meth:`after_resampling`'s); ``boxes (M, 2, 3)``:
+        the objects' bounding boxes (m) at the scene's poses (the pool's ``scene_boxes``)."""
         if self._radii is None:  # the scene's boxes do not change: the radii once, about the poses they were read at
             self._radii = regularisation.bounding_radii(boxes, initial_poses(self.scene)[0][:, :3])
-        return regularisation.carried_at_rest(self, before, after, ancestors, own, self._radii)
+        out = regularisation.carried_at_rest(self, before, after, ancestors, own, self._radii)
+        if slid is None or not slid.any():
+            return out
+        return (slid if out is None else out[0] | slid), after.poses
 
     # -- the prior ------------------------------------------------------------------------------------
     def initial_state(self, rng: np.random.Generator) -> ParticleState:
