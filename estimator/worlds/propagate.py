@@ -303,26 +303,20 @@ def _glides(pws: list[ParticleWorld], batch: BatchInput, held: np.ndarray, alone
     start of the update, computed in one pass: ``{k: [(body id, com, orn, lin, ang, index or None), ...]}``
     as lists in the client frame, with the object's index where it is ``alone (K, M)``
     (:func:`~estimator.worlds.frozen.alone`: placed at its glide's end only, its path is that end
-    alone, one entry). They start from the batch's poses, which the worlds hold (held objects are
-    never pushed out of penetration)."""
+    alone). They start from the batch's poses, which the worlds hold (never pushed out of penetration)."""
     kk, ii = np.nonzero(held)
     if len(kk) == 0:
         return {}
-    w0 = pws[0].world
-    com, orn, lin, ang = glide_paths(w0, batch.poses[kk, ii], batch.target[kk, ii], ii, n_steps)
+    com, orn, lin, ang = glide_paths(pws[0].world, batch.poses[kk, ii], batch.target[kk, ii], ii, n_steps)
     com = com + np.array([pws[k].world.origin for k in kk.tolist()])[:, None, :]
     lone = alone[kk, ii]
-    if lone.any():  # placed at the end of their glide only (HeldObjects.glide): the rest of the path
-        # is not converted; two conversions per array, the paths and the ends, put back in order
-        paths = iter(zip(com[~lone].tolist(), orn[~lone].tolist()))
-        ends = iter(zip(com[lone, -1:].tolist(), orn[lone, -1:].tolist()))
-        com, orn = zip(*(next(ends) if j else next(paths) for j in lone.tolist()))
-    else:
-        com, orn = com.tolist(), orn.tolist()
+    # one conversion per array for all the paths, one for the ends of those alone (a call per path
+    # and array cost more than the paths), put back in order
+    paths = iter(zip(com[~lone].tolist(), orn[~lone].tolist()))
+    ends = iter(zip(com[lone, -1:].tolist(), orn[lone, -1:].tolist()))
     out: dict[int, list[tuple]] = {}
-    # one conversion per array for all the paths (a call per path and array cost more than the paths)
-    rows = zip(kk.tolist(), ii.tolist(), com, orn, lin.tolist(), ang.tolist(), lone.tolist())
-    for k, i, c, o, v, a, end_only in rows:
+    for k, i, v, a, end_only in zip(kk.tolist(), ii.tolist(), lin.tolist(), ang.tolist(), lone.tolist()):
+        c, o = next(ends) if end_only else next(paths)
         out.setdefault(k, []).append((pws[k].world.uids[i], c, o, v, a, i if end_only else None))
     return out
 
