@@ -156,15 +156,19 @@ def slid_at_rest(model, state: ParticleState, m: int, rows: np.ndarray, before: 
     if not ok.any():
         return ok
     idx = np.flatnonzero(ok)
-    both = np.concatenate([before[idx], after[idx]])
-    under = geometry.under(m, both, SLIDE_MARGIN)  # (2 n, 5, 5): before, then after
-    old, new = under[:len(idx)], under[len(idx):]
+    # the poses before asked once each (the copies of one particle share theirs), then those after
+    first, back = np.unique(before[idx], axis=0, return_inverse=True)
+    back = back.reshape(-1)
+    both = np.concatenate([first, after[idx]])
+    under = geometry.under(m, both, SLIDE_MARGIN)  # (u + n, 5, 5)
+    old, new = under[:len(first)][back], under[len(first):]
     body = old[:, 0, 0].astype(int)
     same = (body >= 0) & np.all(old[..., 0] == body[:, None], axis=1) & np.all(new[..., 0] == old[..., 0], axis=1)
     same &= np.all(np.abs(new[..., 1:] - old[..., 1:]) <= SLIDE_TOLERANCE, axis=(1, 2))
     same &= np.all(old[..., 1] >= geometry.static_top(np.maximum(body, 0))[:, None] - SUPPORT_TOP, axis=1)
-    others = geometry.near_static(m, both, SLIDE_MARGIN)  # (2 n, S)
-    others[np.arange(len(both)), np.concatenate([np.maximum(body, 0)] * 2)] = False
+    near = geometry.near_static(m, both, SLIDE_MARGIN)  # (u + n, S)
+    others = np.concatenate([near[:len(first)][back], near[len(first):]])  # (2 n, S): before, after
+    others[np.arange(2 * len(idx)), np.concatenate([np.maximum(body, 0)] * 2)] = False
     same &= ~others[:len(idx)].any(axis=1) & ~others[len(idx):].any(axis=1)
     ok[idx[~same]] = False
     return ok
