@@ -161,7 +161,9 @@ class EstimatorConfig:
       the air, say) keep the scene's pose. Otherwise an object given a pose it cannot rest in (a
       duck a few degrees off the tilt it stands at) settles in every particle at once, and the
       filter's jitter, which moves it without its contacts, pumps the swing until it tips over
-      (off in paper mode).
+      (off in paper mode). An object it rests flat on static bodies alone, that the first placement
+      only slides along them, starts asleep in every world
+      (:func:`~estimator.model.regularisation.placed_at_rest`).
     * ``physics``: the particle worlds' engine settings; the solver stops at a residual of
       :data:`SOLVER_RESIDUAL` (the ground-truth simulator keeps pybullet's 1e-7); URDFs are
       loaded without their visual meshes and textures (much less memory and start-up); objects at

@@ -213,7 +213,7 @@ class SceneEstimator:
         t_worlds = self.clock()
         out = self.pool.advance(proposal.batch, int(round(dt / cfg.physics.time_step)), cfg.reasoner.d_sim_perc,
                                 cfg.lazy_checks, proposal.moving_targets, proposal.cameras, proposal.move.fused,
-                                cfg.freeze_unreachable, cfg.sleep_loads)
+                                cfg.freeze_unreachable, cfg.sleep_loads, proposal.move.placed_at_rest)
         t_worlds = self.clock() - t_worlds
         bad = ~out.finite  # exploded, or lost with their worker: weighed zero, then re-seeded
         if np.any(bad):

@@ -363,3 +363,41 @@ def test_a_settled_object_whose_support_was_moved_is_woken():
         assert res[0][2, 2] < TABLE_TOP + 0.075 - 0.008  # falling, not floating
         # as in a world that never slept, but for the step a woken body spends still (g t dt: 2 mm)
         assert np.allclose(res[0][:, :3], res[1][:, :3], atol=3e-3)
+
+
+def test_objects_placed_at_rest_in_a_world_never_stepped_sleep_from_its_first_step():
+    """In a world that has never stepped, every body is awake: loaded where the stack rests, it rings
+    as Bullet makes its contacts afresh. Entries the batch gives as settled there (placed at rest by
+    the model, :func:`~estimator.model.regularisation.placed_at_rest`) sleep from the first step:
+    they end the update exactly where they were loaded, at zero velocity, and may be frozen; the
+    same entries not settled are stepped awake (and read back a velocity)."""
+    with World(STACK, PhysicsSettings(sleeping=True)) as donor:
+        _, rest = _settled(donor)
+    for settled in (True, False):
+        with World(STACK, PhysicsSettings(sleeping=True)) as w:
+            pw = ParticleWorld(w)
+            propagate(pw, inputs(w, poses=rest.poses, velocities=np.zeros((4, 6))), 0, 0.045)  # loads only
+            inp = inputs(w, poses=rest.poses, velocities=np.zeros((4, 6)), reset=np.zeros(4, bool),
+                         settled=np.array([False, True, True, settled]))
+            out = propagate(pw, inp, 19, 0.045, freeze=True, sleep_loads=True)
+            assert np.abs(out.poses[1:3] - rest.poses[1:3]).max() < 1e-9 and np.all(out.velocities[1:3] == 0.0)
+            assert {1, 2, 3} <= set(pw.frozen) if settled else 3 not in pw.frozen
+            if not settled:  # the ball, awake since it was made, is stepped: not bit for bit where it was
+                assert not np.array_equal(out.poses[3], rest.poses[3]) or np.any(out.velocities[3] != 0.0)
+
+
+def test_an_object_placed_at_rest_that_something_loaded_beside_it_wakes_is_stepped():
+    """A settled entry in a world never stepped next to an object the update loads awake (within
+    :data:`~estimator.worlds.resting.SETTLED_REACH`) is woken with it, as a settled load is: the top
+    block, its bottom block loaded 6 cm aside (1 cm from it), falls; it does not float."""
+    with World(STACK, PhysicsSettings(sleeping=True)) as donor:
+        _, rest = _settled(donor)
+    with World(STACK, PhysicsSettings(sleeping=True)) as w:
+        pw = ParticleWorld(w)
+        propagate(pw, inputs(w, poses=rest.poses, velocities=np.zeros((4, 6))), 0, 0.045)
+        poses = rest.poses.copy()
+        poses[1, 0] += 0.06  # the bottom block taken from under the top one
+        inp = inputs(w, poses=poses, velocities=np.zeros((4, 6)), reset=np.array([False, True, False, False]),
+                     settled=np.array([False, False, True, True]))
+        out = propagate(pw, inp, 48, 0.045, freeze=True, sleep_loads=True)
+        assert out.poses[2, 2] < rest.poses[2, 2] - 0.02  # it fell

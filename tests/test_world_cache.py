@@ -76,3 +76,24 @@ def test_entries_carried_at_rest_load_asleep_while_they_stay_where_they_were_car
     moved = after.copy()
     moved[0, 1, 2] += 0.01  # moved again before the load: awake
     assert not cache.loads(moved, vel)[1][0, 1]
+
+
+def test_after_loads_only_what_the_model_placed_at_rest_is_settled_and_its_copies():
+    """An update of no steps produces nothing at rest: afterwards only the entries the model placed
+    at rest count as settled, unchanged or copied by a resampling, and not once moved (even along
+    their support by the fusion). The next update that steps makes everything it leaves at rest
+    settled again."""
+    cache = WorldCache()
+    poses, vel = _state()
+    placed = np.array([[True, False], [False, False], [True, True]])
+    cache.hold(poses.copy(), vel.copy(), at_rest=placed)
+    assert cache.loads(poses, vel)[1].tolist() == placed.tolist()
+    cache.follow(np.array([2, 0, 1]))
+    copies = poses[[2, 0, 1]]
+    reset, settled = cache.loads(copies, vel)
+    assert settled.tolist() == placed[[2, 0, 1]].tolist() and reset.all()
+    nudged = copies.copy()
+    nudged[0, 0, 0] += 0.002
+    assert not cache.loads(nudged, vel, np.ones((3, 2), bool))[1][0, 0]
+    cache.hold(copies.copy(), vel.copy())
+    assert cache.loads(copies, vel)[1].all()

@@ -9,13 +9,17 @@ over onto its side, though it stands in the truth, and it stayed awake doing it.
 :func:`rest_prior` settles the scene once, in one world with the scene's own parameters, and keeps
 for each object the pose it came to rest in when that is within the prior's stated uncertainty
 (otherwise the object is somewhere physics does not leave it, held in the air say, and the scene's
-pose stands). Array shapes: M objects, poses ``(M, 7)``: metres, quaternions x, y, z, w.
+pose stands). It also says which of them rest *flat on static bodies alone* (:data:`FLAT_NORMAL`):
+such an object moved along its support by the particles' horizontal perturbation is at rest where
+it lands (:func:`~estimator.model.regularisation.placed_at_rest`), and its worlds need not settle
+it. Array shapes: M objects, poses ``(M, 7)``: metres, quaternions x, y, z, w.
 """
 from __future__ import annotations
 
 import dataclasses
 
 import numpy as np
+import pybullet as pb
 
 from physics.scene import Scene
 from physics.settings import PhysicsSettings
@@ -28,6 +32,10 @@ WINDOW = 0.05
 """s: the settling is tested for rest over windows of this length (as the ground truth's)."""
 MAX_TIME = 2.0
 """s: the most the prior settles; objects still moving then keep the scene's poses."""
+FLAT_NORMAL = 0.9995
+"""An object rests flat on static bodies when it touches something, and every contact of it at rest
+is with a static body (or the floor) whose normal there is within this cosine of the vertical
+(1.8 degrees): its friction holds nothing up, so that particles whose frictions differ rest as it does."""
 REACH_SIGMAS = 3.0
 """An object takes its rest pose when it is within this many standard deviations of the perception
 noise (``NoiseConfig.position_std``, ``orientation_std``) of its given pose
@@ -50,30 +58,46 @@ def _settle(world: World, poses: np.ndarray, indices: list[int]) -> tuple[np.nda
     return world.get_poses(), False
 
 
+def _flat(world: World, indices: list[int]) -> list[int]:
+    """Of objects ``indices`` at rest in ``world``, those that rest flat on static bodies alone
+    (:data:`FLAT_NORMAL`), from the contacts of its last step."""
+    flat = []
+    for i in indices:
+        contacts = pb.getContactPoints(bodyA=world.uids[i], physicsClientId=world.client)
+        others = [world.index_of_uid(pt[2]) for pt in contacts]
+        # the normal on the other body points from it to this one: up, from a support
+        if contacts and all(j != -1 and (j < 0 or world.static[j]) and pt[7][2] >= FLAT_NORMAL
+                            for j, pt in zip(others, contacts)):
+            flat.append(i)
+    return flat
+
+
 def rest_prior(scene: Scene, poses: np.ndarray, known: np.ndarray, settings: PhysicsSettings,
-               reach: float, turn: float) -> tuple[np.ndarray, np.ndarray]:
+               reach: float, turn: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The scene's poses ``poses (M, 7)`` with each known dynamic object (``known (M,)`` bool) at
     the pose it comes to rest in, settled in one world built with ``settings`` and the scene's
     parameters, where that is at most ``reach`` (m) and ``turn`` (rad) from its given pose (the
     world does not let bodies sleep: a reset would not wake them).
 
     The others keep their given poses, and are out of collision in a second settling so that the
-    rest is not what their fall would make it. Returns the poses ``(M, 7)`` and which objects
-    took their rest pose ``(M,)`` bool (none when the scene did not come to rest within
-    :data:`MAX_TIME`)."""
+    rest is not what their fall would make it. Returns the poses ``(M, 7)``, which objects took
+    their rest pose ``(M,)`` bool (none when the scene did not come to rest within
+    :data:`MAX_TIME`) and which of those rest flat on static bodies alone ``(M,)`` bool
+    (:data:`FLAT_NORMAL`; nothing of the scene touches them)."""
     poses = np.array(poses, dtype=float)
-    out, rested = poses.copy(), np.zeros(len(poses), dtype=bool)
+    out, rested, flat = poses.copy(), np.zeros(len(poses), dtype=bool), np.zeros(len(poses), dtype=bool)
     with World(scene, dataclasses.replace(settings, sleeping=False)) as world:
         todo = [int(i) for i in world.dynamic_indices if known[i]]
         while todo:
             settled, at_rest = _settle(world, poses, todo)
             if not at_rest:
-                return out, np.zeros(len(poses), dtype=bool)
+                return out, rested, flat
             near = ((np.linalg.norm(settled[todo, :3] - poses[todo, :3], axis=1) <= reach)
                     & (quat_angle(settled[todo, 3:], poses[todo, 3:]) <= turn))
             if np.all(near):
                 out[todo], rested[todo] = settled[todo], True
+                flat[_flat(world, todo)] = True  # (the others' clearance is the particles' to check)
                 break
             world.set_colliding([i for i, ok in zip(todo, near) if not ok], False)
             todo = [i for i, ok in zip(todo, near) if ok]
-    return out, rested
+    return out, rested, flat

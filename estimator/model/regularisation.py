@@ -133,7 +133,6 @@ def slid_at_rest(model, state: ParticleState, m: int, rows: np.ndarray, before: 
     (:meth:`~estimator.worlds.pool.WorldPool.follow`), and it costs its world no settling (a duck
     woken at every resampling of ``cluttered_table`` cost a whole update of Bullet's steps in every
     world). A few array operations and one batch of ray tests for all the copies."""
-    geometry, M = model.geometry, model.M
     after = state.poses[rows, m].copy()
     ok = np.asarray(fresh, dtype=bool).copy()
     ok &= (np.abs(after[:, 2] - before[:, 2]) <= SLIDE_TOLERANCE) & np.all(after[:, 3:] == before[:, 3:], axis=1)
@@ -146,12 +145,25 @@ def slid_at_rest(model, state: ParticleState, m: int, rows: np.ndarray, before: 
     ok &= ~state.is_in[rows, m].any(axis=1)  # in nothing, and nothing in or on it
     ok &= ~state.is_in[rows, :, m].any(axis=1) & ~state.on_top[rows, :, m].any(axis=1)
     start = state.poses if start is None else start
-    for p, where in ((before, start), (after, state.poses)):  # boxes apart by the margin, on some axis
+    idx = np.flatnonzero(ok)
+    ok[idx] = _slides(model, m, before[idx], after[idx], start[rows[idx]], state.poses[rows[idx]])
+    return ok
+
+
+def _slides(model, m: int, before: np.ndarray, after: np.ndarray, others_before: np.ndarray,
+            others_after: np.ndarray) -> np.ndarray:
+    """Whether object ``m``, moved from the link-frame poses ``before (n, 7)`` to ``after (n, 7)``
+    (at the same height), only slid along the static geometry it rests on, clear of everything
+    else: ``(n,)`` bool (see :func:`slid_at_rest`; ``others_before`` and ``others_after (n, M, 7)``
+    are where the other objects were and are)."""
+    geometry, M = model.geometry, model.M
+    ok = np.ones(len(before), dtype=bool)
+    for p, where in ((before, others_before), (after, others_after)):  # boxes apart by the margin, on some axis
         if not ok.any():
-            break
+            return ok
         lo, hi = geometry.box(m, p)
         for o in np.flatnonzero(model.dynamic & model.known & (np.arange(M) != m)).tolist():
-            lo_o, hi_o = geometry.box(o, where[rows, o])
+            lo_o, hi_o = geometry.box(o, where[:, o])
             ok &= np.any((lo - hi_o > SLIDE_MARGIN) | (lo_o - hi > SLIDE_MARGIN), axis=1)
     if not ok.any():
         return ok
@@ -172,6 +184,34 @@ def slid_at_rest(model, state: ParticleState, m: int, rows: np.ndarray, before: 
     same &= ~others[:len(idx)].any(axis=1) & ~others[len(idx):].any(axis=1)
     ok[idx[~same]] = False
     return ok
+
+
+def placed_at_rest(model, poses: np.ndarray, velocities: np.ndarray, modes: np.ndarray, flat: np.ndarray,
+                   prior: np.ndarray) -> np.ndarray:
+    """The entries that the particles' first placement left at rest, ``(K, M)`` bool: objects
+    ``flat (M,)`` (resting flat on static bodies alone at their poses ``prior (M, 7)``,
+    :func:`~estimator.model.prior.rest_prior`) that each particle, at ``poses (K, M, 7)``, has free
+    and still (zero velocity) at the prior's height (within :data:`SLIDE_TOLERANCE`, set back to it
+    in place) and orientation, moved along their support by the perturbation or a first sighting
+    only, clear of every other object (:func:`_slides`, the others where the prior and the particle
+    have them). Physics would keep each where it is: its worlds load it asleep and need not settle
+    it (the hidden duck of ``cluttered_table`` rocked in every world for the first three updates,
+    each a whole update of Bullet's steps)."""
+    K = len(poses)
+    placed = np.zeros(poses.shape[:2], dtype=bool)
+    for m in np.flatnonzero(flat & model.dynamic & model.known).tolist():
+        before = np.broadcast_to(prior[m], (K, 7))
+        ok = is_free(modes[:, m]) & ~np.any(velocities[:, m] != 0.0, axis=1)
+        ok &= np.abs(poses[:, m, 2] - prior[m, 2]) <= SLIDE_TOLERANCE
+        ok &= np.all(poses[:, m, 3:] == prior[m, 3:], axis=1)
+        after = poses[:, m].copy()
+        after[:, 2] = prior[m, 2]
+        idx = np.flatnonzero(ok)
+        ok[idx] = _slides(model, m, before[idx], after[idx], np.broadcast_to(prior, (len(idx),) + prior.shape),
+                          poses[idx])
+        poses[ok, m, 2] = prior[m, 2]
+        placed[:, m] = ok
+    return placed
 
 
 LEVEL_TILT = 1e-3

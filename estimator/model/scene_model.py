@@ -92,8 +92,12 @@ class SceneModel:
         self.config = config
         given, self.known = initial_poses(scene)
         reach = REACH_SIGMAS * np.array([config.noise.position_std, config.noise.orientation_std])
-        # the poses the particles start from (prior.rest_prior: where the objects come to rest)
-        self.prior = rest_prior(scene, given, self.known, config.physics, *reach)[0] if config.rest_prior else given
+        # the poses the particles start from (prior.rest_prior: where the objects come to rest), and
+        # the objects resting flat on static bodies alone there (placed asleep, regularisation.placed_at_rest)
+        self.flat = np.zeros(len(scene.objects), dtype=bool)
+        self.prior = given
+        if config.rest_prior:
+            self.prior, _, self.flat = rest_prior(scene, given, self.known, config.physics, *reach)
         self.memory = memory if memory is not None else PerceptionMemory(
             scene, self.prior, config.reasoner, config.follow_hands,
             from_onset=config.moving_teleports, hands=config.hands)
@@ -113,6 +117,7 @@ class SceneModel:
         hr = config.reasoner
         self.episode_rule = EpisodeRule(hr.push_lift, hr.push_smoothing, hr.place_wait)
         self._just_initialised = np.zeros(self.M, dtype=bool)
+        self._placing = False  # the first update after initial_state: objects placed at rest are found
         self._radii: np.ndarray | None = None  # (M,) m: bounding radii for carried_at_rest
         # the static bodies, to stop paths at their surfaces (config.static_clip)
         solid = bool(np.any(self.static)) or scene.floor
@@ -260,6 +265,7 @@ class SceneModel:
             known_dyn = np.flatnonzero(self.dynamic & self.known)  # starts by bouncing (a duck tips over)
             poses[:, known_dyn, :2] += rng.normal(0, nz.position_std, (K, len(known_dyn), 2))
             self._just_initialised[known_dyn] = True
+        self._placing = True
         declared = dict(ARRAYS)
         for mechanism in self.mechanisms:
             declared.update(mechanism.arrays)
@@ -311,15 +317,21 @@ class SceneModel:
             vis_query = np.zeros(M, dtype=bool)
         placed = u.tele | self._just_initialised
         self._just_initialised = np.zeros(M, dtype=bool)
+        at_rest = None  # where the first placement left objects at rest: loaded asleep, not pushed out
+        if self._placing and self.geometry is not None and self.flat.any():
+            at_rest = regularisation.placed_at_rest(self, u.poses, u.vel, u.modes, self.flat, self.prior)
+        self._placing = False
         depen = (np.broadcast_to(placed & (cfg.noise.position_std > 0), (K, M)) | u.jolted
                  | state.jolted | u.cover) & is_free(u.modes)
+        if at_rest is not None:
+            depen &= ~at_rest
         set_moving = u.set_moving if u.set_moving is not None and u.set_moving.any() else None
         return Move(poses=u.poses, velocities=u.vel, predicted=u.predicted, previous_modes=u.prev_modes, modes=u.modes,
                     release_codes=u.release_codes, teleported=u.tele, target=u.target, target_vel=u.target_vel,
                     check=u.check, depenetrate=depen, vis_query=vis_query, hold_error=u.hold_error,
                     let_go_unseen=u.let_go, cameras=cameras, cover_t=u.cover_t, proposal_log_weight=u.proposal,
                     fused=u.nudged, jitter=u.jitter, out_of_reach=u.far, fall=u.fall, detections=u.detections,
-                    set_moving=set_moving, push_grip=u.grip)
+                    set_moving=set_moving, push_grip=u.grip, placed_at_rest=at_rest)
 
     def roll_released(self, vel: np.ndarray, released: np.ndarray, supported: np.ndarray) -> None:
         """In place on ``vel (K, M, 6)``: balls let go now (``released (K, M)``) on a support

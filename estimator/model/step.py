@@ -52,7 +52,10 @@ class Move:
     detected); ``set_moving (K, M)`` bool: objects at rest in their particle, seen starting to move
     along their support with no tracked hand within reach, that go on at their perceived velocity
     (a Push by an agent nobody tracks, not a Pick; None: none); ``push_grip (K, M)``: see
-    :class:`~estimator.state.ParticleState` (None: all NaN).
+    :class:`~estimator.state.ParticleState` (None: all NaN); ``placed_at_rest (K, M)`` bool: at the
+    first update, the objects its placement left at rest where physics would keep them
+    (:func:`~estimator.model.regularisation.placed_at_rest`; None: none), for the worlds to load
+    asleep (:meth:`~estimator.worlds.pool.WorldPool.advance`).
     """
 
     poses: np.ndarray
@@ -79,6 +82,7 @@ class Move:
     detections: np.ndarray | None = None
     set_moving: np.ndarray | None = None
     push_grip: np.ndarray | None = None
+    placed_at_rest: np.ndarray | None = None
 
     @property
     def behind_cover(self) -> np.ndarray | None:

@@ -81,6 +81,31 @@ def glide_paths(world: World, start: np.ndarray, end: np.ndarray, indices: np.nd
     return off[..., :3], off[..., 3:], (end[:, :3] - start[:, :3]) / dt + lever / dt, rv / dt
 
 
+def held_glides(worlds: list[World], poses: np.ndarray, targets: np.ndarray, held: np.ndarray,
+                alone: np.ndarray, n_steps: int) -> dict[int, list[tuple]]:
+    """The glide paths (:func:`glide_paths`) of all objects ``held (K, M)`` of the K ``worlds`` (copies
+    of one scene) from link-frame ``poses (K, M, 7)`` to ``targets (K, M, 7)`` over ``n_steps``,
+    computed in one pass: ``{k: [(body id, com, orn, lin, ang, index or None), ...]}`` as lists in
+    the client frame, with the object's index where it is ``alone (K, M)``
+    (:func:`~estimator.worlds.frozen.alone`: placed at its glide's end only, its path is that end
+    alone). For :func:`~estimator.worlds.propagate.propagate_batch`, whose worlds hold ``poses``."""
+    kk, ii = np.nonzero(held)
+    if len(kk) == 0:
+        return {}
+    com, orn, lin, ang = glide_paths(worlds[0], poses[kk, ii], targets[kk, ii], ii, n_steps)
+    com = com + np.array([worlds[k].origin for k in kk.tolist()])[:, None, :]
+    lone = alone[kk, ii]
+    # one conversion per array for all the paths, one for the ends of those alone (a call per path
+    # and array cost more than the paths), put back in order
+    paths = iter(zip(com[~lone].tolist(), orn[~lone].tolist()))
+    ends = iter(zip(com[lone, -1:].tolist(), orn[lone, -1:].tolist()))
+    out: dict[int, list[tuple]] = {}
+    for k, i, v, a, end_only in zip(kk.tolist(), ii.tolist(), lin.tolist(), ang.tolist(), lone.tolist()):
+        c, o = next(ends) if end_only else next(paths)
+        out.setdefault(k, []).append((worlds[k].uids[i], c, o, v, a, i if end_only else None))
+    return out
+
+
 class HeldObjects:
     """Moves held objects at every step (hot path: plain lists, direct pybullet calls).
 

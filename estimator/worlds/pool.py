@@ -203,11 +203,14 @@ class WorldPool:
 
     def advance(self, batch: BatchInput, n_steps: int, d_sim_perc: float, lazy: bool = False,
                 moving: bool = False, cameras: tuple[CameraSpec, ...] | None = None,
-                fused: np.ndarray | None = None, freeze: bool = False, sleep_loads: bool = False) -> BatchOutput:
+                fused: np.ndarray | None = None, freeze: bool = False, sleep_loads: bool = False,
+                placed: np.ndarray | None = None) -> BatchOutput:
         """:meth:`run` for the particles' next update, the pool keeping its :attr:`cache` told: the
         entries of ``batch`` to load (``reset``) and those a world produced at rest (``settled``) are
         the cache's (:meth:`~estimator.worlds.world_cache.WorldCache.loads`; ``fused (K, M)``: entries only
-        moved horizontally at rest), and what the worlds produce is remembered. Particles whose
+        moved horizontally at rest), and what the worlds produce is remembered; an update of no
+        steps produces nothing at rest but the entries ``placed (K, M)`` (placed at rest by the
+        model, :func:`~estimator.model.regularisation.placed_at_rest`). Particles whose
         simulation exploded or whose worker died (``finite`` False) get back their state of ``batch``,
         at rest, and their worlds load in full at the next update."""
         reset, settled = self.cache.loads(batch.poses, batch.velocities, fused)
@@ -218,7 +221,10 @@ class WorldPool:
             out.poses[bad] = batch.poses[bad]
             out.velocities[bad] = 0.0
             out.modes[bad] = batch.modes[bad]
-        self.cache.hold(out.poses.copy(), out.velocities.copy(), bad)
+        at_rest = None  # what the worlds produced; after loads only, what the model placed at rest
+        if n_steps == 0:
+            at_rest = np.zeros(out.modes.shape, dtype=bool) if placed is None else placed
+        self.cache.hold(out.poses.copy(), out.velocities.copy(), bad, at_rest)
         return out
 
     def follow(self, ancestors: np.ndarray, at_rest: tuple[np.ndarray, np.ndarray] | None = None) -> None:

@@ -22,9 +22,10 @@ import pybullet as pb
 from actions.modes import HELD, is_free, is_held
 from physics.sleep import asleep, near, sleep, touching, wake
 
+from . import resting
 from .batch import PER_PARTICLE, BatchInput, BatchOutput, ParticleWorld, StepInput, StepOutput, assemble
 from .frozen import to_freeze
-from .held import HeldObjects, depenetrate, glide_paths
+from .held import HeldObjects, depenetrate, held_glides
 from .resting import PROBE_STEPS, SETTLED_REACH, restart_after_wake, sleep_resting, sleep_settling, sleep_still, slow
 
 MAX_SPEED = 50.0  # m/s: anything faster is a simulation that exploded
@@ -114,7 +115,9 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     all) that are still after :data:`~estimator.worlds.resting.PROBE_STEPS` steps, or slow and not
     sped up after twice that many, sleep from then on (:func:`~estimator.worlds.resting.sleep_still`,
     :func:`~estimator.worlds.resting.sleep_settling`; updates of fewer than three times that many
-    steps are not probed).
+    steps are not probed). In a world never stepped, the ``settled`` entries are at rest by the
+    model's word (:func:`~estimator.model.regularisation.placed_at_rest`): they sleep from the first
+    step (:func:`~estimator.worlds.resting.sleep_placed`), unprobed, and may be frozen.
 
     ``parts``: where the call's time goes is added to it (seconds, :data:`PARTS`). ``counts``: what
     the update moved is added to it: ``entries`` (worlds times dynamic objects), ``moved`` (the
@@ -146,15 +149,19 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     held_mask = is_held(batch.modes) & dyn_mask
     depen_mask = batch.depenetrate & dyn_mask
     moved = reset | held_mask | depen_mask
-    settled = np.zeros((K, M), dtype=bool)
+    settled = placed = np.zeros((K, M), dtype=bool)
+    stepped = np.array([pw.stepped for pw in pws])[:, None]  # loaded at rest and never stepped: awake
     if batch.settled is not None:  # a settled state loaded asleep stays asleep...
-        settled = batch.settled & moved & ~held_mask & ~depen_mask
+        settled = batch.settled & ~held_mask & ~depen_mask
+        placed = settled & ~stepped if sleeping and n_steps > 0 else placed  # (in a world never stepped: put so)
+        settled &= moved
         moved &= ~settled
     reset_l, depen_l, moved_l, held_l = reset.tolist(), depen_mask.tolist(), moved.tolist(), held_mask.tolist()
+    placed_l = placed.tolist()
     probing = sleep_loads and sleeping and n_steps >= 3 * PROBE_STEPS
     early = [0]  # bodies put to sleep after the probe's steps
     reset_any = reset.any(axis=1).tolist()
-    settled_l = settled.tolist()
+    settled_l = (settled | placed).tolist()  # asleep as loaded, or placed so
     # watched objects and the first step at which each one needs testing
     checked = batch.check & is_free(batch.modes) & dyn_mask
     tvel = np.where(checked[..., None], batch.target_vel[..., :3], 0.0) if moving else np.zeros((K, M, 3))
@@ -168,13 +175,12 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     checked_l, target_l, due_l, tvel_l = checked.tolist(), target_com.tolist(), due.tolist(), tvel.tolist()
     frozen = alone = np.zeros((K, M), dtype=bool)
     if freeze and sleeping and n_steps > 0:
-        stepped = np.array([pw.stepped for pw in pws])[:, None]  # loaded at rest and never stepped: awake
         frozen, alone = to_freeze(pws[0].boxes, com_p, com_v, target_com, tvel, target_orn, checked, held_mask,
-                                  moved | (reset & ~settled) | ~stepped, dyn_mask, n_steps * dt, d_sim_perc,
+                                  moved | (reset & ~settled) | (~stepped & ~placed), dyn_mask, n_steps * dt, d_sim_perc,
                                   w0.settings.gravity, w0.static_raw()[1][~dyn_mask][None] + origins[:, None],
                                   origins[:, 0, 2] if w0.floor_uid >= 0 else None)
     frozen_l = frozen.tolist()
-    glides = _glides(pws, batch, held_mask, alone, n_steps)
+    glides = held_glides([pw.world for pw in pws], batch.poses, batch.target, held_mask, alone, n_steps)
     clients: dict[int, list[int]] = {}
     for k, pw in enumerate(pws):
         clients.setdefault(pw.world.client, []).append(k)
@@ -212,12 +218,14 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
                 near_settled = [i for i in near(w, rows, SETTLED_REACH) if settled_l[k][i]]
                 wake(w, near_settled)
                 woken += near_settled
+            asleep_now = [i for i in dyn if placed_l[k][i] and i not in woken] if True in placed_l[k] else []
+            restart += resting.sleep_placed(w, asleep_now, com_p[k])
             if True in frozen_l[k]:
                 fz = [i for i in dyn if frozen_l[k][i] and i not in woken and not w.is_parked(i)]
                 if True in reset_l[k]:  # a settled load (not woken by its load): asleep, for sure; Bullet
                     # still moves a body put to sleep in its next step (out of collision, a fall of
                     # g dt^2): set back where it was loaded, at rest, after that step
-                    slept = [i for i in fz if reset_l[k][i]]
+                    slept = [i for i in fz if reset_l[k][i] and i not in asleep_now]
                     sleep(w, slept)
                     restart += [(w.uids[i], row_p[i][:3], row_p[i][3:], [0.0] * 3, [0.0] * 3) for i in slept]
                 pw.thaw([i for i in pw.frozen if i not in fz])  # woken since
@@ -227,7 +235,7 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
             pw.contactless.difference_update(woken)
             pw.apply_params(batch.params[k], pw.frozen)
             if probing:  # awake at rest, from loads or wakes (in a world never stepped, everything): probed
-                fresh = woken if pw.stepped else [i for i in dyn if not w.is_parked(i)]
+                fresh = woken if pw.stepped else [i for i in dyn if not w.is_parked(i) and i not in asleep_now]
                 probes += [w.uids[i] for i in fresh if not speed_l[k][i] and not held_l[k][i]]
             held = HeldObjects(w, target_l[k], target_orn[k], batch.target_vel[k], batch.contents[k], n_steps, moving)
             for h in glides.get(k, ()):
@@ -295,30 +303,6 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
         for name, seconds in took.items():
             parts[name] = parts.get(name, 0.0) + seconds
     return BatchOutput(poses, vel, modes_out, max_d, aabbs, finite, np.zeros((K, M)))
-
-
-def _glides(pws: list[ParticleWorld], batch: BatchInput, held: np.ndarray, alone: np.ndarray,
-            n_steps: int) -> dict[int, list[tuple]]:
-    """The glide paths (:func:`~estimator.worlds.held.glide_paths`) of all objects ``held (K, M)`` from the
-    start of the update, computed in one pass: ``{k: [(body id, com, orn, lin, ang, index or None), ...]}``
-    as lists in the client frame, with the object's index where it is ``alone (K, M)``
-    (:func:`~estimator.worlds.frozen.alone`: placed at its glide's end only, its path is that end
-    alone). They start from the batch's poses, which the worlds hold (never pushed out of penetration)."""
-    kk, ii = np.nonzero(held)
-    if len(kk) == 0:
-        return {}
-    com, orn, lin, ang = glide_paths(pws[0].world, batch.poses[kk, ii], batch.target[kk, ii], ii, n_steps)
-    com = com + np.array([pws[k].world.origin for k in kk.tolist()])[:, None, :]
-    lone = alone[kk, ii]
-    # one conversion per array for all the paths, one for the ends of those alone (a call per path
-    # and array cost more than the paths), put back in order
-    paths = iter(zip(com[~lone].tolist(), orn[~lone].tolist()))
-    ends = iter(zip(com[lone, -1:].tolist(), orn[lone, -1:].tolist()))
-    out: dict[int, list[tuple]] = {}
-    for k, i, v, a, end_only in zip(kk.tolist(), ii.tolist(), lin.tolist(), ang.tolist(), lone.tolist()):
-        c, o = next(ends) if end_only else next(paths)
-        out.setdefault(k, []).append((pws[k].world.uids[i], c, o, v, a, i if end_only else None))
-    return out
 
 
 def _simulate(client: int, dt: float, helds: list["HeldObjects"], watch: list[list], n_steps: int,

@@ -26,6 +26,7 @@ class WorldCache:
         self.poses: np.ndarray | None = None
         self.velocities: np.ndarray | None = None
         self._produced: tuple[np.ndarray, np.ndarray] | None = None
+        self._placed: np.ndarray | None = None
 
     def loads(self, poses: np.ndarray, velocities: np.ndarray, fused: np.ndarray | None = None
               ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -36,7 +37,9 @@ class WorldCache:
           as a world produced them, which may be loaded asleep: a resampled particle's resting
           objects, and resting objects that only took a horizontal Kalman step towards their
           detection (``fused (K, M)``, millimetres along their support: waking them, and what they
-          touch, would cost a settling of every such world at every step of the fusion)."""
+          touch, would cost a settling of every such world at every step of the fusion); after an
+          update of loads only, those the model placed at rest, where it placed them (:meth:`hold`'s
+          ``at_rest``; copies of them too)."""
         K, M = poses.shape[:2]
         if self.poses is None:
             reset = np.ones((K, M), dtype=bool)
@@ -48,13 +51,21 @@ class WorldCache:
         same = np.all(poses == p, axis=-1) & np.all(velocities == v, axis=-1)
         if fused is not None:  # set at rest by the fusion (estimator.model.mechanisms.rest_fusion), moved horizontally
             same |= fused & np.all(poses[..., 2:] == p[..., 2:], axis=-1)
+        if self._placed is not None:  # after loads only: at rest only where placed so, exactly
+            return reset, np.all(velocities == 0.0, axis=-1) & np.all(poses == p, axis=-1) & self._placed
         return reset, np.all(velocities == 0.0, axis=-1) & same
 
-    def hold(self, poses: np.ndarray, velocities: np.ndarray, lost: np.ndarray | None = None) -> None:
+    def hold(self, poses: np.ndarray, velocities: np.ndarray, lost: np.ndarray | None = None,
+             at_rest: np.ndarray | None = None) -> None:
         """The worlds now hold ``poses (K, M, 7)`` and ``velocities (K, M, 6)`` (kept, not copied),
-        except the slots ``lost (K,)`` (an exploded simulation, a dead worker), which load in full."""
+        except the slots ``lost (K,)`` (an exploded simulation, a dead worker), which load in full.
+        ``at_rest (K, M)`` bool: after an update that stepped nothing (loads only), the entries known
+        to be at rest where they were loaded (placed so by the model); until the next hold, only
+        they count as settled, where they are (:meth:`loads`: a world that never stepped made
+        nothing at rest). None: after an update that stepped."""
         self.poses, self.velocities = poses, velocities
         self._produced = (poses.copy(), velocities)
+        self._placed = at_rest
         if lost is not None and np.any(lost):
             self.poses[lost] = np.nan
 
@@ -66,6 +77,8 @@ class WorldCache:
         poses ``(n, M, 7)`` no world produced, as surely as if one had (an object carried with the
         support it rests on, :func:`~estimator.model.regularisation.carried_at_rest`): taken as
         produced at rest."""
+        if self._placed is not None:
+            self._placed = self._placed[ancestors]
         if self._produced is not None:
             self._produced = (self._produced[0][ancestors], self._produced[1][ancestors])
             if at_rest is not None and np.any(at_rest[0]):
