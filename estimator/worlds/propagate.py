@@ -219,7 +219,8 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
                 wake(w, near_settled)
                 woken += near_settled
             asleep_now = [i for i in dyn if placed_l[k][i] and i not in woken] if True in placed_l[k] else []
-            restart += resting.sleep_placed(w, asleep_now, com_p[k])
+            if asleep_now:  # placed at rest in a world never stepped, and nothing loaded near woke it
+                restart += resting.sleep_placed(w, asleep_now, com_p[k])
             if True in frozen_l[k]:
                 fz = [i for i in dyn if frozen_l[k][i] and i not in woken and not w.is_parked(i)]
                 if True in reset_l[k]:  # a settled load (not woken by its load): asleep, for sure; Bullet
