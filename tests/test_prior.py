@@ -82,10 +82,11 @@ def test_the_prior_says_which_objects_rest_flat_on_static_bodies_alone():
     assert rested.tolist() == [False, True, True] and not flat.any()
     tilt = np.radians(10.0)
     ramp_q = quat_from_rotvec(np.array([tilt, 0.0, 0.0])).tolist()
+    lift = 0.01 + HALF  # from the ramp's middle plane to the crate's centre, along the ramp's normal
     ramp = table_scene({"id": "ramp", "static": True, "box": {"size": [0.3, 0.3, 0.02]},
                         "pose": {"position": [0.1, 0.0, TABLE_TOP + 0.1], "orientation": ramp_q}},
                        {"id": "crate", "box": {"size": [2 * HALF] * 3}, "mass": 0.3, "friction": 0.9,
-                        "pose": {"position": [0.1, -np.sin(tilt) * (0.01 + HALF), TABLE_TOP + 0.1 + np.cos(tilt) * (0.01 + HALF)],
+                        "pose": {"position": [0.1, -np.sin(tilt) * lift, TABLE_TOP + 0.1 + np.cos(tilt) * lift],
                                  "orientation": ramp_q}})
     _, rested, flat = rest_prior(ramp, *initial_poses(ramp), PhysicsSettings(), reach=0.03, turn=0.6)
     assert rested.tolist() == [False, False, True] and not flat.any()

@@ -133,12 +133,8 @@ def slid_at_rest(model, state: ParticleState, m: int, rows: np.ndarray, before: 
     (:meth:`~estimator.worlds.pool.WorldPool.follow`), and it costs its world no settling (a duck
     woken at every resampling of ``cluttered_table`` cost a whole update of Bullet's steps in every
     world). A few array operations and one batch of ray tests for all the copies."""
-    after = state.poses[rows, m].copy()
-    ok = np.asarray(fresh, dtype=bool).copy()
-    ok &= (np.abs(after[:, 2] - before[:, 2]) <= SLIDE_TOLERANCE) & np.all(after[:, 3:] == before[:, 3:], axis=1)
-    ok &= np.any(after[:, :2] != before[:, :2], axis=1)
-    after[:, 2] = before[:, 2]  # judged at its own height
-    ok &= ~np.any(state.velocities[rows, m] != 0.0, axis=1)
+    after = state.poses[rows, m]
+    ok = np.asarray(fresh, dtype=bool) & np.any(after[:, :2] != before[:, :2], axis=1)
     on = state.on_top[rows, m]  # (n, M + 1): the last column is the floor
     fixed = np.append(model.static, True)
     ok &= on.any(axis=1) & ~np.any(on & ~fixed, axis=1)
@@ -146,18 +142,23 @@ def slid_at_rest(model, state: ParticleState, m: int, rows: np.ndarray, before: 
     ok &= ~state.is_in[rows, :, m].any(axis=1) & ~state.on_top[rows, :, m].any(axis=1)
     start = state.poses if start is None else start
     idx = np.flatnonzero(ok)
-    ok[idx] = _slides(model, m, before[idx], after[idx], start[rows[idx]], state.poses[rows[idx]])
+    ok[idx] = _slides(model, m, before[idx], after[idx], state.velocities[rows[idx], m], start[rows[idx]],
+                      state.poses[rows[idx]])
     return ok
 
 
-def _slides(model, m: int, before: np.ndarray, after: np.ndarray, others_before: np.ndarray,
-            others_after: np.ndarray) -> np.ndarray:
-    """Whether object ``m``, moved from the link-frame poses ``before (n, 7)`` to ``after (n, 7)``
-    (at the same height), only slid along the static geometry it rests on, clear of everything
-    else: ``(n,)`` bool (see :func:`slid_at_rest`; ``others_before`` and ``others_after (n, M, 7)``
-    are where the other objects were and are)."""
+def _slides(model, m: int, before: np.ndarray, after: np.ndarray, velocities: np.ndarray,
+            others_before: np.ndarray, others_after: np.ndarray) -> np.ndarray:
+    """Whether object ``m``, moved from the link-frame poses ``before (n, 7)`` to ``after (n, 7)``,
+    only slid along the static geometry it rests on, clear of everything else, and is still:
+    ``(n,)`` bool (see :func:`slid_at_rest`: its orientation the same, its height within
+    :data:`SLIDE_TOLERANCE`, where it is judged, its ``velocities (n, 6)`` exactly zero;
+    ``others_before`` and ``others_after (n, M, 7)`` are where the other objects were and are)."""
     geometry, M = model.geometry, model.M
-    ok = np.ones(len(before), dtype=bool)
+    ok = (np.abs(after[:, 2] - before[:, 2]) <= SLIDE_TOLERANCE) & np.all(after[:, 3:] == before[:, 3:], axis=1)
+    ok &= ~np.any(velocities != 0.0, axis=1)
+    after = after.copy()
+    after[:, 2] = before[:, 2]  # judged at its own height
     for p, where in ((before, others_before), (after, others_after)):  # boxes apart by the margin, on some axis
         if not ok.any():
             return ok
@@ -197,18 +198,12 @@ def placed_at_rest(model, poses: np.ndarray, velocities: np.ndarray, modes: np.n
     have them). Physics would keep each where it is: its worlds load it asleep and need not settle
     it (the hidden duck of ``cluttered_table`` rocked in every world for the first three updates,
     each a whole update of Bullet's steps)."""
-    K = len(poses)
     placed = np.zeros(poses.shape[:2], dtype=bool)
     for m in np.flatnonzero(flat & model.dynamic & model.known).tolist():
-        before = np.broadcast_to(prior[m], (K, 7))
-        ok = is_free(modes[:, m]) & ~np.any(velocities[:, m] != 0.0, axis=1)
-        ok &= np.abs(poses[:, m, 2] - prior[m, 2]) <= SLIDE_TOLERANCE
-        ok &= np.all(poses[:, m, 3:] == prior[m, 3:], axis=1)
-        after = poses[:, m].copy()
-        after[:, 2] = prior[m, 2]
+        ok = is_free(modes[:, m])
         idx = np.flatnonzero(ok)
-        ok[idx] = _slides(model, m, before[idx], after[idx], np.broadcast_to(prior, (len(idx),) + prior.shape),
-                          poses[idx])
+        ok[idx] = _slides(model, m, np.broadcast_to(prior[m], (len(idx), 7)), poses[idx, m], velocities[idx, m],
+                          np.broadcast_to(prior, (len(idx),) + prior.shape), poses[idx])
         poses[ok, m, 2] = prior[m, 2]
         placed[:, m] = ok
     return placed

@@ -20,7 +20,7 @@ import numpy as np
 import pybullet as pb
 
 from actions.modes import HELD, is_free, is_held
-from physics.sleep import asleep, near, sleep, touching, wake
+from physics.sleep import asleep, near, touching, wake
 
 from . import resting
 from .batch import PER_PARTICLE, BatchInput, BatchOutput, ParticleWorld, StepInput, StepOutput, assemble
@@ -117,7 +117,7 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     :func:`~estimator.worlds.resting.sleep_settling`; updates of fewer than three times that many
     steps are not probed). In a world never stepped, the ``settled`` entries are at rest by the
     model's word (:func:`~estimator.model.regularisation.placed_at_rest`): they sleep from the first
-    step (:func:`~estimator.worlds.resting.sleep_placed`), unprobed, and may be frozen.
+    step (:func:`~estimator.worlds.resting.sleep_as_loaded`), unprobed, and may be frozen.
 
     ``parts``: where the call's time goes is added to it (seconds, :data:`PARTS`). ``counts``: what
     the update moved is added to it: ``entries`` (worlds times dynamic objects), ``moved`` (the
@@ -157,11 +157,11 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
         settled &= moved
         moved &= ~settled
     reset_l, depen_l, moved_l, held_l = reset.tolist(), depen_mask.tolist(), moved.tolist(), held_mask.tolist()
-    placed_l = placed.tolist()
+    placed_l = placed.tolist() if placed.any() else None  # (only before a world's first step)
     probing = sleep_loads and sleeping and n_steps >= 3 * PROBE_STEPS
     early = [0]  # bodies put to sleep after the probe's steps
     reset_any = reset.any(axis=1).tolist()
-    settled_l = (settled | placed).tolist()  # asleep as loaded, or placed so
+    settled_l = (settled | placed).tolist() if placed_l else settled.tolist()  # asleep as loaded, or placed so
     # watched objects and the first step at which each one needs testing
     checked = batch.check & is_free(batch.modes) & dyn_mask
     tvel = np.where(checked[..., None], batch.target_vel[..., :3], 0.0) if moving else np.zeros((K, M, 3))
@@ -208,7 +208,7 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
                 if sleeping and n_steps > 0:
                     restart += restart_after_wake(w, asleep(w, [i for i in loads if speed_l[k][i]]), com_p[k],
                                                   com_v[k], dt, w0.settings.gravity)
-                row_p, row_v = com_p[k].tolist(), com_v[k].tolist()  # lists, once (also for the slept below)
+                row_p, row_v = com_p[k].tolist(), com_v[k].tolist()  # lists, once
                 w.load_com_state(loads, [row_p[i] for i in loads], [row_v[i] for i in loads])
             if woken:
                 wake(w, woken)
@@ -218,17 +218,15 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
                 near_settled = [i for i in near(w, rows, SETTLED_REACH) if settled_l[k][i]]
                 wake(w, near_settled)
                 woken += near_settled
-            asleep_now = [i for i in dyn if placed_l[k][i] and i not in woken] if True in placed_l[k] else []
+            asleep_now = [i for i in dyn if placed_l[k][i] and i not in woken] if placed_l and True in placed_l[k] \
+                else []
             if asleep_now:  # placed at rest in a world never stepped, and nothing loaded near woke it
-                restart += resting.sleep_placed(w, asleep_now, com_p[k])
+                restart += resting.sleep_as_loaded(w, asleep_now, com_p[k])
             if True in frozen_l[k]:
                 fz = [i for i in dyn if frozen_l[k][i] and i not in woken and not w.is_parked(i)]
-                if True in reset_l[k]:  # a settled load (not woken by its load): asleep, for sure; Bullet
-                    # still moves a body put to sleep in its next step (out of collision, a fall of
-                    # g dt^2): set back where it was loaded, at rest, after that step
+                if True in reset_l[k]:  # a settled load (not woken by its load): asleep, for sure
                     slept = [i for i in fz if reset_l[k][i] and i not in asleep_now]
-                    sleep(w, slept)
-                    restart += [(w.uids[i], row_p[i][:3], row_p[i][3:], [0.0] * 3, [0.0] * 3) for i in slept]
+                    restart += resting.sleep_as_loaded(w, slept, com_p[k])
                 pw.thaw([i for i in pw.frozen if i not in fz])  # woken since
                 w.set_colliding([i for i in fz if i not in pw.frozen], False)
                 pw.frozen = fz

@@ -119,11 +119,12 @@ def restart_after_wake(w: World, rows: list[int], com_p: np.ndarray, com_v: np.n
             for j, i in enumerate(rows)]
 
 
-def sleep_placed(w: World, rows: list[int], com_p: np.ndarray) -> list[tuple]:
-    """Put objects ``rows`` of a world that never stepped (its bodies are awake) to sleep where
-    they were loaded, centre-of-mass poses ``com_p (M, 7)`` (client frame): at rest as surely as if
-    a world had made them so (:func:`~estimator.model.regularisation.placed_at_rest`). Bullet still
-    moves a body put to sleep in its next step: returns the state to give them after that step, as
-    :func:`restart_after_wake` does (nothing for no rows)."""
+def sleep_as_loaded(w: World, rows: list[int], com_p: np.ndarray) -> list[tuple]:
+    """Put objects ``rows`` to sleep where they were loaded, centre-of-mass poses ``com_p (M, 7)``
+    (client frame): at rest as surely as if a world had made them so (a settled load; in a world
+    that never stepped, whose bodies are all awake, one the model placed at rest,
+    :func:`~estimator.model.regularisation.placed_at_rest`). Bullet still moves a body put to sleep
+    in its next step (out of collision, a fall of g dt^2): returns the state to give them after that
+    step, as :func:`restart_after_wake` does (nothing for no rows)."""
     sleep(w, rows)
     return [(w.uids[i], com_p[i, :3].tolist(), com_p[i, 3:].tolist(), [0.0] * 3, [0.0] * 3) for i in rows]

@@ -49,10 +49,10 @@ class WorldCache:
             return reset, None
         p, v = self._produced
         same = np.all(poses == p, axis=-1) & np.all(velocities == v, axis=-1)
-        if fused is not None:  # set at rest by the fusion (estimator.model.mechanisms.rest_fusion), moved horizontally
-            same |= fused & np.all(poses[..., 2:] == p[..., 2:], axis=-1)
         if self._placed is not None:  # after loads only: at rest only where placed so, exactly
-            return reset, np.all(velocities == 0.0, axis=-1) & np.all(poses == p, axis=-1) & self._placed
+            same &= self._placed
+        elif fused is not None:  # set at rest by the fusion (mechanisms.rest_fusion), moved horizontally
+            same |= fused & np.all(poses[..., 2:] == p[..., 2:], axis=-1)
         return reset, np.all(velocities == 0.0, axis=-1) & same
 
     def hold(self, poses: np.ndarray, velocities: np.ndarray, lost: np.ndarray | None = None,
