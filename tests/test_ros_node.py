@@ -45,6 +45,46 @@ def test_without_rospy_the_command_exits_2_saying_what_to_install(tmp_path):
     assert "ROS 1 is not available" in r.stderr and "apt-get install ros-core python3-rospy python3-tf2-ros" in r.stderr
 
 
+def test_without_diagnostic_msgs_the_node_has_no_status_topic_but_runs():
+    """diagnostic_msgs is optional: hidden, import_ros still gives everything else (the node then
+    publishes its status as JSON only)."""
+    if not OK:
+        pytest.skip(REASON)
+    code = ("import sys; sys.modules['diagnostic_msgs'] = None; sys.modules['diagnostic_msgs.msg'] = None; "
+            "from experiments.ros.rospy_env import import_ros; r = import_ros(); "
+            "assert r.diagnostic_msgs is None and r.std_msgs is not None and r.rospy is not None; print('ok')")
+    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env={**os.environ, "PYTHONPATH": ROOT},
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
+
+
+def _doc(frames=10, estimates=3, merged=0, restarts=0, bad=0, last=None):
+    return {"frames": frames, "estimates": estimates, "merged": merged, "restarts": restarts, "particles": 16,
+            "bad": {"total": bad, "last": last}}
+
+
+def test_health_warns_on_what_happened_since_the_last_report_only():
+    """The level of the node's status (``/diagnostics``, ``~diagnostics``): each reason for a warning
+    counts since the report before; a quiet period afterwards is OK again."""
+    from experiments.ros.publishers import OK, WARN, health
+
+    assert health(_doc(frames=0, estimates=0), None, None, 2.0) == (OK, "waiting for perception")
+    level, msg = health(_doc(), None, 0.1, 2.0)
+    assert level == OK and "3 estimate(s)" in msg and "K = 16" in msg
+    level, msg = health(_doc(merged=2), _doc(), 0.1, 2.0)
+    assert level == WARN and "2 frame(s) merged" in msg
+    assert health(_doc(merged=2), _doc(merged=2), 0.1, 2.0)[0] == OK  # nothing new since
+    level, msg = health(_doc(bad=3, last="bad input (late) on /t"), _doc(bad=1), 0.1, 2.0)
+    assert level == WARN and "2 bad input(s)" in msg and "(late) on /t" in msg
+    level, msg = health(_doc(restarts=1), _doc(), 0.1, 2.0)
+    assert level == WARN and "restarted" in msg
+    level, msg = health(_doc(), _doc(), 2.5, 2.0)
+    assert level == WARN and "no perception for 2.5 s" in msg
+    assert health(_doc(frames=0, estimates=0), None, 5.0, 2.0)[0] == OK  # silent before any frame: waiting
+    level, msg = health(_doc(merged=1, restarts=1), _doc(), 3.0, 2.0)
+    assert level == WARN and msg.count(";") == 2  # every reason that holds
+
+
 def _wait(cond, timeout=30.0):
     deadline = time.monotonic() + timeout
     while not cond():
@@ -77,7 +117,8 @@ def session(tmp_path_factory):
     topics["sources"].append({"topic": "/tracker/extra", "type": "pose", "object": "cup", "position_std": 0.01})
     (home / "topics.yaml").write_text(yaml.safe_dump(topics))
     out = {"bad_kinds": BAD_KINDS, "frames": frames, "truth": {round(r["t"], 6): r for r in result.truth}, "meta": result.meta,
-           "estimates": [], "poses": [], "markers": [], "diagnostics": [], "scene": scene}
+           "estimates": [], "poses": [], "markers": [], "diagnostics": [], "status": [], "scene": scene,
+           "has_status": ros.diagnostic_msgs is not None}
     with Roscore(ros, home) as core:
         for key in ("ROS_MASTER_URI", "ROS_HOME", "ROS_HOSTNAME"):
             os.environ[key] = core.env[key]
@@ -98,6 +139,9 @@ def session(tmp_path_factory):
             rospy.Subscriber(ns + "markers", ros.visualization_msgs.MarkerArray, lambda m: out["markers"].append(m))
             rospy.Subscriber(ns + "diagnostics", ros.std_msgs.String,
                              lambda m: out["diagnostics"].append(json.loads(m.data)))
+            if ros.diagnostic_msgs is not None:
+                rospy.Subscriber("/diagnostics", ros.diagnostic_msgs.DiagnosticArray,
+                                 lambda m: out["status"].extend(m.status))
             buffer = ros.tf2_ros.Buffer(rospy.Duration(30))
             listener = ros.tf2_ros.TransformListener(buffer)
             player = Player(ros, ["cup"])
@@ -234,6 +278,30 @@ def test_marker_array_has_regions_and_hypotheses(session):
         assert m.text == f"cup: {h['relation']}" + (f" {h['support']}" if h["support"] else "") + f" {h['p']:.2f}"
     assert {m.text.split(":")[0] for m in by_ns["region_90"]} == {"cup", "screen"}  # the table is static
     assert all(0 < m.color.a <= 1 for m in by_ns["hypotheses"])
+
+
+def test_status_on_ros_diagnostics_follows_the_json_report(session):
+    """The node's status on ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``): OK while it
+    estimates, WARN when the bad messages came and when time went backwards, its values those of the
+    JSON report published with it."""
+    if not session["has_status"]:
+        pytest.skip("diagnostic_msgs is not installed (python3-diagnostic-msgs)")
+    status = [s for s in session["status"] if s.name == f"{NODE}: estimator"]
+    assert status, "no status of the node on /diagnostics"
+    values = [{kv.key: kv.value for kv in s.values} for s in status]
+    ok = [v for s, v in zip(status, values) if s.level == 0 and int(v["estimates"]) > 0]
+    assert ok and all("estimating" in s.message for s in status
+                      if s.level == 0 and s.message != "waiting for perception")
+    warn = [s.message for s in status if s.level == 1]
+    assert any("bad input" in m for m in warn), warn
+    assert any("restarted" in m for m in warn), warn
+    first_warn = next(i for i, s in enumerate(status) if s.level == 1)
+    assert any(s.level == 0 for s in status[:first_warn])  # OK before the first bad message
+    last, doc = values[-1], session["diagnostics"][-1]
+    for key in ("frames", "steps", "estimates", "merged", "restarts", "particles", "seed"):
+        assert last[key] == str(doc[key]), key
+    assert last["bad_total"] == str(doc["bad"]["total"]) and last["bad_wrong_type"] == "1"
+    assert {s.level for s in status} <= {0, 1} and doc["level"] in ("ok", "warn")
 
 
 def test_bad_input_is_counted_and_reported_and_the_node_keeps_running(session):

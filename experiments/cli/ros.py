@@ -29,6 +29,9 @@ def add_ros_arguments(p: argparse.ArgumentParser) -> None:
                    help="a message stamped this much before the newest one (a bag replayed in a loop: time "
                         "jumped back) restarts the estimation from it (default 1.0); smaller steps back are "
                         "late messages, dropped and counted")
+    p.add_argument("--silent-after", metavar="SECONDS", type=float, default=None,
+                   help="perception silent for longer than this, after some came, turns the /diagnostics "
+                        "status to a warning (default 2.0)")
     p.add_argument("--timeline-window", metavar="SECONDS", type=float, default=None,
                    help="keep the timeline's facts and events of the last SECONDS of stream time (default 3600)")
     p.add_argument("--master-timeout", metavar="SECONDS", type=float, default=30.0,

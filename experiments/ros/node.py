@@ -20,8 +20,13 @@ the step's time (its newest frame's stamp): TF frames ``estimate/<id>`` (parent:
 :func:`~experiments.ros.uncertainty.pose_covariance`); ``markers`` ``visualization_msgs/MarkerArray``
 (ellipsoids of the 90 % regions, a sphere and a label per hypothesis); ``estimate``
 ``std_msgs/String``: the estimate line of ``run --live`` (JSON with ``merged`` and ``latency``).
-``diagnostics`` (``std_msgs/String``, latched, JSON): frames, steps, merged frames, restarts and the
-bad input counted, by kind and by topic, and the last report.
+``diagnostics`` (``std_msgs/String``, latched, JSON): frames, steps, merged frames, restarts, the
+latency (the last step's, the p95 of the last 100), the bad input counted, by kind and by topic, and
+the last report, with a level and a message (:func:`~experiments.ros.publishers.health`: ``warn``
+when frames were merged, bad input counted or the estimation restarted since the last report, or
+when perception has been silent for ``silent_after`` s); the same as a
+``diagnostic_msgs/DiagnosticArray`` on ``/diagnostics`` (status ``<node>: estimator``), which
+``rqt_robot_monitor`` shows, where Debian's ``python3-diagnostic-msgs`` is installed.
 
 **Bad input** never stops the node; each is counted, reported on ``diagnostics`` and in the log
 (stderr, with the topic and the field): ``non_finite`` (a NaN or infinite coordinate, a zero
@@ -50,7 +55,7 @@ import numpy as np
 from experiments.live import TIMELINE_WINDOW, FrameQueue, LiveLoop
 from experiments.ros.assembler import FrameAssembler, decode_message
 from experiments.ros.bad_input import ROS1_TYPES, BadInput, finite_part
-from experiments.ros.publishers import NodePublishers
+from experiments.ros.publishers import LEVEL_NAMES, NodePublishers, health
 from experiments.ros.topics import TF_STATIC_TOPIC, TF_TOPIC, TopicsSpec
 
 
@@ -62,7 +67,8 @@ class NodeOptions:
     frame is checked for closing; ``report_first`` / ``report_every``: each (kind, topic) of bad
     input is logged the first ``report_first`` times, then every ``report_every``-th (all are
     counted); ``max_estimates``: stop after that many (None: run until shut down);
-    ``diagnostics_period`` (s): how often ``diagnostics`` is published besides on change."""
+    ``diagnostics_period`` (s): how often ``diagnostics`` is published besides on change;
+    ``silent_after`` (s): perception silent for longer than this (after some) is a warning."""
 
     name: str = "scene_estimator"
     reset_after: float = 1.0
@@ -72,6 +78,7 @@ class NodeOptions:
     report_every: int = 100
     max_estimates: int | None = None
     diagnostics_period: float = 1.0
+    silent_after: float = 2.0
     quiet: bool = False
 
     def __post_init__(self):
@@ -79,6 +86,8 @@ class NodeOptions:
             raise ValueError(f"reset_after must be > 0 s, got {self.reset_after}")
         if not self.tick > 0:
             raise ValueError(f"tick must be > 0 s, got {self.tick}")
+        if not self.silent_after > 0:
+            raise ValueError(f"silent_after must be > 0 s, got {self.silent_after}")
 
 
 class _StreamQueue(FrameQueue):
@@ -107,6 +116,7 @@ class RosNode:
         self.resets = 0
         self.frames = self.steps = self.merged = self.estimates = 0
         self.latencies: list[float] = []
+        self._last_diagnostics: dict | None = None
         self._stop = threading.Event()
         self._dynamic = [oid for oid in scene.object_ids]
         self.publishers = NodePublishers(ros, scene.object_ids, topics.world_frame)
@@ -267,10 +277,18 @@ class RosNode:
     def _publish_diagnostics(self, loop: LiveLoop | None) -> None:
         live = {"frames": self.frames + (loop.frames if loop else 0), "steps": self.steps + (loop.steps if loop else 0),
                 "merged": self.merged + (loop.merged if loop else 0)}
+        recent = 1e3 * np.asarray(self.latencies[-100:])
         doc = {"node": self.callerid, "particles": loop.estimator.K if loop else self.config.particles,
                "seed": self.seed,
                "ready": bool(self._subs), **live, "estimates": self.estimates, "restarts": self.resets,
+               "latency_ms_last": round(float(recent[-1]), 1) if len(recent) else None,
+               "latency_ms_p95": round(float(np.percentile(recent, 95)), 1) if len(recent) else None,
                "bad": self.bad.to_json()}
+        newest = self._newest_wall
+        silent = None if newest is None else time.monotonic() - newest
+        level, doc["message"] = health(doc, self._last_diagnostics, silent, self.options.silent_after)
+        doc["level"] = LEVEL_NAMES[level]
+        self._last_diagnostics = doc
         self.publishers.diagnostics(doc)
 
     # -- out --------------------------------------------------------------------------------------
@@ -329,15 +347,20 @@ def run_node(args, ros) -> int:
               else default_topics(scene.object_ids, args.world_frame or "world"))
     config = live_config(build_config(args), True, args.fixed_particles)
     options = NodeOptions(name=args.name, reset_after=1.0 if args.reset_after is None else float(args.reset_after),
+                          silent_after=2.0 if args.silent_after is None else float(args.silent_after),
                           timeline_window=(TIMELINE_WINDOW if args.timeline_window is None
                                            else float(args.timeline_window)),
                           max_estimates=args.max_estimates, quiet=args.quiet)
+    if ros.diagnostic_msgs is None:
+        rospy.logwarn("diagnostic_msgs is not installed (Debian package python3-diagnostic-msgs): the status is "
+                      "published on ~diagnostics (JSON) only, not on /diagnostics")
     with StopSignals() as signals:
         node = RosNode(ros, scene, topics, config, int(args.seed), options)
         if not args.quiet:
             print(f"{rospy.get_name()}: K={config.particles}, {len(topics.sources)} source(s) "
                   f"({', '.join(s.topic for s in topics.sources)}), world frame {topics.world_frame!r}; publishing "
-                  f"{rospy.get_name()}/estimate, /pose/<id>, /markers, /diagnostics and TF estimate/<id>",
+                  f"{rospy.get_name()}/estimate, /pose/<id>, /markers, /diagnostics, TF estimate/<id> and the "
+                  f"status on /diagnostics",
                   file=sys.stderr, flush=True)
         try:
             summary = node.spin()

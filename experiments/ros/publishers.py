@@ -4,8 +4,10 @@ frame), ``pose/<id>`` ``geometry_msgs/PoseWithCovarianceStamped`` (the 6 x 6 cov
 of :func:`~experiments.ros.uncertainty.pose_covariance`), ``markers``
 ``visualization_msgs/MarkerArray`` (ellipsoids of the :data:`REGION_LEVEL` regions, a sphere and a
 label per hypothesis) and ``estimate`` ``std_msgs/String`` (the JSON estimate line); besides,
-``diagnostics`` (``std_msgs/String``, latched, JSON). :func:`topic_name` makes an object id a ROS
-name. Units: metres, radians; stamps from integer nanoseconds.
+``diagnostics`` (``std_msgs/String``, latched, JSON) and the same as one
+``diagnostic_msgs/DiagnosticStatus`` on ROS's :data:`DIAGNOSTICS_TOPIC`, its level from
+:func:`health`. :func:`topic_name` makes an object id a ROS name. Units: metres, radians; stamps
+from integer nanoseconds.
 """
 from __future__ import annotations
 
@@ -17,6 +19,39 @@ import numpy as np
 from experiments.ros.uncertainty import pose_covariance, region_ellipsoid
 
 REGION_LEVEL = 0.9
+DIAGNOSTICS_TOPIC = "/diagnostics"
+"""ROS's diagnostics topic (``diagnostic_msgs/DiagnosticArray``), which ``rqt_robot_monitor`` and the
+diagnostic aggregator read."""
+OK, WARN = 0, 1
+"""Levels of ``diagnostic_msgs/DiagnosticStatus`` that :func:`health` gives."""
+LEVEL_NAMES = {OK: "ok", WARN: "warn"}
+
+
+def health(doc: dict, previous: dict | None, silent_s: float | None, silent_after: float) -> tuple[int, str]:
+    """The level (:data:`OK` or :data:`WARN`) and message of the node's diagnostics document ``doc``
+    (``frames``, ``estimates``, ``merged``, ``restarts``, ``particles``, ``bad``: ``total`` and
+    ``last``), against the one published before it (``previous``; None: the first). WARN when, since
+    then, frames were merged (the reasoning steps fall behind the frames), bad input was counted (the
+    last report is quoted) or the estimation restarted (time went backwards); or when, after some
+    perception, none came for more than ``silent_after`` s (``silent_s``: seconds since the newest
+    message; None: none yet). OK otherwise. Every reason that holds is in the message."""
+    before = previous or {"merged": 0, "restarts": 0, "bad": {"total": 0}}
+    reasons = []
+    merged = doc["merged"] - before["merged"]
+    if merged > 0:
+        reasons.append(f"falling behind: {merged} frame(s) merged into later steps")
+    bad = doc["bad"]["total"] - before["bad"]["total"]
+    if bad > 0:
+        reasons.append(f"{bad} bad input(s), the last: {doc['bad']['last']}")
+    if doc["restarts"] > before["restarts"]:
+        reasons.append("the estimation restarted: time went backwards")
+    if doc["frames"] > 0 and silent_s is not None and silent_s > silent_after:
+        reasons.append(f"no perception for {silent_s:.1f} s")
+    if reasons:
+        return WARN, "; ".join(reasons)
+    if doc["frames"] == 0:
+        return OK, "waiting for perception"
+    return OK, f"estimating: {doc['estimates']} estimate(s), K = {doc['particles']}"
 
 
 def topic_name(object_id: str) -> str:
@@ -38,13 +73,32 @@ class NodePublishers:
         self.pub_estimate = rospy.Publisher(ns + "estimate", ros.std_msgs.String, queue_size=10)
         self.pub_markers = rospy.Publisher(ns + "markers", ros.visualization_msgs.MarkerArray, queue_size=10)
         self.pub_diag = rospy.Publisher(ns + "diagnostics", ros.std_msgs.String, queue_size=10, latch=True)
+        self.pub_status = (None if ros.diagnostic_msgs is None else
+                           rospy.Publisher(DIAGNOSTICS_TOPIC, ros.diagnostic_msgs.DiagnosticArray, queue_size=10))
+        self.status_name = rospy.get_name().lstrip("/") + ": estimator"
         self.pub_pose = {oid: rospy.Publisher(f"{ns}pose/{topic_name(oid)}", ros.geometry_msgs.PoseWithCovarianceStamped,
                                               queue_size=10) for oid in object_ids}
         self.tf_broadcaster = ros.tf2_ros.TransformBroadcaster()
 
     def diagnostics(self, doc: dict) -> None:
-        """Publish the diagnostics document ``doc`` (JSON) on ``diagnostics``."""
+        """Publish the diagnostics document ``doc`` (JSON) on ``diagnostics`` and, with its ``level``
+        (``"ok"`` or ``"warn"``) and ``message``, as the status ``<node>: estimator`` on
+        :data:`DIAGNOSTICS_TOPIC` (the counts as key-value pairs; bad input per kind as ``bad_<kind>``)."""
         self.pub_diag.publish(self.ros.std_msgs.String(data=json.dumps(doc)))
+        if self.pub_status is None:
+            return
+        dm = self.ros.diagnostic_msgs
+        status = dm.DiagnosticStatus()
+        status.level = {v: k for k, v in LEVEL_NAMES.items()}[doc["level"]]
+        status.name, status.message, status.hardware_id = self.status_name, doc["message"], doc["node"].lstrip("/")
+        values = [(k, doc[k]) for k in ("frames", "steps", "estimates", "merged", "restarts", "particles", "seed",
+                                        "latency_ms_last", "latency_ms_p95")]
+        values += [("bad_total", doc["bad"]["total"])] + [(f"bad_{k}", n) for k, n in doc["bad"]["counts"].items()]
+        status.values = [dm.KeyValue(key=k, value="" if v is None else str(v)) for k, v in values]
+        array = dm.DiagnosticArray()
+        array.header.stamp = self.ros.rospy.Time.now()
+        array.status = [status]
+        self.pub_status.publish(array)
 
     def estimate(self, step, t0_ns: int | None) -> None:
         """Publish a reasoning ``step`` (TF, poses, markers, the estimate line), stamped with

@@ -37,8 +37,10 @@ PACKAGES = {
     "visualization_msgs.msg": "python3-visualization-msgs",
     "std_msgs.msg": "python3-std-msgs",
 }
+#: optional modules -> their package: without one, the node runs without what it serves
+OPTIONAL_PACKAGES = {"diagnostic_msgs.msg": "python3-diagnostic-msgs"}
 APT_PACKAGES = ("ros-core", "python3-rospy", "python3-tf2-ros", "python3-tf2-msgs", "python3-geometry-msgs",
-                "python3-visualization-msgs", "python3-std-msgs")
+                "python3-visualization-msgs", "python3-std-msgs", "python3-diagnostic-msgs")
 INSTALL_COMMAND = "sudo apt-get install " + " ".join(APT_PACKAGES)
 INSTALL_HINT = (f"install ROS 1 (Noetic) from Debian bookworm's or Ubuntu's packages: `{INSTALL_COMMAND}` "
                 f"(they install into /usr/lib/python3/dist-packages, where their modules are found automatically; set "
@@ -90,8 +92,9 @@ def import_ros() -> SimpleNamespace:
     """Import rospy, rosgraph, tf2_ros and the message modules the node uses, adding Debian's
     dist-packages to the search path if a plain import fails. Returns them as attributes
     (``rospy``, ``rosgraph``, ``tf2_ros``, ``tf2_msgs``, ``geometry_msgs``, ``visualization_msgs``,
-    ``std_msgs``: the ``.msg`` modules for the last four). Raises :class:`RosUnavailable` naming
-    the missing package and the command that installs it."""
+    ``std_msgs``: the ``.msg`` modules for the last four; ``diagnostic_msgs``, optional: None when
+    its package is not installed). Raises :class:`RosUnavailable` naming the missing package and
+    the command that installs it."""
     mods = {}
     for name, package in PACKAGES.items():
         try:
@@ -107,10 +110,19 @@ def import_ros() -> SimpleNamespace:
                       f"{sys.version.split()[0]} ({sys.executable}): {exc}" if found
                       else f"the Python module {name} (Debian package {package}) is not installed")
             raise RosUnavailable(f"ROS 1 is not available: {detail}. To run the ROS node, {INSTALL_HINT}.") from None
+    for name in OPTIONAL_PACKAGES:
+        for attempt in range(2):
+            try:
+                mods[name] = importlib.import_module(name)
+                break
+            except ImportError:
+                mods[name] = None
+                _add_search_dirs()
     return SimpleNamespace(rospy=mods["rospy"], rosgraph=mods["rosgraph"], genpy=mods["genpy"],
                            tf2_ros=mods["tf2_ros"], tf2_msgs=mods["tf2_msgs.msg"],
                            geometry_msgs=mods["geometry_msgs.msg"],
-                           visualization_msgs=mods["visualization_msgs.msg"], std_msgs=mods["std_msgs.msg"])
+                           visualization_msgs=mods["visualization_msgs.msg"], std_msgs=mods["std_msgs.msg"],
+                           diagnostic_msgs=mods["diagnostic_msgs.msg"])
 
 
 def ros_available() -> tuple[bool, str]:
