@@ -14,6 +14,8 @@ frame in the scene frame, as everywhere else.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pybullet as pb
 
@@ -69,6 +71,9 @@ class StaticGeometry:
                 lo, hi = w.aabbs([int(m)])[0]
                 self._local[int(m)] = (0.5 * (lo + hi), 0.5 * (hi - lo))
             w.set_poses(w.parked_pose[w.dynamic_indices], w.dynamic_indices)
+            # the same boxes as plain floats, for one pose at a time (clear_of_static)
+            self._static_boxes = list(zip(self._static_lo.tolist(), self._static_hi.tolist()))
+            self._local_lists = {m: (c.tolist(), h.tolist()) for m, (c, h) in self._local.items()}
         except BaseException:
             w.close()
             raise
@@ -104,6 +109,36 @@ class StaticGeometry:
         return np.all((lo[:, None, :] <= self._static_hi[None] - margin)
                       & (hi[:, None, :] >= self._static_lo[None] + margin), axis=2)
 
+    def clear_of_static(self, m: int, pose: list[float], margin: float) -> bool:
+        """Whether the box of dynamic object ``m`` (:meth:`box`) at the one link-frame ``pose`` (7
+        floats) overlaps no static body's box shrunk by ``margin`` (m): then it cannot be more than
+        ``margin`` deep inside static geometry (:meth:`depth_of` is 0). The box test of
+        :meth:`depth_of` for one pose, in plain floats: a detection that every particle shares is
+        asked about at every update, and numpy's overhead on one pose was most of that question's
+        cost. A non-finite pose or a zero quaternion is not clear."""
+        x, y, z, qx, qy, qz, qw = pose
+        if not all(math.isfinite(v) for v in pose):
+            return False
+        centre, half = self._local_lists[m]
+        if self._round[m]:
+            mid, ext = [x + centre[0], y + centre[1], z + centre[2]], half
+        else:
+            n = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+            if n == 0.0:
+                return False
+            qx, qy, qz, qw = qx / n, qy / n, qz / n, qw / n
+            rows = ((1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qz * qw), 2 * (qx * qz + qy * qw)),
+                    (2 * (qx * qy + qz * qw), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qx * qw)),
+                    (2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx * qx + qy * qy)))
+            mid = [p + (r[0] * centre[0] + r[1] * centre[1] + r[2] * centre[2]) for p, r in zip((x, y, z), rows)]
+            ext = [abs(r[0]) * half[0] + abs(r[1]) * half[1] + abs(r[2]) * half[2] for r in rows]
+        lo = [a - e for a, e in zip(mid, ext)]
+        hi = [a + e for a, e in zip(mid, ext)]
+        for s_lo, s_hi in self._static_boxes:
+            if all(lo[a] <= s_hi[a] - margin and hi[a] >= s_lo[a] + margin for a in range(3)):
+                return False
+        return True
+
     def may_be_inside(self, aabbs: np.ndarray, depth: float = INVARIANT_DEPTH) -> np.ndarray:
         """``(...)`` bool: which world bounding boxes ``aabbs (..., 2, 3)`` (m, ``[min, max]``; Bullet's,
         a little larger than the shapes) overlap a static body's box, or the floor, by more than
@@ -122,6 +157,8 @@ class StaticGeometry:
         poses = np.asarray(poses, dtype=float).reshape(-1, 7)
         if len(poses) > 1 and np.all(poses == poses[:1]):  # one pose for all (a detection every particle
             return np.full(len(poses), self.depth_of(m, poses[:1], beyond)[0])  # shares): tested once
+        if len(poses) == 1 and poses[0, 2] > -PARK_DEPTH and self.clear_of_static(m, poses[0].tolist(), beyond):
+            return np.zeros(1)  # its box meets no static body's: not that deep, whatever the pose
         w = self.world
         out = np.zeros(len(poses))
         ok = np.all(np.isfinite(poses), axis=1) & (poses[:, 2] > -PARK_DEPTH)

@@ -111,6 +111,30 @@ def test_the_box_prefilter_keeps_every_object_that_is_deep_inside(geometry):
 
 
 
+def test_one_pose_clear_of_static_is_the_box_test_in_plain_floats(geometry):
+    """``clear_of_static`` (one pose, plain floats) answers as the box test of ``depth_of`` (numpy,
+    any number of poses) on random poses of a sphere, a box and a mesh near the table top and the
+    floor, at three margins; where it says clear, the depth is under the margin. A non-finite pose
+    or a zero quaternion is never clear."""
+    rng = np.random.default_rng(11)
+    n, agree, clear = 300, 0, 0
+    for m in (1, 2, 3):
+        p = np.zeros((n, 7))
+        p[:, :2] = rng.uniform([-0.9, -0.6], [0.9, 0.6], (n, 2))
+        p[:, 2] = rng.choice([TABLE_TOP, 0.0], n) + rng.uniform(-0.1, 0.1, n)
+        p[:, 3:] = rng.normal(size=(n, 4))  # not normalised: the test normalises, as depth_of does
+        for margin in (0.0, 0.004, INVARIANT_DEPTH):
+            boxed = geometry._candidates(m, p, margin).any(axis=1)
+            fast = np.array([geometry.clear_of_static(m, row.tolist(), margin) for row in p])
+            agree += int(np.sum(fast == ~boxed))
+            clear += int(fast.sum())
+            assert np.all(geometry.depth_of(m, p[fast], margin) <= margin)
+    assert agree == 3 * 3 * n and 0 < clear < 3 * 3 * n
+    assert not geometry.clear_of_static(2, [0.3, 0.0, 1.5, 0.0, 0.0, 0.0, 0.0], 0.0)  # zero quaternion
+    assert not geometry.clear_of_static(2, [np.nan, 0.0, 1.5, 0.0, 0.0, 0.0, 1.0], 0.0)
+    assert geometry.clear_of_static(2, [0.3, 0.0, 1.5, 0.0, 0.0, 0.0, 1.0], 0.0)  # 87 cm above the top
+
+
 def test_a_depth_asked_again_is_remembered_not_measured_again(monkeypatch):
     """depth_of keeps the answers of its last call per object and margin (static geometry never
     moves): the same poses asked again make no pybullet query and get the same depths; other poses
