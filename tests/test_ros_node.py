@@ -65,7 +65,8 @@ def _doc(frames=10, estimates=3, merged=0, restarts=0, bad=0, last=None):
 
 def test_health_warns_on_what_happened_since_the_last_report_only():
     """The level of the node's status (``/diagnostics``, ``~diagnostics``): each reason for a warning
-    counts since the report before; a quiet period afterwards is OK again."""
+    counts since the report before; a quiet period afterwards is OK again; perception silent too
+    long warns, before the first frame too (a tracker that never started)."""
     from experiments.ros.publishers import OK, WARN, health
 
     assert health(_doc(frames=0, estimates=0), None, None, 2.0) == (OK, "waiting for perception")
@@ -80,7 +81,9 @@ def test_health_warns_on_what_happened_since_the_last_report_only():
     assert level == WARN and "restarted" in msg
     level, msg = health(_doc(), _doc(), 2.5, 2.0)
     assert level == WARN and "no perception for 2.5 s" in msg
-    assert health(_doc(frames=0, estimates=0), None, 5.0, 2.0)[0] == OK  # silent before any frame: waiting
+    level, msg = health(_doc(frames=0, estimates=0), None, 5.0, 2.0)  # subscribed 5 s ago, nothing came
+    assert level == WARN and "no perception yet, 5.0 s after subscribing" in msg
+    assert health(_doc(frames=0, estimates=0), None, None, 2.0)[0] == OK  # not subscribed yet
     level, msg = health(_doc(merged=1, restarts=1), _doc(), 3.0, 2.0)
     assert level == WARN and msg.count(";") == 2  # every reason that holds
 
@@ -295,8 +298,8 @@ def test_status_on_ros_diagnostics_follows_the_json_report(session):
     warn = [s.message for s in status if s.level == 1]
     assert any("bad input" in m for m in warn), warn
     assert any("restarted" in m for m in warn), warn
-    first_warn = next(i for i, s in enumerate(status) if s.level == 1)
-    assert any(s.level == 0 for s in status[:first_warn])  # OK before the first bad message
+    first_bad = next(i for i, s in enumerate(status) if "bad input" in s.message)
+    assert any(s.level == 0 and "estimating" in s.message for s in status[:first_bad])  # OK before it
     last, doc = values[-1], session["diagnostics"][-1]
     for key in ("frames", "steps", "estimates", "merged", "restarts", "particles", "seed"):
         assert last[key] == str(doc[key]), key

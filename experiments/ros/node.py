@@ -24,7 +24,8 @@ the step's time (its newest frame's stamp): TF frames ``estimate/<id>`` (parent:
 latency (the last step's, the p95 of the last 100), the bad input counted, by kind and by topic, and
 the last report, with a level and a message (:func:`~experiments.ros.publishers.health`: ``warn``
 when frames were merged, bad input counted or the estimation restarted since the last report, or
-when perception has been silent for ``silent_after`` s); the same as a
+when perception has been silent for ``silent_after`` s, or none came that long after subscribing);
+the same as a
 ``diagnostic_msgs/DiagnosticArray`` on ``/diagnostics`` (status ``<node>: estimator``), which
 ``rqt_robot_monitor`` shows, where Debian's ``python3-diagnostic-msgs`` is installed.
 
@@ -117,6 +118,7 @@ class RosNode:
         self.frames = self.steps = self.merged = self.estimates = 0
         self.latencies: list[float] = []
         self._last_diagnostics: dict | None = None
+        self._subscribed_wall: float | None = None
         self._stop = threading.Event()
         self._dynamic = [oid for oid in scene.object_ids]
         self.publishers = NodePublishers(ros, scene.object_ids, topics.world_frame)
@@ -136,6 +138,7 @@ class RosNode:
                                                queue_size=100))
         self._subs.append(rospy.Subscriber(TF_STATIC_TOPIC, rospy.AnyMsg, self._on_message,
                                            (-2, TF_STATIC_TOPIC, "tf"), queue_size=100))
+        self._subscribed_wall = time.monotonic()
         self._pump.start()
 
     # -- in ---------------------------------------------------------------------------------------
@@ -284,8 +287,8 @@ class RosNode:
                "latency_ms_last": round(float(recent[-1]), 1) if len(recent) else None,
                "latency_ms_p95": round(float(np.percentile(recent, 95)), 1) if len(recent) else None,
                "bad": self.bad.to_json()}
-        newest = self._newest_wall
-        silent = None if newest is None else time.monotonic() - newest
+        since = self._newest_wall if self._newest_wall is not None else self._subscribed_wall
+        silent = None if since is None else time.monotonic() - since
         level, doc["message"] = health(doc, self._last_diagnostics, silent, self.options.silent_after)
         doc["level"] = LEVEL_NAMES[level]
         self._last_diagnostics = doc

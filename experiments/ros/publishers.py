@@ -32,9 +32,10 @@ def health(doc: dict, previous: dict | None, silent_s: float | None, silent_afte
     (``frames``, ``estimates``, ``merged``, ``restarts``, ``particles``, ``bad``: ``total`` and
     ``last``), against the one published before it (``previous``; None: the first). WARN when, since
     then, frames were merged (the reasoning steps fall behind the frames), bad input was counted (the
-    last report is quoted) or the estimation restarted (time went backwards); or when, after some
-    perception, none came for more than ``silent_after`` s (``silent_s``: seconds since the newest
-    message; None: none yet). OK otherwise. Every reason that holds is in the message."""
+    last report is quoted) or the estimation restarted (time went backwards); or when no perception
+    came for more than ``silent_after`` s (``silent_s``: seconds since the newest message, or since
+    the node subscribed while none has come; None: not subscribed yet). OK otherwise. Every reason
+    that holds is in the message."""
     before = previous or {"merged": 0, "restarts": 0, "bad": {"total": 0}}
     reasons = []
     merged = doc["merged"] - before["merged"]
@@ -45,8 +46,9 @@ def health(doc: dict, previous: dict | None, silent_s: float | None, silent_afte
         reasons.append(f"{bad} bad input(s), the last: {doc['bad']['last']}")
     if doc["restarts"] > before["restarts"]:
         reasons.append("the estimation restarted: time went backwards")
-    if doc["frames"] > 0 and silent_s is not None and silent_s > silent_after:
-        reasons.append(f"no perception for {silent_s:.1f} s")
+    if silent_s is not None and silent_s > silent_after:
+        reasons.append(f"no perception for {silent_s:.1f} s" if doc["frames"] > 0
+                       else f"no perception yet, {silent_s:.1f} s after subscribing")
     if reasons:
         return WARN, "; ".join(reasons)
     if doc["frames"] == 0:
