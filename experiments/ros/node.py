@@ -25,9 +25,8 @@ latency (the last step's, the p95 of the last 100), the bad input counted, by ki
 the last report, with a level and a message (:func:`~experiments.ros.publishers.health`: ``warn``
 when frames were merged, bad input counted or the estimation restarted since the last report, or
 when perception has been silent for ``silent_after`` s, or none came that long after subscribing);
-the same as a
-``diagnostic_msgs/DiagnosticArray`` on ``/diagnostics`` (status ``<node>: estimator``), which
-``rqt_robot_monitor`` shows, where Debian's ``python3-diagnostic-msgs`` is installed.
+the same as a ``diagnostic_msgs/DiagnosticArray`` on ``/diagnostics`` (status ``<node>: estimator``),
+which ``rqt_robot_monitor`` shows, where Debian's ``python3-diagnostic-msgs`` is installed.
 
 **Bad input** never stops the node; each is counted, reported on ``diagnostics`` and in the log
 (stderr, with the topic and the field): ``non_finite`` (a NaN or infinite coordinate, a zero
@@ -69,7 +68,8 @@ class NodeOptions:
     input is logged the first ``report_first`` times, then every ``report_every``-th (all are
     counted); ``max_estimates``: stop after that many (None: run until shut down);
     ``diagnostics_period`` (s): how often ``diagnostics`` is published besides on change;
-    ``silent_after`` (s): perception silent for longer than this (after some) is a warning."""
+    ``silent_after`` (s): perception silent for longer than this (or none this long after the node
+    subscribed) is a warning."""
 
     name: str = "scene_estimator"
     reset_after: float = 1.0
@@ -362,8 +362,8 @@ def run_node(args, ros) -> int:
         if not args.quiet:
             print(f"{rospy.get_name()}: K={config.particles}, {len(topics.sources)} source(s) "
                   f"({', '.join(s.topic for s in topics.sources)}), world frame {topics.world_frame!r}; publishing "
-                  f"{rospy.get_name()}/estimate, /pose/<id>, /markers, /diagnostics, TF estimate/<id> and the "
-                  f"status on /diagnostics",
+                  f"{rospy.get_name()}/estimate, /pose/<id>, /markers, /diagnostics (JSON), TF estimate/<id>, and "
+                  f"its status on the global /diagnostics",
                   file=sys.stderr, flush=True)
         try:
             summary = node.spin()
