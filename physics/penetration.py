@@ -303,8 +303,13 @@ class StaticGeometry:
         """Link-frame ``poses (N, 7)`` of dynamic object ``m``, those deeper than ``depth`` (m) inside
         static geometry moved out of it along the deepest contact's normal (a fast object caught by
         a step in the middle of its impact on the table). Equal poses (a detection every particle
-        shares) are pushed out once. Returns the poses ``(N, 7)`` (a copy) and which were moved ``(N,)``."""
+        shares) are pushed out once, and one whose box meets no static body's is not measured at all
+        (:meth:`clear_of_static`: a detection of an object on the table, asked about at every update).
+        Returns the poses ``(N, 7)`` (a copy) and which were moved ``(N,)``."""
         poses = np.asarray(poses, dtype=float).reshape(-1, 7).copy()
+        if len(poses) and poses[0, 2] > -PARK_DEPTH and np.all(poses == poses[:1]) and self.clear_of_static(
+                m, poses[0].tolist(), depth):
+            return poses, np.zeros(len(poses), dtype=bool)
         deep = self.depth_of(m, poses, depth) > depth
         pushed: dict[bytes, np.ndarray] = {}
         for r in np.flatnonzero(deep).tolist():

@@ -25,6 +25,8 @@ diagnostic aggregator read."""
 OK, WARN = 0, 1
 """Levels of ``diagnostic_msgs/DiagnosticStatus`` that :func:`health` gives."""
 LEVEL_NAMES = {OK: "ok", WARN: "warn"}
+"""How the JSON report names each level."""
+_LEVELS = {name: level for level, name in LEVEL_NAMES.items()}
 
 
 def health(doc: dict, previous: dict | None, silent_s: float | None, silent_after: float) -> tuple[int, str]:
@@ -91,7 +93,7 @@ class NodePublishers:
             return
         dm = self.ros.diagnostic_msgs
         status = dm.DiagnosticStatus()
-        status.level = {v: k for k, v in LEVEL_NAMES.items()}[doc["level"]]
+        status.level = _LEVELS[doc["level"]]
         status.name, status.message, status.hardware_id = self.status_name, doc["message"], doc["node"].lstrip("/")
         values = [(k, doc[k]) for k in ("frames", "steps", "estimates", "merged", "restarts", "particles", "seed",
                                         "latency_ms_last", "latency_ms_p95")]

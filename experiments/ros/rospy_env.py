@@ -88,6 +88,16 @@ def _add_search_dirs() -> None:
     importlib.invalidate_caches()
 
 
+def _import(name: str):
+    """Module ``name``, imported as this Python finds it or else from Debian's directories
+    (:func:`_add_search_dirs`); ImportError when neither has it."""
+    try:
+        return importlib.import_module(name)
+    except ImportError:
+        _add_search_dirs()
+    return importlib.import_module(name)
+
+
 def import_ros() -> SimpleNamespace:
     """Import rospy, rosgraph, tf2_ros and the message modules the node uses, adding Debian's
     dist-packages to the search path if a plain import fails. Returns them as attributes
@@ -98,12 +108,7 @@ def import_ros() -> SimpleNamespace:
     mods = {}
     for name, package in PACKAGES.items():
         try:
-            mods[name] = importlib.import_module(name)
-            continue
-        except ImportError:
-            _add_search_dirs()
-        try:
-            mods[name] = importlib.import_module(name)
+            mods[name] = _import(name)
         except ImportError as exc:
             found = any(os.path.exists(os.path.join(d, name.split(".")[0])) for d in _search_dirs())
             detail = (f"{name} is installed in {', '.join(_search_dirs())} but does not import into Python "
@@ -111,13 +116,10 @@ def import_ros() -> SimpleNamespace:
                       else f"the Python module {name} (Debian package {package}) is not installed")
             raise RosUnavailable(f"ROS 1 is not available: {detail}. To run the ROS node, {INSTALL_HINT}.") from None
     for name in OPTIONAL_PACKAGES:
-        for attempt in range(2):
-            try:
-                mods[name] = importlib.import_module(name)
-                break
-            except ImportError:
-                mods[name] = None
-                _add_search_dirs()
+        try:
+            mods[name] = _import(name)
+        except ImportError:
+            mods[name] = None
     return SimpleNamespace(rospy=mods["rospy"], rosgraph=mods["rosgraph"], genpy=mods["genpy"],
                            tf2_ros=mods["tf2_ros"], tf2_msgs=mods["tf2_msgs.msg"],
                            geometry_msgs=mods["geometry_msgs.msg"],

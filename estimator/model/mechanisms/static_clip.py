@@ -31,13 +31,9 @@ class StaticClip(Mechanism):
         the surface from each particle's pose would cut short; and it costs one query per distinct
         target, not a sweep per particle."""
         model = self.model
-        geometry = model.geometry
         for m in np.flatnonzero(which.any(axis=0) & model.dynamic & model.known).tolist():
             rows = np.flatnonzero(which[:, m])
-            first = target[rows[0], m]
-            if np.all(target[rows, m] == first) and geometry.clear_of_static(m, first.tolist(), CLIP_DEPTH):
-                continue  # one detection for all, its box nowhere near that deep: nothing to lift
-            lifted, deep = geometry.push_out(m, target[rows, m], CLIP_DEPTH)
+            lifted, deep = model.geometry.push_out(m, target[rows, m], CLIP_DEPTH)
             if np.any(deep):
                 target[rows[deep], m] = lifted[deep]
                 target_vel[rows[deep], m] = 0.0
