@@ -1189,3 +1189,30 @@ def test_a_frame_enters_the_filter_at_most_four_times_through_an_update_that_res
         entered = _filter_entries(est, Frame(0.1, {"box": det([0.11, 0.0, TABLE_TOP + 0.03])}))
     assert entered[:3] == ["update", "observe", "step"] and "_resample" in entered
     assert len(entered) <= 4, entered
+
+
+@pytest.mark.parametrize("particles", [1, 16])
+def test_a_hand_rising_beside_a_still_box_it_never_held_does_not_carry_it(particles):
+    """A hand that has just put something beside a box rises at 1 m/s while the box, at rest on the
+    table and seen still, is missed for two frames of an update: no particle holds it, nothing
+    moved it, so its detection stays where it was seen. Carried up with the hand (6.7 cm over the
+    two frames, past the 4.5 cm divergence threshold), it was lifted 7 cm off the table in every
+    particle and overridden there (paper mode follows no hands)."""
+    scene = table_scene(BOX)
+    rest = np.array([0.0, 0.0, TABLE_TOP + 0.03])
+
+    def hand(t):
+        return rest + [0.08, 0.0, 0.12 + max(0.0, t - 1.0)]  # still, then rising from t = 1 s
+
+    out = []
+    for t in times(2.0):
+        missed = 1.05 < t < 1.1 + 0.5 / HZ  # the update's last two frames (1.067 and 1.1 s)
+        out.append(Frame(float(t), {} if missed else {"box": det(rest)}, {"human/right": hand(t)}))
+    config = EstimatorConfig.paper() if particles == 1 else EstimatorConfig(particles=particles)
+    with SceneEstimator(scene, config, np.random.default_rng(3)) as est:
+        beliefs = est.run(out)
+        events = est.timeline.to_json()["events"]
+    heights = [b.objects["box"].position[2] for b in beliefs]
+    assert np.max(np.abs(np.array(heights) - rest[2])) < 0.01, np.round(heights, 3)
+    assert all(b.objects["box"].p_plausible > 0.99 for b in beliefs)
+    assert not any(e["subject"] == "box" for e in events), events

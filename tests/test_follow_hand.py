@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from actions.modes import HELD
+from actions.modes import HELD, is_held
 from estimator.config import EstimatorConfig, NoiseConfig
 from estimator.model.mechanisms.follow_hand import FollowHands
 from estimator.observations import Detection, Frame
@@ -92,8 +92,34 @@ def test_held_target_adds_each_particles_offset_error_to_the_tracked_hand():
     mem.record(later)
     moved = mem.hand_position("human/right") - mem.hold_hand_position[CUP]
     assert 0.0 < moved[0] <= 0.06 and np.allclose(moved[1:], 0.0)
-    stale = mem.stale_in_hand(later) & detected  # as the model's move computes them
+    # seen still (no motion onset) and held in no particle: the hand near it does not carry it (a
+    # tray a mug was just put in); held in some particle, or seen moving, it does
+    assert np.isnan(mem.moving_since[CUP])
+    assert not (mem.stale_in_hand(later, none) & detected).any()
+    assert np.flatnonzero(mem.stale_in_hand(later, is_held(modes).any(axis=0)) & detected).tolist() == [CUP]
+    mem.moving_since[CUP] = 1.0  # seen moving since 1.0 s
+    assert np.flatnonzero(mem.stale_in_hand(later, none) & detected).tolist() == [CUP]
+    stale = mem.stale_in_hand(later, is_held(modes).any(axis=0)) & detected  # as the model's move computes them
     target, _, err = model.mechanism(FollowHands).held_targets(later, st.poses, modes, detected, detected, 0.1, np.random.default_rng(3),
                                         before, None, None, mem.detections_now(stale, later.t), stale)
     np.testing.assert_allclose(err[:, CUP], expect)
     np.testing.assert_allclose(target[:, CUP, :3], np.array([1.0, 0.0, 0.95]) + moved + expect)
+
+
+def test_a_still_object_not_detected_in_the_update_stays_at_its_last_detection():
+    """With moving teleports, a perceived object not detected in this update is carried on at its
+    fitted velocity only if seen moving (a motion onset): a still object's fitted velocity is its
+    detections' noise, which would carry its target away (a tray lifted 5 cm by 1 cm of noise)."""
+    model = make(EstimatorConfig(particles=2, follow_hands=False, moving_teleports=True))
+    st = model.initial_state(np.random.default_rng(0))
+    mem = model.memory
+    for t, z in [(0.0, 0.300), (0.033, 0.306), (0.067, 0.298), (0.1, 0.309)]:
+        mem.record(Frame(t, {"cup": Detection(np.array([0.3, 0.3, z]))}))
+    assert np.isnan(mem.moving_since[CUP]) and mem.perc_vel[CUP, 2] > 0.02  # noise fits a velocity
+    perceived, none = mem.perceived(0.3), np.zeros(5, bool)
+    assert perceived[CUP]
+    follow = model.mechanism(FollowHands)
+    target, target_vel, _ = follow.held_targets(Frame(0.3), st.poses, st.modes, none, perceived, 0.2,
+                                                np.random.default_rng(0), st.hold_error, none)
+    np.testing.assert_allclose(target[:, CUP, :3], [[0.3, 0.3, 0.309]] * 2)
+    assert np.all(target_vel[:, CUP] == 0.0)

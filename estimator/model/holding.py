@@ -46,8 +46,9 @@ def held_targets(frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: n
     velocity: :meth:`~estimator.model.perception_memory.PerceptionMemory.detections_now`; None: none, and
     the memory's latest detections), else
     stay where they were perceived (while perceived; with ``carried`` given, where their last
-    detection carried on at its perceived velocity puts them now: an object seen moving and then not
-    seen goes on, not pinned where it was seen) or where the particle has them, drifting by
+    detection carried on at its perceived velocity puts them now: an object seen moving, a motion
+    onset in ``memory.moving_since``, and then not seen goes on, not pinned where it was seen; a
+    still one stays at its last detection, as perceived objects not held do) or where the particle has them, drifting by
     ``held_drift_std`` (m per sqrt(s)) when not perceived. Others: their pose in ``poses (K, M, 7)``.
     Objects perceived ``falling`` off an edge (:class:`~estimator.model.step.Fall`) are where their free
     fall has them at ``frame.t`` (horizontally on their line), moving at its mean vertical velocity
@@ -72,8 +73,10 @@ def held_targets(frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: n
         vidx = np.flatnonzero(with_vel)
         target_vel[:, vidx, :3] = memory.perc_vel[vidx, :3]
         at_now = memory.position_at(frame.t) if carried is not None or falling is not None else None
-        if carried is not None:  # not detected now: the detection ages, carried on at its velocity
-            cidx = np.flatnonzero(perceived & ~detected)
+        if carried is not None:  # not detected now: the detection ages, carried on at its velocity if
+            # seen moving (a motion onset, as detections_now); a still object's fitted velocity is its
+            # detections' noise (1 cm of noise fits a few cm/s), which would carry its target away
+            cidx = np.flatnonzero(perceived & ~detected & np.isfinite(memory.moving_since))
             target[:, cidx, :3] = at_now[cidx]
             target_vel[:, cidx, :3] = memory.perc_vel[cidx, :3]
         if falling is not None:

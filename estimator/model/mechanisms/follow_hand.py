@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from actions.modes import is_held
+
 from ..holding import held_targets, push_cannot_lift
 from ..step import Fall
 from .base import ArraySpec, Draft, Mechanism
@@ -31,9 +33,9 @@ class FollowHands(Mechanism):
 
     def target(self, u: Draft) -> None:
         mem, cfg = self.model.memory, self.model.config
-        # detected in an earlier frame of the update only: moved on with its tracked hand, or, seen
-        # moving, at its velocity
-        stale = mem.stale_in_hand(u.frame) & u.detected
+        # detected in an earlier frame of the update only: moved on with its tracked hand (if some
+        # particle holds it, or it is seen moving), or, seen moving, at its velocity
+        stale = mem.stale_in_hand(u.frame, is_held(u.modes).any(axis=0)) & u.detected
         u.detections = mem.detections_now(stale, u.t, u.detected if self.moving else None)
         u.target, u.target_vel, u.hold_error = self.held_targets(
             u.frame, u.poses, u.modes, u.detected, u.perceived, u.dt, u.rng, u.state.hold_error, u.tele, u.fall,
