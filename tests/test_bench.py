@@ -10,7 +10,7 @@ import pytest
 
 from experiments.bench import scenarios as bench_scenario
 from experiments.bench.synthetic import bench_one, bench_scene
-from experiments.bench.timing import StreamTiming
+from experiments.bench.timing import StreamTiming, timing_row
 from experiments.cli import main
 from experiments.cli.demo import demo_files
 from experiments.scenarios import list_scenarios, resolve_scenarios
@@ -46,12 +46,14 @@ def test_bench_command_prints_json(capsys):
     assert 0 <= r["slept_early_per_particle"] <= 2
     shard = out["results"][0]["shard_parts_ms_median"]  # where the slowest shard's time went
     assert {"step", "load", "read", "held and tests", "visibility"} <= set(shard)
+    assert r["steps_bound_factor"] > 0  # the real-time factor of the slowest shard's steps alone
     assert all(v >= 0 for v in shard.values()) and list(shard.values()) == sorted(shard.values(), reverse=True)
     assert main(["bench", "--particles", "2", "--objects", "2", "--updates", "2", "--workers", "0",
                  "--breakdown"]) == 0
     out = capsys.readouterr().out.splitlines()
     assert out[0].startswith("| K | objects |") and "worker over bare (us/particle)" in out[0]
     assert "slowest model parts (ms)" in out[0] and "slowest shard's parts (ms)" in out[0]
+    assert "real-time factor of Bullet's steps alone" in out[0]
     assert out[1].startswith("|---|") and len(out) == 3 and out[2].startswith("| 2 | 2 |")
 
 
@@ -233,3 +235,14 @@ def test_bench_live_feeds_a_scenario_through_a_pipe_and_reports_latency(capsys):
     assert "--live feeds the streams of scenarios" in capsys.readouterr().err
     assert main(["bench", "--scenario", "static_floating", "--fixed-particles"]) == 2
     assert "--fixed-particles goes with --live" in capsys.readouterr().err
+
+
+def test_the_steps_bound_is_the_simulated_time_over_the_slowest_shards_steps():
+    """``steps_bound_factor``: the stream time the timed updates simulated (their steps times the time
+    step) over the slowest shard's Bullet steps summed over them; NaN when no step time was recorded."""
+    st = StreamTiming(startup_s=0.1, time_step=0.005, update_s=[0.2, 0.3], bare_s=[0.1, 0.1], steps=[20, 40],
+                      main_s=[0.01, 0.01], exchange_s=[0.0, 0.0], shard_s=[0.1, 0.2], over_s=[0.0, 0.0],
+                      parts_s=[{}, {}], shard_parts_s=[{"step": 0.05, "load": 0.04}, {"step": 0.25}])
+    assert timing_row(st)["steps_bound_factor"] == pytest.approx((20 + 40) * 0.005 / 0.3)
+    st.shard_parts_s = [{"load": 0.04}, {}]
+    assert math.isnan(timing_row(st)["steps_bound_factor"])

@@ -47,6 +47,7 @@ class StreamTiming:
     steps: those after the warm-up that simulated (the first reasoning step only places the objects)."""
 
     startup_s: float
+    time_step: float = 1.0 / 240.0  # the physics time step (s): the steps' stream time
     peak_memory_mb: float = 0.0
     processing_s: float = 0.0  # every update() call, frames between reasoning steps included
     frame_times: list[float] = dataclasses.field(default_factory=list)
@@ -85,7 +86,7 @@ def time_stream(scene: Scene, cfg: EstimatorConfig, frames: Iterable[Frame], rng
     those of a run that is not timed, as a run on another machine would."""
     t0 = time.perf_counter()
     est = SceneEstimator(scene, cfg, rng)
-    st = StreamTiming(startup_s=time.perf_counter() - t0)
+    st = StreamTiming(startup_s=time.perf_counter() - t0, time_step=cfg.physics.time_step)
     with est:
         pool = est.pool
         pids = [os.getpid()] + pool.worker_pids()
@@ -154,6 +155,7 @@ def timing_row(st: StreamTiming) -> dict:
     med, bare_med = float(np.median(st.update_s)), float(np.median(st.bare_s))
     parts = model_parts_ms(st.parts_s)
     shard_parts = model_parts_ms(st.shard_parts_s)
+    stepped = sum(p.get("step", 0.0) for p in st.shard_parts_s)  # the slowest shard's Bullet steps
     return {"updates": len(st.update_s), "steps_per_update": int(np.median(st.steps)),
             "update_ms_median": 1e3 * med, "update_ms_p95": 1e3 * float(np.percentile(st.update_s, 95)),
             "bare_step_ms_median": 1e3 * bare_med, "ratio": med / bare_med, "updates_per_s": 1.0 / med,
@@ -164,6 +166,10 @@ def timing_row(st: StreamTiming) -> dict:
             "worker_overhead_us_per_particle": 1e6 * float(np.median(st.over_s)),
             "model_parts_ms_median": parts, "model_parts_slowest": slowest_parts(parts),
             "shard_parts_ms_median": shard_parts, "shard_parts": slowest_parts(shard_parts, len(shard_parts)),
+            # the stream time the timed updates simulated over the slowest shard's Bullet steps in
+            # them: the real-time factor with no work around the physics (an upper bound on what
+            # cutting that work can reach; below 1, Bullet alone cannot keep up on this machine)
+            "steps_bound_factor": sum(st.steps) * st.time_step / stepped if stepped > 0 else math.nan,
             **({"mean_particles": float(np.mean(st.particles)), "max_particles": int(np.max(st.particles))}
                if st.particles else {}),
             # dynamic objects per particle the update moved (loaded awake, held, pushed out), and
@@ -206,7 +212,8 @@ def slowest_parts(parts_ms: dict[str, float], n: int = 3) -> str:
     return ", ".join(f"{k} {v:.1f}" for k, v in list(parts_ms.items())[:n])
 
 
-BREAKDOWN_COLUMNS = [("main_ms_median", "main process (ms)", "{:.2f}"),
+BREAKDOWN_COLUMNS = [("steps_bound_factor", "real-time factor of Bullet's steps alone", "{:.2f}"),
+                     ("main_ms_median", "main process (ms)", "{:.2f}"),
                      ("slowest_shard_ms_median", "slowest shard (ms)", "{:.1f}"),
                      ("exchange_ms_median", "exchange (ms)", "{:.2f}"),
                      ("worker_overhead_us_per_particle", "worker over bare (us/particle)", "{:.0f}"),
