@@ -13,6 +13,7 @@ from estimator.observations import Detection, Frame
 from physics.scene import scene_from_dict
 
 TABLE, CUP, BALL = range(3)
+NOT_HELD = np.zeros(3, dtype=bool)  # held in no particle: only objects seen moving follow their hand
 
 
 def memory(follow_hands=True, reasoner=ReasonerConfig(), from_onset=True, hands=None):
@@ -86,21 +87,21 @@ def test_a_detection_from_an_earlier_frame_is_carried_on_by_its_tracked_hand():
     for f in range(-40, 1):  # carried in view; the ball, far from the hand, lies still
         mem.record(Frame(f / 30, {"cup": det(hand0 + f * step - [0, 0, 0.2]), "ball": det([0.0, 0.0, 0.2])},
                          {"human/right": hand0 + f * step}))
-    assert not mem.stale_in_hand(Frame(0.0, {}, {"human/right": hand0})).any()
+    assert not mem.stale_in_hand(Frame(0.0, {}, {"human/right": hand0}), NOT_HELD).any()
     for f in (1, 2):  # then hidden, the hand tracked on
         mem.record(Frame(f / 30, {}, {"human/right": hand0 + f * step}))
     later = Frame(2 / 30, {}, {"human/right": hand0 + 2 * step})
-    assert list(mem.stale_in_hand(later)) == [False, True, False]
-    at = mem.detections_now(mem.stale_in_hand(later), later.t)
+    assert list(mem.stale_in_hand(later, NOT_HELD)) == [False, True, False]
+    at = mem.detections_now(mem.stale_in_hand(later, NOT_HELD), later.t)
     np.testing.assert_allclose(at[CUP, :3], hand0 + 2 * step - [0, 0, 0.2], atol=1e-6)
     np.testing.assert_allclose(at[BALL], mem.last_pose[BALL])  # no hand near it: at its detection
     np.testing.assert_allclose(at[CUP, 3:], mem.last_pose[CUP, 3:])
-    assert not mem.stale_in_hand(Frame(2 / 30, {}, {})).any()  # the hand is not tracked now
+    assert not mem.stale_in_hand(Frame(2 / 30, {}, {}), NOT_HELD).any()  # the hand is not tracked now
     # seen falling over the reasoning period (5 cm in 0.1 s): the hand near it let it go
     mem.end_tick(mem.perceived(2 / 30), np.array([False, True, True]), np.zeros((3, 3)))
     mem.record(Frame(3 / 30, {"cup": det(mem.last_pose[CUP, :3] - [0, 0, 0.05])}, {"human/right": hand0 + 3 * step}))
     assert mem.tick_velocity()[CUP, 2] < -0.3 and mem.hold_hand[CUP] == "human/right"
-    assert not mem.stale_in_hand(Frame(4 / 30, {}, {"human/right": hand0 + 4 * step})).any()
+    assert not mem.stale_in_hand(Frame(4 / 30, {}, {"human/right": hand0 + 4 * step}), NOT_HELD).any()
 
 
 def test_a_detection_from_an_earlier_frame_is_carried_on_at_its_velocity_when_seen_moving():

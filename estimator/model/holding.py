@@ -48,8 +48,9 @@ def held_targets(frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: n
     stay where they were perceived (while perceived; with ``carried`` given, where their last
     detection carried on at its perceived velocity puts them now: an object seen moving, a motion
     onset in ``memory.moving_since``, and then not seen goes on, not pinned where it was seen; a
-    still one stays at its last detection, as perceived objects not held do) or where the particle has them, drifting by
-    ``held_drift_std`` (m per sqrt(s)) when not perceived. Others: their pose in ``poses (K, M, 7)``.
+    still one stays at its last detection, as perceived objects not held do) or where the particle
+    has them, drifting by ``held_drift_std`` (m per sqrt(s)) when not perceived. Others: their pose
+    in ``poses (K, M, 7)``.
     Objects perceived ``falling`` off an edge (:class:`~estimator.model.step.Fall`) are where their free
     fall has them at ``frame.t`` (horizontally on their line), moving at its mean vertical velocity
     over the update: the Release rule lets them go there, not where they were last seen. Those

@@ -306,15 +306,15 @@ class PerceptionMemory(HandsInMemory):
         std = np.where(np.isfinite(self.last_std), self.last_std, self.noise.std)
         return d > np.array([onset_distance(math.sqrt(2.0) * float(s), floor) for s in std])
 
-    def stale_in_hand(self, frame: Frame, held: np.ndarray | None = None) -> np.ndarray:
+    def stale_in_hand(self, frame: Frame, held: np.ndarray) -> np.ndarray:
         """Objects ``(M,)`` last detected before ``frame.t`` (the update's later frames missed them)
-        whose hand then is tracked in ``frame``: the hand says where they are now. With ``held (M,)``
-        (those some particle holds), only those held or seen moving (a motion onset): a hand does not
-        carry a still object it is near (a tray it put a mug in). Not those moving down at
+        whose hand then is tracked in ``frame``: the hand says where they are now. Only those some
+        particle holds (``held (M,)`` bool) or seen moving (a motion onset): a hand does not carry a
+        still object it is near (a tray it put a mug in). Not those moving down at
         :data:`~estimator.config.RELEASE_DOWN_SPEED` or faster (:meth:`tick_velocity`): let go."""
         out = self.following_hand(frame) & (self.last_seen < frame.t - 1e-9)
         out &= self.tick_velocity()[:, 2] >= -RELEASE_DOWN_SPEED  # not falling
-        return out if held is None else out & (held | np.isfinite(self.moving_since))
+        return out & (held | np.isfinite(self.moving_since))
 
     def detections_now(self, stale: np.ndarray, t: float, aged: np.ndarray | None = None) -> np.ndarray:
         """The latest detections ``(M, 7)`` carried on to the update's frame at ``t`` (s): those of

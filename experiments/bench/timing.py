@@ -47,7 +47,7 @@ class StreamTiming:
     steps: those after the warm-up that simulated (the first reasoning step only places the objects)."""
 
     startup_s: float
-    time_step: float = 1.0 / 240.0  # the physics time step (s): the steps' stream time
+    time_step: float  # the physics time step (s): the stream time of a step
     peak_memory_mb: float = 0.0
     processing_s: float = 0.0  # every update() call, frames between reasoning steps included
     frame_times: list[float] = dataclasses.field(default_factory=list)
