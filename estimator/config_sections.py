@@ -85,8 +85,7 @@ class ReasonerConfig:
     * ``max_gap`` (s): an update simulates the stream time since the previous one, but at most this
       much: after a gap in the stream (a dropped connection, a paused recording) the scene is
       simulated for ``max_gap`` seconds, by which time what fell has landed and what rolls has
-      mostly stopped, instead of for hours (an extension of the paper, which assumes a steady
-      stream).
+      mostly stopped, instead of for hours (an extension of the paper, which assumes a steady stream).
     """
 
     t_perceived: float = 0.7
@@ -128,6 +127,8 @@ class NoiseConfig:
       take, in each particle, an ensemble Kalman step towards each detection (horizontal; prior
       variance the particles' weighted one plus ``fusion_floor_std**2``): a resting object is a
       static parameter of the filter, which resampling alone cannot move (:mod:`estimator.model.fusion`).
+    * ``still_average``: where a perceived object seen still (no motion onset) is free, its divergence test's
+      target and an override's pose are the average of its still detections, not the latest (``held_targets``).
     * ``motion_noise``: unperceived free objects resting on or in something also get position noise
       with a standard deviation of this fraction of the distance they moved in the last update
       (rolling and sliding are chaotic: the model error grows with motion; flight is not noised).
@@ -214,6 +215,7 @@ class NoiseConfig:
     process_orientation_std: float = 0.01
     motion_noise: float = 0.3
     fuse_resting: bool = True
+    still_average: bool = True
     fusion_floor_std: float = 0.001
     rest_speed: float = 0.01
     covariance_floor_std: float = 0.007  # fitted: scene-estimator fit-priors --regions (seeds 100-119)
@@ -242,11 +244,12 @@ class NoiseConfig:
     hand_radius: float = 0.045
 
     def __post_init__(self):
-        check_nonneg(self, "position_std", "orientation_std", "process_position_std",
-                      "process_orientation_std", "held_drift_std", "held_offset_std", "param_jitter", "outlier_prob",
-                      "miss_prob", "motion_noise", "rest_speed", "covariance_floor_std", "regularisation",
-                      "max_jitter_std", "fusion_floor_std", "covariance_speed_time", "hand_radius", "param_floor", "velocity_slack", "param_widen",
-                      "decel_error")
+        check_nonneg(self, "position_std", "orientation_std", "process_position_std", "process_orientation_std",
+                     "held_drift_std", "held_offset_std", "param_jitter", "outlier_prob", "miss_prob", "motion_noise",
+                     "rest_speed", "covariance_floor_std", "regularisation", "max_jitter_std", "fusion_floor_std",
+                     "covariance_speed_time", "hand_radius", "param_floor", "velocity_slack", "param_widen",
+                     "decel_error")
+        check_flags(self, "fuse_resting", "still_average")
         if not (isinstance(self.param_reach, (int, float)) and self.param_reach >= 1):
             raise ValueError(f"NoiseConfig.param_reach must be >= 1, got {self.param_reach!r}")
         dof = self.position_dof
@@ -273,14 +276,12 @@ class NoiseConfig:
     @classmethod
     def off(cls) -> "NoiseConfig":
         """No perturbation at all: the paper's deterministic reasoner."""
-        return cls(position_std=0.0, orientation_std=0.0, process_position_std=0.0,
-                   process_orientation_std=0.0, motion_noise=0.0, covariance_floor_std=0.0,
-                   covariance_speed_time=0.0, position_dof=None,
-                   held_drift_std=0.0, held_offset_std=0.0, friction_range=None,
-                   rolling_friction_range=None, rolling_friction_scale=None, spinning_friction_range=None,
-                   restitution_range=None,
+        return cls(position_std=0.0, orientation_std=0.0, process_position_std=0.0, process_orientation_std=0.0,
+                   motion_noise=0.0, covariance_floor_std=0.0, covariance_speed_time=0.0, position_dof=None,
+                   held_drift_std=0.0, held_offset_std=0.0, friction_range=None, rolling_friction_range=None,
+                   rolling_friction_scale=None, spinning_friction_range=None, restitution_range=None,
                    mass_scale_range=None, param_jitter=0.0, regularisation=0.0, outlier_prob=0.0,
-                   miss_prob=0.1, hand_occlusion=1.0, fuse_resting=False)
+                   miss_prob=0.1, hand_occlusion=1.0, fuse_resting=False, still_average=False)
 
     @property
     def is_off(self) -> bool:
@@ -299,8 +300,7 @@ class HandConfig:
     * ``accel_std`` (m/s^2): white acceleration of each hand's constant-velocity Kalman filter;
       the 99th percentile of held objects' accelerations in the scenarios, as the pose tracker's
       (:attr:`~estimator.applications.tracker.TrackerConfig.accel_std`): a hand moves what it holds.
-    * ``restart_gap`` (s): a hand not tracked for longer than this starts again at its next
-      position, at rest.
+    * ``restart_gap`` (s): a hand not tracked for longer than this starts again at its next position, at rest.
     * ``offset_time`` (s): a held object's offset to its hand is the exponential average of
       (detection - tracked hand) over the frames that show both, each new frame weighing
       ``max(1 / n, 1 - exp(-dt / offset_time))`` (``n`` frames so far, ``dt`` since the last): the

@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from actions.modes import is_held
+from actions.modes import is_free, is_held
 from actions.push import PICK_T, lifted
 
 from ..config import NoiseConfig
@@ -35,7 +35,8 @@ def held_targets(frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: n
                  hand_std: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Targets ``(K, M, 7)``, target velocities ``(K, M, 6)`` and offset errors ``(K, M, 3)``.
 
-    Perceived objects at their perception (no noise: it would shake what a held object carries), with
+    Perceived objects at their perception (no noise: it would shake what a held object carries; free
+    and seen still, with ``noise.still_average``, at the average of their still detections), with
     their perceived velocity (when ``carried (M,)`` is given, the teleports in motion: only those
     objects, teleported in motion now; the divergence test then carries the target on at that
     velocity, see :func:`~estimator.worlds.propagate.propagate_batch`; None: the paper's teleports); held objects not detected in this update follow the
@@ -68,6 +69,11 @@ def held_targets(frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: n
         target[:, pidx, :3] = now[pidx, :3]
         has_q = memory.last_has_orientation[pidx]
         target[:, pidx[has_q], 3:] = memory.last_pose[pidx[has_q], 3:]
+        if noise.still_average:  # free and seen still: where its still detections average, not one
+            # of them (a held one goes where the hand has it: its detection)
+            still = perceived & ~stale & np.isnan(memory.moving_since) & np.isfinite(memory.still_position[:, 0])
+            kk, mm = np.nonzero(is_free(modes) & still[None, :])
+            target[kk, mm, :3] = memory.still_position[mm]
         # with teleports in motion the divergence test carries a target on at its velocity: only
         # objects teleported in motion (placed at their detection now) have one
         with_vel = perceived if carried is None else perceived & carried
