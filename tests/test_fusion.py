@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from estimator.model.fusion import ensemble_kalman_step, weighted_axis_variance
+from estimator.model.fusion import ensemble_kalman_step, shift_collapsed, weighted_axis_variance
 
 
 def test_one_step_gives_the_kalman_posterior_in_mean_and_variance():
@@ -68,3 +68,26 @@ def test_weighted_variance_and_shape_checks():
     with pytest.raises(ValueError, match="do not agree"):
         ensemble_kalman_step(np.zeros((3, 2, 2)), np.full(3, 1 / 3), np.zeros((2, 3)), np.ones(2),
                              np.ones((3, 2), bool), np.random.default_rng(0))
+
+
+def test_a_cloud_with_no_spread_moves_whole_to_its_target_and_a_spread_one_stays():
+    """Object 0: every particle at one point (let go at one detection): the masked entries move by
+    the same shift to the target, and the cloud keeps no spread. Object 1: a cloud 1 cm wide is
+    left to the Kalman step."""
+    rng = np.random.default_rng(3)
+    K = 50
+    x = np.zeros((K, 2, 2))
+    x[:, 0] = [0.30, 0.20]
+    x[:, 1] = np.array([0.10, -0.10]) + rng.normal(0.0, 0.01, (K, 2))
+    w = rng.uniform(0.5, 1.5, K)
+    w /= w.sum()
+    target = np.array([[0.32, 0.19], [0.11, -0.10]])
+    mask = np.ones((K, 2), bool)
+    mask[:5, 0] = False  # held there in five particles
+    new, moved = shift_collapsed(x, w, target, mask, 1e-4)
+    assert np.array_equal(moved[:, 0], mask[:, 0]) and not moved[:, 1].any()
+    np.testing.assert_allclose(new[5:, 0], np.broadcast_to(target[0], (K - 5, 2)))
+    assert np.array_equal(new[:5, 0], x[:5, 0]) and np.array_equal(new[:, 1], x[:, 1])
+    with pytest.raises(ValueError, match="shift_collapsed"):
+        shift_collapsed(x, w, target[:1], mask, 1e-4)
+

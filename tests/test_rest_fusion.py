@@ -42,3 +42,28 @@ def test_a_still_resting_object_takes_a_kalman_step_to_its_detection_and_a_movin
                                    np.random.default_rng(1))[:, CUP].any()
     off = make(EstimatorConfig(particles=400, noise=NoiseConfig(fuse_resting=False)))
     assert not any(isinstance(m, FusionAtRest) for m in off.mechanisms)  # off: not among the mechanisms
+
+
+def test_a_resting_object_let_go_at_one_detection_moves_whole_to_where_its_detections_average():
+    """Every particle has the cup at the one detection it was let go at, 2.4 cm from where the
+    detections since average: a Kalman step would move it by its floor's gain (1 mm of prior spread
+    against 1 cm of noise: 1 %, under the half-millimetre minimum); it moves whole, every particle by
+    the same shift, so that none is weighed against another for it."""
+    model = make(EstimatorConfig(particles=64, noise=NoiseConfig(process_position_std=0.0)))
+    st = model.initial_state(np.random.default_rng(0))
+    mem = model.memory
+    rest = np.array([0.3, 0.3, 0.14])
+    seen = rest + np.random.default_rng(5).normal(0.0, 0.003, (9, 3))
+    for i, p in enumerate(seen):
+        mem.record(Frame(0.1 * i, {"cup": Detection(p)}))
+    assert np.isnan(mem.moving_since[CUP])
+    st.poses[:, CUP, :3] = rest + [0.024, 0.0, 0.0]  # let go there, in every particle
+    resting, detected = np.ones((64, 5), bool), np.zeros(5, bool)
+    detected[CUP] = True
+    poses = st.poses.copy()
+    moved = model.mechanism(FusionAtRest).fuse_resting(poses, st.log_weights, st.modes, resting, detected,
+                                                       np.random.default_rng(1))
+    assert moved[:, CUP].all()
+    np.testing.assert_allclose(poses[:, CUP, :2], np.broadcast_to(mem.still_position[CUP, :2], (64, 2)))
+    assert np.all(poses[:, CUP, 2] == st.poses[:, CUP, 2])  # the height is physics's
+

@@ -62,3 +62,36 @@ def ensemble_kalman_step(x: np.ndarray, weights: np.ndarray, detected: np.ndarra
     moved = mask & (np.linalg.norm(step, axis=-1) >= min_step)
     out = np.where(moved[..., None], x + step, x)
     return out, moved
+
+
+def shift_collapsed(x: np.ndarray, weights: np.ndarray, target: np.ndarray, mask: np.ndarray,
+                    spread: float) -> tuple[np.ndarray, np.ndarray]:
+    """Clouds with no spread moved, whole, to ``target``.
+
+    An object put at one detection in every particle (a held object let go where it was seen) is a
+    cloud with no spread: an ensemble Kalman step (:func:`ensemble_kalman_step`) cannot move it (its
+    gain is the floor's), and it would stay where that one detection put it. Its uncertainty is that
+    detection's, and the best estimate of where it rests is the average of its detections since:
+    such a cloud is moved as a whole, every particle by the same shift, so that no particle is
+    weighed against another for it.
+
+    Args:
+        x: ``(K, N, D)`` particle positions (m), not modified.
+        weights: ``(K,)`` normalised weights.
+        target: ``(N, D)`` where each cloud goes (m): the average of its still detections.
+        mask: ``(K, N)`` bool, the entries that may move.
+        spread: a cloud whose weighted standard deviation is under this (m) on every axis has no spread.
+
+    Returns:
+        ``(new x (K, N, D), moved (K, N) bool)``: the masked entries of the clouds with no spread.
+    """
+    K, N, D = x.shape
+    if target.shape != (N, D) or mask.shape != (K, N) or weights.shape != (K,):
+        raise ValueError(f"shift_collapsed: x {x.shape}, target {target.shape}, mask {mask.shape}, "
+                         f"weights {weights.shape} do not agree")
+    flat = np.all(weighted_axis_variance(x, weights) < spread ** 2, axis=1)  # (N,)
+    moved = mask & flat[None, :]
+    mean = np.einsum("k,knd->nd", weights, x)
+    out = np.where(moved[..., None], x + (target - mean)[None], x)
+    return out, moved
+

@@ -10,12 +10,19 @@ from actions.modes import is_free
 
 from ...resampling import normalise_log_weights
 from ...worlds.resting import slow
-from ..fusion import ensemble_kalman_step
+from ..fusion import ensemble_kalman_step, shift_collapsed
 from .base import Draft, Mechanism
 
 FUSION_MIN_STEP = 5e-4
 """Ensemble Kalman steps of resting objects shorter than this (m) are not taken: a converged object
 stays asleep in its world (:meth:`FusionAtRest.fuse_resting`)."""
+
+FUSION_NO_SPREAD = 1e-4
+"""m: a resting object's cloud whose weighted standard deviation is under this on both horizontal
+axes has no spread (put at one detection in every particle: a held object let go where it was
+seen); it moves whole to where its still detections average (:func:`~estimator.model.fusion.shift_collapsed`).
+The Kalman step's perturbed observations leave a cloud at least its gain times the detection's
+noise wide, millimetres."""
 
 FUSION_SETTLED = 1.5e-3
 """A resting object whose particles' weighted mean is within this (m, horizontally) of the average of
@@ -38,8 +45,9 @@ class FusionAtRest(Mechanism):
         (detected, perceived, not teleported), perceived still (no motion onset since it was last
         at rest) and, in a particle (``log_weights (K,)``), free and ``resting (K, M)``, takes an
         ensemble Kalman step towards its latest detection (the prior variance floored at
-        ``fusion_floor_std``, steps under :data:`FUSION_MIN_STEP` not taken). Returns the entries
-        moved ``(K, M)`` (no entry when ``fuse_resting`` is off)."""
+        ``fusion_floor_std``, steps under :data:`FUSION_MIN_STEP` not taken); a cloud with no spread
+        (:data:`FUSION_NO_SPREAD`) moves whole to the average of its still detections instead.
+        Returns the entries moved ``(K, M)`` (no entry when ``fuse_resting`` is off)."""
         model = self.model
         nz, mem, K, M = model.config.noise, model.memory, model.K, model.M
         out = np.zeros((K, M), dtype=bool)
@@ -57,8 +65,11 @@ class FusionAtRest(Mechanism):
         mask &= (np.linalg.norm(mean - mem.still_position[idx, :2], axis=1) > FUSION_SETTLED)[None, :]
         std = mem.last_std[idx]
         std = np.where(np.isfinite(std), std, max(nz.position_std, 1e-3))
-        new, moved = ensemble_kalman_step(poses[:, idx, :2], weights, mem.last_pose[idx, :2], std, mask, rng,
+        # a cloud with no spread (let go at one detection in every particle) moves whole to where its
+        # still detections average; the others take a Kalman step
+        x, shifted = shift_collapsed(poses[:, idx, :2], weights, mem.still_position[idx, :2], mask, FUSION_NO_SPREAD)
+        new, moved = ensemble_kalman_step(x, weights, mem.last_pose[idx, :2], std, mask & ~shifted, rng,
                                           floor_std=nz.fusion_floor_std, min_step=FUSION_MIN_STEP)
         poses[:, idx, :2] = new
-        out[:, idx] = moved
+        out[:, idx] = moved | shifted
         return out
