@@ -195,6 +195,61 @@ def test_a_sweep_killed_half_way_and_rerun_gives_the_same_table(reference, tmp_p
     assert _summary_without_timing(out / "summary.csv") == _summary_without_timing(ref_out / "summary.csv")
 
 
+def _children(pid: int) -> dict[int, str]:
+    """The processes whose parent is ``pid`` and that are not zombies: ``{pid: command line}`` (Linux)."""
+    out = {}
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            stat = (d / "stat").read_text()
+            cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except OSError:
+            continue
+        state, ppid = stat[stat.rindex(")") + 2:].split()[:2]
+        if int(ppid) == pid and state != "Z":
+            out[int(d.name)] = cmd
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat[stat.rindex(")") + 2] != "Z"
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads the process table from /proc")
+def test_the_pool_workers_of_a_killed_sweep_end_with_it(tmp_path):
+    """``evaluate --workers 2`` killed (SIGKILL: no handler runs, no pool is closed): its spawned
+    trial workers end too (``exit_with_parent``) instead of running on, orphaned, through the
+    trials they had queued; the trials written are kept."""
+    out = tmp_path / "killed"
+    args = [*CLI_ARGS, "--out", str(out)]
+    args[args.index("--workers") + 1] = "2"
+    proc = subprocess.Popen([sys.executable, "-m", "experiments.cli.evaluate", *args], cwd=ROOT,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    path, workers = out / "trials.jsonl", {}
+    deadline = time.monotonic() + 120
+    try:
+        while time.monotonic() < deadline and proc.poll() is None:
+            workers = {p: c for p, c in _children(proc.pid).items() if "multiprocessing.spawn" in c}
+            if len(workers) == 2 and path.exists() and path.read_text().count("\n") >= 1:
+                break
+            time.sleep(0.05)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert len(workers) == 2, "the sweep's two workers were not seen running"
+    deadline = time.monotonic() + 60  # a liveness bound (the workers check every PARENT_POLL s), not a speed one
+    while time.monotonic() < deadline and any(_alive(p) for p in workers):
+        time.sleep(0.1)
+    assert not any(_alive(p) for p in workers), "orphaned trial workers are still running"
+    lines = path.read_text().splitlines()
+    assert lines and all(json.loads(x)["key"] for x in lines[:-1])
+
+
 def test_a_sweep_resumed_from_a_truncated_file_gives_the_same_table(reference, tmp_path):
     rows, ref_out = reference
     data = (ref_out / "trials.jsonl").read_text().splitlines(keepends=True)

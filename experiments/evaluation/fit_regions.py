@@ -145,7 +145,9 @@ def collect_region_samples(scenarios: list[str] | None = None, seeds=FIT_SEEDS, 
 
     if workers > 1 and todo:
         import multiprocessing as mp
-        with mp.get_context("spawn").Pool(workers) as pool:
+
+        from experiments.evaluation.sweep import exit_with_parent
+        with mp.get_context("spawn").Pool(workers, initializer=exit_with_parent, initargs=(os.getpid(),)) as pool:
             for job, part in zip(todo, pool.imap(_trial_samples, todo, chunksize=1)):
                 keep(job, part)
     else:

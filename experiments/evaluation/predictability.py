@@ -244,7 +244,10 @@ def run_twins(names: list[str], seeds, config: TwinConfig, out_dir: str, workers
                     progress(row)
             if workers > 1:
                 import multiprocessing as mp
-                with mp.get_context("spawn").Pool(workers) as pool:
+
+                from experiments.evaluation.sweep import exit_with_parent
+                with mp.get_context("spawn").Pool(workers, initializer=exit_with_parent,
+                                                  initargs=(os.getpid(),)) as pool:
                     for row in pool.imap_unordered(twin_row, todo, chunksize=1):
                         keep(row)
             else:

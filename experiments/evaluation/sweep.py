@@ -17,6 +17,7 @@ import json
 import multiprocessing
 import os
 import sys
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -162,16 +163,38 @@ def append_results(results: Iterable[dict], path: str | os.PathLike, total: int,
     return failures
 
 
+PARENT_POLL = 0.5
+"""s: how often a pool's worker process checks that the process that started it is still there
+(:func:`exit_with_parent`)."""
+
+
+def exit_with_parent(parent: int) -> None:
+    """Pool initializer: a daemon thread ends this worker process (``os._exit``) once its parent,
+    process ``parent`` (pid), is gone. A parent ended by a signal it does not handle (``kill``,
+    which sends SIGTERM, or SIGKILL) closes no pool, and its spawned workers went on running their
+    trials, orphaned, for as long as they had trials queued. The results already written by the
+    parent are kept; the trials running are lost (the same command runs them again: it skips the
+    trials already in its output)."""
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(PARENT_POLL)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
+
+
 def local_results(specs: list, workers: int, fn: Callable = run_trial_safe) -> Iterable[dict]:
     """Run ``fn(spec)`` for every spec (default: an evaluation trial) in this process
-    (``workers <= 1``) or on a pool of spawned processes; yields results as they finish. Pending
-    trials are cancelled when the consumer stops."""
+    (``workers <= 1``) or on a pool of spawned processes, which end with this one
+    (:func:`exit_with_parent`); yields results as they finish. Pending trials are cancelled when the
+    consumer stops."""
     if workers <= 1:
         for spec in specs:
             yield fn(spec)
         return
     ctx = multiprocessing.get_context("spawn")
-    pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, max_tasks_per_child=None)
+    pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, max_tasks_per_child=None,
+                                  initializer=exit_with_parent, initargs=(os.getpid(),))
     try:
         futures = [pool.submit(fn, s) for s in specs]
         for fut in cf.as_completed(futures):
