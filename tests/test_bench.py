@@ -131,9 +131,9 @@ def test_bench_scenario_all_expands_to_every_built_in_scenario(monkeypatch, caps
     assert resolve_scenarios(["stacked_tower", "all", "stacked_tower"]) == (
         ["stacked_tower"] + [n for n in names if n != "stacked_tower"])
     # the command runs one row per (scenario, K) of the expansion (nothing simulated or timed here)
-    fake = StreamTiming(startup_s=0.5, time_step=1 / 240, peak_memory_mb=100.0, processing_s=0.2, frame_times=[0.1, 0.2, 0.3],
-                        update_s=[0.01, 0.03], bare_s=[0.005, 0.01], steps=[24, 24], main_s=[0.001] * 2,
-                        exchange_s=[0.001] * 2, shard_s=[0.008] * 2, over_s=[1e-5] * 2)
+    fake = StreamTiming(startup_s=0.5, time_step=1 / 240, peak_memory_mb=100.0, processing_s=0.2,
+                        frame_times=[0.1, 0.2, 0.3], update_s=[0.01, 0.03], bare_s=[0.005, 0.01], steps=[24, 24],
+                        main_s=[0.001] * 2, exchange_s=[0.001] * 2, shard_s=[0.008] * 2, over_s=[1e-5] * 2)
     monkeypatch.setattr(bench_scenario, "scenario_stream", lambda name: _NoStream())
     monkeypatch.setattr(bench_scenario, "time_stream", lambda *a, **kw: fake)
     assert main(["bench", "--scenario", "all", "--particles", "16", "256", "--json"]) == 0

@@ -195,29 +195,32 @@ def test_a_sweep_killed_half_way_and_rerun_gives_the_same_table(reference, tmp_p
     assert _summary_without_timing(out / "summary.csv") == _summary_without_timing(ref_out / "summary.csv")
 
 
+def _state_and_parent(pid_dir: Path) -> tuple[str, int] | None:
+    """A process's state letter and parent pid from ``/proc/<pid>/stat`` (None: gone)."""
+    try:
+        stat = (pid_dir / "stat").read_text()
+    except OSError:
+        return None
+    state, ppid = stat[stat.rindex(")") + 2:].split()[:2]
+    return state, int(ppid)
+
+
+def _alive(pid: int) -> bool:
+    found = _state_and_parent(Path(f"/proc/{pid}"))
+    return found is not None and found[0] != "Z"
+
+
 def _children(pid: int) -> dict[int, str]:
     """The processes whose parent is ``pid`` and that are not zombies: ``{pid: command line}`` (Linux)."""
     out = {}
     for d in Path("/proc").iterdir():
-        if not d.name.isdigit():
-            continue
-        try:
-            stat = (d / "stat").read_text()
-            cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode()
-        except OSError:
-            continue
-        state, ppid = stat[stat.rindex(")") + 2:].split()[:2]
-        if int(ppid) == pid and state != "Z":
-            out[int(d.name)] = cmd
+        found = _state_and_parent(d) if d.name.isdigit() else None
+        if found is not None and found[1] == pid and found[0] != "Z":
+            try:
+                out[int(d.name)] = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+            except OSError:
+                continue
     return out
-
-
-def _alive(pid: int) -> bool:
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return False
-    return stat[stat.rindex(")") + 2] != "Z"
 
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads the process table from /proc")

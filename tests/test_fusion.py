@@ -90,4 +90,3 @@ def test_a_cloud_with_no_spread_moves_whole_to_its_target_and_a_spread_one_stays
     assert np.array_equal(new[:5, 0], x[:5, 0]) and np.array_equal(new[:, 1], x[:, 1])
     with pytest.raises(ValueError, match="shift_collapsed"):
         shift_collapsed(x, w, target[:1], mask, 1e-4)
-

@@ -66,4 +66,3 @@ def test_a_resting_object_let_go_at_one_detection_moves_whole_to_where_its_detec
     assert moved[:, CUP].all()
     np.testing.assert_allclose(poses[:, CUP, :2], np.broadcast_to(mem.still_position[CUP, :2], (64, 2)))
     assert np.all(poses[:, CUP, 2] == st.poses[:, CUP, 2])  # the height is physics's
-

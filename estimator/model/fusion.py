@@ -94,4 +94,3 @@ def shift_collapsed(x: np.ndarray, weights: np.ndarray, target: np.ndarray, mask
     mean = np.einsum("k,knd->nd", weights, x)
     out = np.where(moved[..., None], x + (target - mean)[None], x)
     return out, moved
-

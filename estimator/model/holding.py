@@ -71,7 +71,7 @@ def held_targets(frame: Frame, poses: np.ndarray, modes: np.ndarray, detected: n
         target[:, pidx[has_q], 3:] = memory.last_pose[pidx[has_q], 3:]
         if noise.still_average:  # free and seen still: where its still detections average, not one
             # of them (a held one goes where the hand has it: its detection)
-            still = perceived & ~stale & np.isnan(memory.moving_since) & np.isfinite(memory.still_position[:, 0])
+            still = perceived & ~stale & memory.seen_still
             kk, mm = np.nonzero(is_free(modes) & still[None, :])
             target[kk, mm, :3] = memory.still_position[mm]
         # with teleports in motion the divergence test carries a target on at its velocity: only

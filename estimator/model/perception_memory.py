@@ -53,17 +53,16 @@ class PerceptionMemory(HandsInMemory):
             (``moving_since``); False: over the whole window (the paper's mode keeps it).
         hands: how tracked hands and offsets to them are read (:class:`~estimator.config.HandConfig`).
 
-    Arrays (all ``(M, ...)``): ``last_pose (M, 7)``, ``last_has_orientation`` bool, ``last_seen``
-    (s; -inf: never), ``last_std`` (m; NaN: the detector gave none), ``perc_vel (M, 6)`` (linear part
-    the least-squares slope of the detections over :data:`VELOCITY_WINDOW`, m/s; angular part 0),
-    ``perc_vel_sxx (M,)`` (s^2, the spread of those detections' times about their mean: the slope's
-    standard error is the detection noise over its square root; 0: no slope), ``pose_at_tick (M, 7)``
-    and ``seen_at_tick`` (``last_pose``, ``last_seen`` at the previous reasoning step), ``perceived_prev`` bool (then),
-    ``hold_hand`` (name of the tracked hand near each object when last detected, or None),
-    ``hold_offset (M, 3)`` (object minus raw hand position, m, averaged over the frames that showed
-    both, :func:`~estimator.model.hands.average_offset`), ``still_position (M, 3)`` (m, average
-    detection while the object is still; NaN: not seen still) and ``moving_since (M,)`` (s, the time
-    a still object started moving, :meth:`onset`, until it is at rest again; NaN: still).
+    Arrays (all ``(M, ...)``): ``last_pose (M, 7)``, ``last_has_orientation`` bool, ``last_seen`` (s; -inf: never),
+    ``last_std`` (m; NaN: the detector gave none), ``perc_vel (M, 6)`` (linear part the least-squares slope of the
+    detections over :data:`VELOCITY_WINDOW`, m/s; angular part 0), ``perc_vel_sxx (M,)`` (s^2, the spread of those
+    detections' times about their mean: the slope's standard error is the detection noise over its square root; 0:
+    no slope), ``pose_at_tick (M, 7)`` and ``seen_at_tick`` (``last_pose``, ``last_seen`` at the previous reasoning
+    step), ``perceived_prev`` bool (then), ``hold_hand`` (name of the tracked hand near each object when last
+    detected, or None), ``hold_offset (M, 3)`` (object minus raw hand position, m, averaged over the frames that
+    showed both, :func:`~estimator.model.hands.average_offset`), ``still_position (M, 3)`` (m, average detection
+    while the object is still; NaN: not seen still) and ``moving_since (M,)`` (s, the time a still object started
+    moving, :meth:`onset`, until it is at rest again; NaN: still; :attr:`seen_still`).
     """
 
     def __init__(self, scene: Scene, poses: np.ndarray, reasoner: ReasonerConfig, follow_hands: bool,
@@ -77,8 +76,7 @@ class PerceptionMemory(HandsInMemory):
         self.static = np.array([o.static for o in scene.objects], dtype=bool)
         self.last_pose = poses.copy()
         self.last_has_orientation = np.zeros(M, dtype=bool)
-        self.last_seen = np.full(M, -np.inf)
-        self.last_std = np.full(M, np.nan)
+        self.last_seen, self.last_std = np.full(M, -np.inf), np.full(M, np.nan)
         self._perc_vel = np.zeros((M, 6))
         self._sxx = np.zeros(M)
         self._line_xy = np.zeros((M, 2))  # the fitted line's horizontal position at the last detection
@@ -92,8 +90,7 @@ class PerceptionMemory(HandsInMemory):
         self._prev_tick_vel = np.zeros((M, 3))
         self.seen_at_tick = np.full(M, -np.inf)
         self._history: list[deque] = [deque() for _ in range(M)]
-        self.still_position = np.full((M, 3), np.nan)
-        self.moving_since = np.full(M, np.nan)
+        self.still_position, self.moving_since = np.full((M, 3), np.nan), np.full(M, np.nan)
         self._still_n = np.zeros(M, dtype=int)
         self.workspace = scene.workspace_bounds()
         self.rejected = 0
@@ -255,6 +252,11 @@ class PerceptionMemory(HandsInMemory):
                 self.still_position[m] = still + max(1.0 / self._still_n[m], 1.0 / STILL_FRAMES) * (position - still)
 
     # -- queries at a reasoning step ------------------------------------------------------------------
+    @property
+    def seen_still(self) -> np.ndarray:
+        """``(M,)`` bool: objects seen still: a still position known and no motion onset since."""
+        return np.isnan(self.moving_since) & np.isfinite(self.still_position[:, 0])
+
     def perceived(self, t: float) -> np.ndarray:
         """Dynamic objects ``(M,)`` seen within ``t_perceived`` of ``t``."""
         return ~self.static & (t - self.last_seen <= self.reasoner.t_perceived + 1e-9)
@@ -273,8 +275,7 @@ class PerceptionMemory(HandsInMemory):
         base[on_line, :2] = self._line_xy[on_line]
         return base + vel * lag[:, None]
 
-    def free_fall(self, times, gravity: float,
-                  position_std: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def free_fall(self, times, gravity: float, position_std: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Heights ``(T, M)`` (m) and vertical velocities ``(T, M)`` (m/s) at ``times (T,)`` (s) of a
         free fall through each object's last two detections of its segment, for ``gravity`` (m/s^2,
         negative), and that velocity's standard error ``(M,)`` (m/s): ``sqrt(2)`` times the detection
@@ -344,8 +345,7 @@ class PerceptionMemory(HandsInMemory):
         return vel
 
     def previous_tick_velocity(self) -> np.ndarray:
-        """The tick velocity ``(M, 3)`` (m/s) of the previous reasoning step (0 for objects not
-        detected then)."""
+        """The tick velocity ``(M, 3)`` (m/s) of the previous reasoning step (0 for objects not detected then)."""
         return self._prev_tick_vel.copy()
 
     def vertical_acceleration(self, vel: np.ndarray, dt: float) -> np.ndarray:

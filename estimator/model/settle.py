@@ -80,7 +80,7 @@ def settle(model, state: ParticleState, move: Move, out: BatchOutput, t: float, 
     if cfg.still_unacted:  # seen still, and at rest in its particle before or on a support where
         # it is seen: no one moved it, its particle's physics did (no events); one held still in
         # the air is held
-        still = detected & model.dynamic & np.isnan(onset) & np.isfinite(mem.still_position[:, 0])
+        still = detected & model.dynamic & mem.seen_still
         silent = silent | (still[None, :] & (np.isfinite(state.holds[..., REF_Z]) | supported))
     # objects let go behind cover were let go back then, out of view (release_t)
     release_codes = dropped_behind_cover(move.release_codes, move.behind_cover, move.poses, out.poses, out.aabbs,

@@ -144,10 +144,8 @@ def collect_region_samples(scenarios: list[str] | None = None, seeds=FIT_SEEDS, 
             _write_part(_part_path(parts_dir, job), part)
 
     if workers > 1 and todo:
-        import multiprocessing as mp
-
-        from experiments.evaluation.sweep import exit_with_parent
-        with mp.get_context("spawn").Pool(workers, initializer=exit_with_parent, initargs=(os.getpid(),)) as pool:
+        from experiments.evaluation.sweep import spawn_pool
+        with spawn_pool(workers) as pool:
             for job, part in zip(todo, pool.imap(_trial_samples, todo, chunksize=1)):
                 keep(job, part)
     else:

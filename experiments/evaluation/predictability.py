@@ -243,11 +243,8 @@ def run_twins(names: list[str], seeds, config: TwinConfig, out_dir: str, workers
                 if progress is not None:
                     progress(row)
             if workers > 1:
-                import multiprocessing as mp
-
-                from experiments.evaluation.sweep import exit_with_parent
-                with mp.get_context("spawn").Pool(workers, initializer=exit_with_parent,
-                                                  initargs=(os.getpid(),)) as pool:
+                from experiments.evaluation.sweep import spawn_pool
+                with spawn_pool(workers) as pool:
                     for row in pool.imap_unordered(twin_row, todo, chunksize=1):
                         keep(row)
             else:

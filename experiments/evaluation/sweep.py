@@ -183,6 +183,12 @@ def exit_with_parent(parent: int) -> None:
     threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
 
 
+def spawn_pool(workers: int):
+    """A ``multiprocessing`` pool of ``workers`` spawned processes that end with this one
+    (:func:`exit_with_parent`); a context manager."""
+    return multiprocessing.get_context("spawn").Pool(workers, initializer=exit_with_parent, initargs=(os.getpid(),))
+
+
 def local_results(specs: list, workers: int, fn: Callable = run_trial_safe) -> Iterable[dict]:
     """Run ``fn(spec)`` for every spec (default: an evaluation trial) in this process
     (``workers <= 1``) or on a pool of spawned processes, which end with this one

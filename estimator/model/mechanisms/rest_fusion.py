@@ -51,7 +51,7 @@ class FusionAtRest(Mechanism):
         model = self.model
         nz, mem, K, M = model.config.noise, model.memory, model.K, model.M
         out = np.zeros((K, M), dtype=bool)
-        still = seen & model.dynamic & np.isnan(mem.moving_since) & np.isfinite(mem.still_position[:, 0])
+        still = seen & model.dynamic & mem.seen_still
         if not nz.fuse_resting or K < 2 or not np.any(still):
             return out
         idx = np.flatnonzero(still)
