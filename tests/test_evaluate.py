@@ -6,6 +6,7 @@ import csv
 import json
 import math
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -224,15 +225,18 @@ def _children(pid: int) -> dict[int, str]:
 
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads the process table from /proc")
-def test_the_pool_workers_of_a_killed_sweep_end_with_it(tmp_path):
-    """``evaluate --workers 2`` killed (SIGKILL: no handler runs, no pool is closed): its spawned
-    trial workers end too (``exit_with_parent``) instead of running on, orphaned, through the
-    trials they had queued; the trials written are kept."""
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM], ids=["SIGKILL", "SIGTERM"])
+def test_the_pool_workers_of_a_killed_sweep_end_with_it(tmp_path, sig):
+    """``evaluate --workers 2`` killed: its spawned trial workers end too instead of running on,
+    orphaned, through the trials they had queued; the trials written are kept. SIGKILL: no handler
+    runs and no pool is closed, the workers notice their parent is gone (``exit_with_parent``).
+    SIGTERM (``kill``, systemd, a batch scheduler): the run ends as Ctrl-C ends it, saying so, exit
+    status 143, and the trials running are ended rather than waited for."""
     out = tmp_path / "killed"
     args = [*CLI_ARGS, "--out", str(out)]
     args[args.index("--workers") + 1] = "2"
     proc = subprocess.Popen([sys.executable, "-m", "experiments.cli.evaluate", *args], cwd=ROOT,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     path, workers = out / "trials.jsonl", {}
     deadline = time.monotonic() + 120
     try:
@@ -241,10 +245,15 @@ def test_the_pool_workers_of_a_killed_sweep_end_with_it(tmp_path):
             if len(workers) == 2 and path.exists() and path.read_text().count("\n") >= 1:
                 break
             time.sleep(0.05)
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=120)  # a liveness bound, not a speed one
     finally:
         proc.kill()
         proc.wait()
     assert len(workers) == 2, "the sweep's two workers were not seen running"
+    if sig == signal.SIGTERM:
+        assert proc.returncode == 143, err
+        assert "terminated (SIGTERM): finished trials are kept in" in err and "Traceback" not in err
     deadline = time.monotonic() + 60  # a liveness bound (the workers check every PARENT_POLL s), not a speed one
     while time.monotonic() < deadline and any(_alive(p) for p in workers):
         time.sleep(0.1)

@@ -99,10 +99,11 @@ def add_evaluate_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run_evaluate(args: argparse.Namespace) -> int:
     """Run the ``evaluate`` subcommand; returns the exit code (0 ok, 1 some trials failed, 2 bad input,
-    130 interrupted)."""
+    130 interrupted by SIGINT, 143 by SIGTERM; the finished trials are kept either way)."""
     from experiments.evaluation.methods import METHODS
     from experiments.evaluation.sweep import SweepConfig, TrialFailures, run_sweep
     from experiments.scenarios import resolve_scenarios
+    from experiments.streams import EXIT_SIGINT, EXIT_SIGTERM, StopSignals, Terminated
 
     def fail(msg: str) -> int:
         print(f"scene-estimator evaluate: {msg}", file=sys.stderr)
@@ -154,12 +155,14 @@ def run_evaluate(args: argparse.Namespace) -> int:
               + f"; backend {args.backend}; results in {args.out}/", file=sys.stderr)
     start = time.perf_counter()
     try:
-        run_sweep(config, args.out, backend=args.backend, workers=args.workers, address=args.address,
-                  rerun_dir=args.rerun_dir, progress=not args.quiet)
-    except KeyboardInterrupt:
-        print(f"\ninterrupted: finished trials are kept in {args.out}/trials.jsonl; run the same command "
+        with StopSignals():  # SIGTERM (kill, systemd, a batch scheduler) ends it as Ctrl-C does
+            run_sweep(config, args.out, backend=args.backend, workers=args.workers, address=args.address,
+                      rerun_dir=args.rerun_dir, progress=not args.quiet)
+    except (KeyboardInterrupt, Terminated) as exc:
+        how = "interrupted" if isinstance(exc, KeyboardInterrupt) else "terminated (SIGTERM)"
+        print(f"\n{how}: finished trials are kept in {args.out}/trials.jsonl; run the same command "
               "again to continue", file=sys.stderr)
-        return 130
+        return EXIT_SIGINT if isinstance(exc, KeyboardInterrupt) else EXIT_SIGTERM
     except TrialFailures as exc:
         print(f"scene-estimator evaluate: {exc}", file=sys.stderr)
         return 1

@@ -192,19 +192,26 @@ def spawn_pool(workers: int):
 def local_results(specs: list, workers: int, fn: Callable = run_trial_safe) -> Iterable[dict]:
     """Run ``fn(spec)`` for every spec (default: an evaluation trial) in this process
     (``workers <= 1``) or on a pool of spawned processes, which end with this one
-    (:func:`exit_with_parent`); yields results as they finish. Pending trials are cancelled when the
-    consumer stops."""
+    (:func:`exit_with_parent`); yields results as they finish. When the consumer stops early (closes
+    this generator: an interruption, an error), pending trials are cancelled and the running ones
+    ended with their workers (SIGTERM), not waited for: their results would not be written."""
     if workers <= 1:
         for spec in specs:
             yield fn(spec)
         return
     ctx = multiprocessing.get_context("spawn")
+    others = {p.pid for p in multiprocessing.active_children()}  # children that are not the pool's
     pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, max_tasks_per_child=None,
                                   initializer=exit_with_parent, initargs=(os.getpid(),))
     try:
         futures = [pool.submit(fn, s) for s in specs]
         for fut in cf.as_completed(futures):
             yield fut.result()
+    except BaseException:  # the consumer stopped (a signal, an error): the trials running are not waited for
+        for proc in multiprocessing.active_children():
+            if proc.pid not in others:  # the pool's workers
+                proc.terminate()
+        raise
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
 
