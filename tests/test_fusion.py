@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from estimator.model.fusion import ensemble_kalman_step, shift_collapsed, weighted_axis_variance
+from estimator.model.fusion import ensemble_kalman_step, shift_inconsistent, weighted_axis_variance
 
 
 def test_one_step_gives_the_kalman_posterior_in_mean_and_variance():
@@ -70,23 +70,34 @@ def test_weighted_variance_and_shape_checks():
                              np.ones((3, 2), bool), np.random.default_rng(0))
 
 
-def test_a_cloud_with_no_spread_moves_whole_to_its_target_and_a_spread_one_stays():
-    """Object 0: every particle at one point (let go at one detection): the masked entries move by
-    the same shift to the target, and the cloud keeps no spread. Object 1: a cloud 1 cm wide is
-    left to the Kalman step."""
+def test_a_cloud_that_its_target_rejects_moves_whole_and_one_that_it_does_not_stays():
+    """The innovation test of each cloud's weighted mean against its target (target standard error
+    2 mm, z = 3), along the gap: object 0, every particle at one point (let go at one detection)
+    2.2 cm off, moves, in the particles where it may, by the same shift; object 1, a cloud 1 cm
+    wide whose mean is 1 cm off, stays (a Kalman step's business); object 2, a cloud 1 mm wide 1 cm
+    off, moves and keeps its shape; object 3, one point 4 mm off (2 standard errors), stays; a cloud
+    long along x (1 cm) and narrow along y (0.5 mm), 1.5 cm off, stays when the gap is along x
+    (object 4) and moves when it is along y (object 5)."""
     rng = np.random.default_rng(3)
-    K = 50
-    x = np.zeros((K, 2, 2))
+    K, N = 400, 6
+    x = np.zeros((K, N, 2))
     x[:, 0] = [0.30, 0.20]
     x[:, 1] = np.array([0.10, -0.10]) + rng.normal(0.0, 0.01, (K, 2))
+    x[:, 2] = np.array([0.50, 0.00]) + rng.normal(0.0, 0.001, (K, 2))
+    x[:, 3] = [0.0, 0.4]
+    x[:, 4] = x[:, 5] = np.array([-0.2, 0.0]) + rng.normal(0.0, 1.0, (K, 2)) * [0.01, 0.0005]
     w = rng.uniform(0.5, 1.5, K)
     w /= w.sum()
-    target = np.array([[0.32, 0.19], [0.11, -0.10]])
-    mask = np.ones((K, 2), bool)
+    mean = np.einsum("k,knd->nd", w, x)
+    target = mean + [[0.02, -0.01], [0.01, 0.0], [0.0, 0.01], [0.004, 0.0], [0.015, 0.0], [0.0, 0.015]]
+    mask = np.ones((K, N), bool)
     mask[:5, 0] = False  # held there in five particles
-    new, moved = shift_collapsed(x, w, target, mask, 1e-4)
-    assert np.array_equal(moved[:, 0], mask[:, 0]) and not moved[:, 1].any()
+    new, moved = shift_inconsistent(x, w, target, np.full(N, 0.002), mask, 3.0)
+    assert np.array_equal(moved[:, 0], mask[:, 0]) and moved[:, [2, 5]].all()
+    assert not moved[:, [1, 3, 4]].any()
     np.testing.assert_allclose(new[5:, 0], np.broadcast_to(target[0], (K - 5, 2)))
-    assert np.array_equal(new[:5, 0], x[:5, 0]) and np.array_equal(new[:, 1], x[:, 1])
-    with pytest.raises(ValueError, match="shift_collapsed"):
-        shift_collapsed(x, w, target[:1], mask, 1e-4)
+    for j in (2, 5):
+        np.testing.assert_allclose(new[:, j] - x[:, j], np.broadcast_to(target[j] - mean[j], (K, 2)), atol=1e-12)
+    assert np.array_equal(new[:5, 0], x[:5, 0]) and np.array_equal(new[:, [1, 3, 4]], x[:, [1, 3, 4]])
+    with pytest.raises(ValueError, match="shift_inconsistent"):
+        shift_inconsistent(x, w, target[:1], np.full(N, 0.002), mask, 3.0)

@@ -66,3 +66,30 @@ def test_a_resting_object_let_go_at_one_detection_moves_whole_to_where_its_detec
     assert moved[:, CUP].all()
     np.testing.assert_allclose(poses[:, CUP, :2], np.broadcast_to(mem.still_position[CUP, :2], (64, 2)))
     assert np.all(poses[:, CUP, 2] == st.poses[:, CUP, 2])  # the height is physics's
+
+
+def test_a_cloud_with_no_spread_moves_only_when_the_average_says_it_is_significantly_off():
+    """The average of n still detections has a standard error of the detection noise over the
+    square root of n: a cloud with no spread 4 mm from it stays where it is while the average is
+    too noisy to tell (4 detections: 3 standard errors are 3 x 5 mm / 2 = 7.5 mm), and moves once
+    the average is sure of it (36 detections: 2.5 mm), every particle by the same shift; meanwhile
+    only the Kalman step moves it, by its small gain."""
+    nz = NoiseConfig(process_position_std=0.0, position_std=0.005)
+    model = make(EstimatorConfig(particles=64, noise=nz))
+    st = model.initial_state(np.random.default_rng(0))
+    mem, fusion = model.memory, model.mechanism(FusionAtRest)
+    rest = np.array([0.3, 0.3, 0.14])
+    resting, detected = np.ones((64, 5), bool), np.zeros(5, bool)
+    detected[CUP] = True
+    for i in range(36):
+        mem.record(Frame(0.1 * i, {"cup": Detection(rest + [0.0, 0.0, 0.0])}))
+        if mem.still_count[CUP] not in (4, 36):
+            continue
+        st.poses[:, CUP, :3] = mem.still_position[CUP] + [0.004, 0.0, 0.0]  # one point in every particle
+        poses = st.poses.copy()
+        moved = fusion.fuse_resting(poses, st.log_weights, st.modes, resting, detected, np.random.default_rng(1))
+        if mem.still_count[CUP] == 4:  # (the Kalman step's gain, 1 mm of floor against 5 mm: 4 %)
+            assert abs(poses[:, CUP, 0].mean() - st.poses[0, CUP, 0]) < 1e-3
+        else:
+            assert moved[:, CUP].all()
+            np.testing.assert_allclose(poses[:, CUP, :2], np.broadcast_to(mem.still_position[CUP, :2], (64, 2)))

@@ -64,33 +64,43 @@ def ensemble_kalman_step(x: np.ndarray, weights: np.ndarray, detected: np.ndarra
     return out, moved
 
 
-def shift_collapsed(x: np.ndarray, weights: np.ndarray, target: np.ndarray, mask: np.ndarray,
-                    spread: float) -> tuple[np.ndarray, np.ndarray]:
-    """Clouds with no spread moved, whole, to ``target``.
+def shift_inconsistent(x: np.ndarray, weights: np.ndarray, target: np.ndarray, target_se: np.ndarray,
+                       mask: np.ndarray, z: float) -> tuple[np.ndarray, np.ndarray]:
+    """Clouds that the evidence rejects, moved whole to ``target``.
 
-    An object put at one detection in every particle (a held object let go where it was seen) is a
-    cloud with no spread: an ensemble Kalman step (:func:`ensemble_kalman_step`) cannot move it (its
-    gain is the floor's), and it would stay where that one detection put it. Its uncertainty is that
-    detection's, and the best estimate of where it rests is the average of its detections since:
-    such a cloud is moved as a whole, every particle by the same shift, so that no particle is
-    weighed against another for it.
+    An ensemble Kalman step (:func:`ensemble_kalman_step`) trusts the cloud's own spread: a narrow
+    cloud away from where the object is seen hardly moves (its gain is its variance's, or the
+    floor's, against the detection noise) and can stay there for good. Narrow clouds are common: an
+    object put at one detection in every particle (a held object let go where it was seen), or a
+    cloud thinned by resampling to a few ancestors. The test is the Kalman filter's innovation
+    test: the gap between the cloud's weighted mean and ``target`` (the average of the object's
+    detections while still, whose standard error is ``target_se``), against the standard deviation
+    of that gap, ``sqrt(u' P u + target_se^2)`` with ``P`` the cloud's weighted covariance and ``u``
+    the gap's direction. A gap over ``z`` of those says that the cloud is not where the object is;
+    the cloud then moves whole, every particle by the same shift (its shape, the relative
+    uncertainty of its particles, is kept, and no particle is weighed against another for it).
 
     Args:
         x: ``(K, N, D)`` particle positions (m), not modified.
         weights: ``(K,)`` normalised weights.
         target: ``(N, D)`` where each cloud goes (m): the average of its still detections.
+        target_se: ``(N,)`` standard error of each target per axis (m).
         mask: ``(K, N)`` bool, the entries that may move.
-        spread: a cloud whose weighted standard deviation is under this (m) on every axis has no spread.
+        z: the gap, in standard deviations, over which a cloud moves.
 
     Returns:
-        ``(new x (K, N, D), moved (K, N) bool)``: the masked entries of the clouds with no spread.
+        ``(new x (K, N, D), moved (K, N) bool)``: the masked entries of the clouds moved.
     """
     K, N, D = x.shape
-    if target.shape != (N, D) or mask.shape != (K, N) or weights.shape != (K,):
-        raise ValueError(f"shift_collapsed: x {x.shape}, target {target.shape}, mask {mask.shape}, "
-                         f"weights {weights.shape} do not agree")
-    flat = np.all(weighted_axis_variance(x, weights) < spread ** 2, axis=1)  # (N,)
-    moved = mask & flat[None, :]
+    if target.shape != (N, D) or target_se.shape != (N,) or mask.shape != (K, N) or weights.shape != (K,):
+        raise ValueError(f"shift_inconsistent: x {x.shape}, target {target.shape}, target_se {target_se.shape}, "
+                         f"mask {mask.shape}, weights {weights.shape} do not agree")
     mean = np.einsum("k,knd->nd", weights, x)
-    out = np.where(moved[..., None], x + (target - mean)[None], x)
+    gap = target - mean  # (N, D)
+    dist = np.linalg.norm(gap, axis=1)
+    u = gap / np.where(dist > 0.0, dist, 1.0)[:, None]
+    spread = np.einsum("k,kn->n", weights, np.einsum("knd,nd->kn", x - mean, u) ** 2)  # u' P u
+    rejected = dist > z * np.sqrt(spread + np.square(target_se))  # (N,)
+    moved = mask & rejected[None, :]
+    out = np.where(moved[..., None], x + gap[None], x)
     return out, moved

@@ -61,8 +61,8 @@ class PerceptionMemory(HandsInMemory):
     step), ``perceived_prev`` bool (then), ``hold_hand`` (name of the tracked hand near each object when last
     detected, or None), ``hold_offset (M, 3)`` (object minus raw hand position, m, averaged over the frames that
     showed both, :func:`~estimator.model.hands.average_offset`), ``still_position (M, 3)`` (m, average detection
-    while the object is still; NaN: not seen still) and ``moving_since (M,)`` (s, the time a still object started
-    moving, :meth:`onset`, until it is at rest again; NaN: still; :attr:`seen_still`).
+    while the object is still, of ``still_count (M,)`` detections; NaN: not seen still) and ``moving_since (M,)``
+    (s, the time a still object started moving, :meth:`onset`, until it is at rest again; NaN: still).
     """
 
     def __init__(self, scene: Scene, poses: np.ndarray, reasoner: ReasonerConfig, follow_hands: bool,
@@ -91,7 +91,7 @@ class PerceptionMemory(HandsInMemory):
         self.seen_at_tick = np.full(M, -np.inf)
         self._history: list[deque] = [deque() for _ in range(M)]
         self.still_position, self.moving_since = np.full((M, 3), np.nan), np.full(M, np.nan)
-        self._still_n = np.zeros(M, dtype=int)
+        self.still_count = np.zeros(M, dtype=int)
         self.workspace = scene.workspace_bounds()
         self.rejected = 0
 
@@ -243,13 +243,13 @@ class PerceptionMemory(HandsInMemory):
         if not gap <= self.reasoner.t_perceived or np.isnan(still[0]) or (
                 last - since >= self.reasoner.place_dwell and self._rested(m, last, onset)
                 and self._stayed(m, last, position, onset)):
-            self.still_position[m], self.moving_since[m], self._still_n[m] = position, np.nan, 1
+            self.still_position[m], self.moving_since[m], self.still_count[m] = position, np.nan, 1
         elif np.isnan(self.moving_since[m]):
             if math.dist(still, position) > onset:
                 self.moving_since[m] = self.last_seen[m]
             else:
-                self._still_n[m] += 1
-                self.still_position[m] = still + max(1.0 / self._still_n[m], 1.0 / STILL_FRAMES) * (position - still)
+                self.still_count[m] += 1
+                self.still_position[m] = still + max(1.0 / self.still_count[m], 1.0 / STILL_FRAMES) * (position - still)
 
     # -- queries at a reasoning step ------------------------------------------------------------------
     @property

@@ -10,19 +10,23 @@ from actions.modes import is_free
 
 from ...resampling import normalise_log_weights
 from ...worlds.resting import slow
-from ..fusion import ensemble_kalman_step, shift_collapsed
+from ..fusion import ensemble_kalman_step, shift_inconsistent
+from ..perception_memory import STILL_FRAMES
 from .base import Draft, Mechanism
 
 FUSION_MIN_STEP = 5e-4
 """Ensemble Kalman steps of resting objects shorter than this (m) are not taken: a converged object
 stays asleep in its world (:meth:`FusionAtRest.fuse_resting`)."""
 
-FUSION_NO_SPREAD = 1e-4
-"""m: a resting object's cloud whose weighted standard deviation is under this on both horizontal
-axes has no spread (put at one detection in every particle: a held object let go where it was
-seen); it moves whole to where its still detections average (:func:`~estimator.model.fusion.shift_collapsed`).
-The Kalman step's perturbed observations leave a cloud at least its gain times the detection's
-noise wide, millimetres."""
+SHIFT_SIGNIFICANCE = 3.0
+"""A resting object's cloud moves whole to the average of its still detections when its weighted
+mean is more than this many standard deviations of the gap from it
+(:func:`~estimator.model.fusion.shift_inconsistent`: the cloud's spread along the gap and the
+average's standard error, the detection noise over the square root of the detections averaged, at
+most the average's effective ``2 STILL_FRAMES - 1``). A narrow cloud that the detections reject (put
+at one detection in every particle, or thinned by resampling) is not moved by the Kalman step, and
+a gap that the average's own noise explains is not worth a shift (each wakes the object in every
+world)."""
 
 FUSION_SETTLED = 1.5e-3
 """A resting object whose particles' weighted mean is within this (m, horizontally) of the average of
@@ -45,8 +49,8 @@ class FusionAtRest(Mechanism):
         (detected, perceived, not teleported), perceived still (no motion onset since it was last
         at rest) and, in a particle (``log_weights (K,)``), free and ``resting (K, M)``, takes an
         ensemble Kalman step towards its latest detection (the prior variance floored at
-        ``fusion_floor_std``, steps under :data:`FUSION_MIN_STEP` not taken); a cloud with no spread
-        (:data:`FUSION_NO_SPREAD`) moves whole to the average of its still detections instead.
+        ``fusion_floor_std``, steps under :data:`FUSION_MIN_STEP` not taken); a cloud that the
+        average of its still detections rejects (:data:`SHIFT_SIGNIFICANCE`) moves whole there instead.
         Returns the entries moved ``(K, M)`` (no entry when ``fuse_resting`` is off)."""
         model = self.model
         nz, mem, K, M = model.config.noise, model.memory, model.K, model.M
@@ -65,9 +69,11 @@ class FusionAtRest(Mechanism):
         mask &= (np.linalg.norm(mean - mem.still_position[idx, :2], axis=1) > FUSION_SETTLED)[None, :]
         std = mem.last_std[idx]
         std = np.where(np.isfinite(std), std, max(nz.position_std, 1e-3))
-        # a cloud with no spread (let go at one detection in every particle) moves whole to where its
-        # still detections average; the others take a Kalman step
-        x, shifted = shift_collapsed(poses[:, idx, :2], weights, mem.still_position[idx, :2], mask, FUSION_NO_SPREAD)
+        # a cloud that the still detections reject moves whole to where they average (a Kalman step
+        # hardly moves a narrow cloud); the others take a Kalman step
+        se = std / np.sqrt(np.minimum(mem.still_count[idx], 2 * STILL_FRAMES - 1))
+        x, shifted = shift_inconsistent(poses[:, idx, :2], weights, mem.still_position[idx, :2], se, mask,
+                                        SHIFT_SIGNIFICANCE)
         new, moved = ensemble_kalman_step(x, weights, mem.last_pose[idx, :2], std, mask & ~shifted, rng,
                                           floor_std=nz.fusion_floor_std, min_step=FUSION_MIN_STEP)
         poses[:, idx, :2] = new
