@@ -264,7 +264,7 @@ class SceneEstimator:
         anc = keep_survivors_in_place(systematic_resample(weights, self.rng, n))
         own, kernels = self.model.before_resampling(self.state, settled, perceived, weights)
         before, self.state = self.state, self.state.take(anc, own)
-        slid = self.model.after_resampling(self.state, kernels, self.rng)
+        slid = self.model.after_resampling(self.state, kernels, self.rng, before, own)
         # (slots beyond n: the pool parks their worlds at its next run)
         self.pool.follow(anc, self.model.carried_at_rest(before, self.state, anc, own, self.pool.scene_boxes, slid))
 

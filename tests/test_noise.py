@@ -2,7 +2,7 @@
 import numpy as np
 
 from estimator.config import NoiseConfig
-from estimator.model.noise import process_noise, regularisation_kernels
+from estimator.model.noise import centred_normal, process_noise, regularisation_kernels
 
 
 def _poses(K, M):
@@ -48,3 +48,18 @@ def test_regularisation_kernel_is_the_scaled_covariance_capped_at_max_std():
     assert np.sqrt(np.max(np.linalg.eigvalsh(big))) <= 0.01 + 1e-9  # capped
     assert regularisation_kernels(poses, w, np.array([True, True]), 0.0, 0.01) == {}
     assert list(regularisation_kernels(poses, w, np.array([False, True]), 0.5, 0.01)) == [1]
+
+
+def test_centred_normal_has_a_zero_mean_over_the_particles_and_keeps_the_stated_spread():
+    """Each draw minus the particles' mean, scaled by sqrt(K / (K - 1)): the mean over the K
+    particles is zero to rounding, and over many independent clouds each entry's variance is
+    std^2 (within 3 standard errors of a sample variance, sqrt(2 / dof) std^2)."""
+    rng = np.random.default_rng(11)
+    K, std, n = 8, 0.01, 4000
+    clouds = np.stack([centred_normal(rng, std, (K, 3, 2)) for _ in range(n)])  # (n, K, 3, 2)
+    assert np.abs(clouds.mean(axis=1)).max() < 1e-15
+    var = np.mean(clouds ** 2)  # (the mean is known: zero)
+    dof = n * (K - 1) * 6  # (the K entries of a cloud share one mean)
+    assert abs(var - std ** 2) < 3 * np.sqrt(2.0 / dof) * std ** 2  # without the scaling: 7/8 std^2
+    one = centred_normal(np.random.default_rng(3), std, (1, 2))  # one particle: a plain draw
+    np.testing.assert_array_equal(one, np.random.default_rng(3).normal(0.0, std, (1, 2)))

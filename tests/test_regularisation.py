@@ -186,3 +186,33 @@ def test_the_first_placement_leaves_at_rest_what_it_only_slid_along_a_flat_stati
     assert poses[0, CUP, 2] == prior[CUP, 2] and poses[7, CUP, 2] == prior[CUP, 2] + 0.001
     model.close()
 
+
+
+def test_a_change_of_k_leaves_an_object_that_every_particle_kept_where_it_averaged():
+    """The cup, hidden and weighed by nothing, is kept by every particle (its own value, not its
+    ancestor's). Shrinking 64 particles to 40 drops the values of the last 24, growing them to 100
+    repeats ancestors' values: either moved the cloud's average by the chance of which. After the
+    change the free copies are moved back, every one by the same horizontal shift, to where they
+    averaged before; the cloud keeps its shape; with K unchanged, nothing moves."""
+    model = make(EstimatorConfig(particles=64, noise=NoiseConfig(position_std=0.01, regularisation=0.0,
+                                                                  param_jitter=0.0)))
+    st = model.initial_state(np.random.default_rng(4))
+    st.poses[:, CUP, :2] += np.random.default_rng(5).normal(0.0, 0.01, (64, 2))
+    st.velocities[:] = 0.0
+    own = np.zeros(5, bool)
+    own[CUP] = True
+    centre = st.poses[:, CUP, :3].mean(axis=0)
+    for n in (40, 100, 64):
+        anc = np.sort(np.random.default_rng(n).choice(64, n))
+        after = st.take(anc, own)
+        kept = after.poses[:, CUP].copy()
+        model.after_resampling(after, {}, np.random.default_rng(6), st, own)
+        if n == 64:
+            assert np.array_equal(after.poses[:, CUP], kept)
+            continue
+        assert abs(kept[:, :2].mean(axis=0) - centre[:2]).max() > 1e-4  # the change moved it
+        np.testing.assert_allclose(after.poses[:, CUP, :2].mean(axis=0), centre[:2], atol=1e-12)
+        shift = after.poses[:, CUP, :2] - kept[:, :2]
+        np.testing.assert_allclose(shift, np.broadcast_to(shift[0], shift.shape), atol=1e-12)
+        model.K = 64
+    model.close()

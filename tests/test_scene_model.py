@@ -20,6 +20,7 @@ def test_initial_state_parks_unknown_objects_and_draws_parameters_from_their_pri
     spread = st.poses[:, BALL, :3] - [0.08, 0.0, 0.14]
     assert 0.006 < spread[:, :2].std() < 0.014 and np.all(spread[:, :2] != 0)
     assert np.all(spread[:, 2] == 0)  # horizontally only: not pushed into its support nor dropped on it
+    assert np.abs(spread[:, :2].mean(axis=0)).max() < 1e-12  # centred: the cloud's mean is the prior's
     fr = st.params[:, 1:, 0]
     assert np.all((fr >= 0.3) & (fr <= 1.0)) and fr.std() > 0.1
     assert np.all(st.params[:, TABLE] == [0.5, 0.0, 0.0, 0.1, 0.2])

@@ -13,6 +13,21 @@ from ..belief import pose_stats
 from ..config import NoiseConfig
 
 
+def centred_normal(rng: np.random.Generator, std: float, shape: tuple[int, ...]) -> np.ndarray:
+    """Normal draws of standard deviation ``std`` and ``shape (K, ...)`` whose mean over the K
+    particles is exactly zero (moment-matched sampling): each draw minus the particles' mean, scaled
+    by ``sqrt(K / (K - 1))`` so that each keeps the variance ``std ** 2``. A cloud drawn about a
+    known mean then has that mean: an object never seen again (hidden from the start) is reported
+    where its prior is, not ``std / sqrt(K)`` off by the chance of the draw, whatever K is. One
+    particle (``K = 1``) gets a plain draw. The same random numbers are used as by
+    ``rng.normal(0, std, shape)``."""
+    drawn = rng.normal(0.0, std, shape)
+    K = shape[0]
+    if K < 2:
+        return drawn
+    return (drawn - drawn.mean(axis=0)) * math.sqrt(K / (K - 1))
+
+
 def process_noise(poses: np.ndarray, free_unseen: np.ndarray, supported: np.ndarray, last_motion: np.ndarray,
                   dt: float, noise: NoiseConfig, rng: np.random.Generator) -> np.ndarray:
     """In place on ``poses (K, M, 7)``, for the entries ``free_unseen (K, M)``: a random walk of

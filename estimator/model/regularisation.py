@@ -55,7 +55,20 @@ def regularisation_kernels(model, poses: np.ndarray, weights: np.ndarray,
     return kernels_of(poses, mixed, hidden, nz.regularisation, nz.max_jitter_std)
 
 
-def regularise(model, state: ParticleState, kernels: dict[int, np.ndarray], rng: np.random.Generator) -> np.ndarray:
+def own_centres(model, state: ParticleState, own: np.ndarray) -> dict[int, np.ndarray]:
+    """Where the free copies of each object ``own (M,)`` (each particle keeps its own values:
+    :meth:`~estimator.model.SceneModel.before_resampling`) are on average, ``{m: (3,)}`` (m), equal
+    weights: nothing weighed them."""
+    out = {}
+    for m in np.flatnonzero(own).tolist():
+        free = is_free(state.modes[:, m])
+        if np.any(free):
+            out[m] = state.poses[free, m, :3].mean(axis=0)
+    return out
+
+
+def regularise(model, state: ParticleState, kernels: dict[int, np.ndarray], rng: np.random.Generator,
+               centres: dict[int, np.ndarray] | None = None) -> np.ndarray:
     """In place, after resampling: jitter the free copies of each hidden object with its kernel (a
     regularised particle filter: copies of one particle must not leave a hidden object with no
     spread; a jitter into static geometry stops at its surface, ``static_clip``), then the
@@ -63,12 +76,24 @@ def regularise(model, state: ParticleState, kernels: dict[int, np.ndarray], rng:
     ``jolted`` (pushed out of what it penetrates before physics, loaded awake) unless it only slid
     along static geometry at rest (:func:`slid_at_rest`; its height is then its own again, the
     kernel's vertical part being a regulariser's micrometres for an object at rest on a support).
-    Returns ``(K, M)`` bool: the entries that slid."""
+    ``centres``: for a resampling that changed K, where the free copies of each object that every
+    particle kept (:func:`own_centres`) were on average before it; they are moved back there
+    horizontally, every copy by the same shift, as a jitter is (a change of K drops the values of
+    the particles beyond the new count, or repeats ancestors' values, and would move the average of
+    a hidden object that nothing weighs by the chance of which). Returns ``(K, M)`` bool: the
+    entries that slid."""
     slid = np.zeros((model.K, model.M), dtype=bool)
     jittered, start = [], state.poses.copy()
-    for m, chol in kernels.items():
+    shifts = []
+    for m, centre in (centres or {}).items():
         free = is_free(state.modes[:, m])
-        noise = rng.standard_normal((model.K, 3)) @ chol.T
+        if np.any(free):
+            gap = centre - state.poses[free, m, :3].mean(axis=0)
+            shifts.append((m, np.broadcast_to([gap[0], gap[1], 0.0], (model.K, 3))))
+    for m, chol in kernels.items():
+        shifts.append((m, rng.standard_normal((model.K, 3)) @ chol.T))
+    for m, noise in shifts:
+        free = is_free(state.modes[:, m])
         before = state.poses[free, m].copy()
         was = state.jolted[free, m].copy()
         state.poses[free, m, :3] += noise[free]

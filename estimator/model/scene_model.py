@@ -42,6 +42,7 @@ from .hand_memory import HAND_RADIUS
 from .inputs import StepInputs
 from .mechanisms import PHASES, Draft, Mechanism, mechanisms_for
 from .motion import out_of_reach, roll_released, rolled_along
+from .noise import centred_normal
 from .params import param_bounds, world_params
 from .perception_memory import PerceptionMemory
 from .prior import REACH_SIGMAS, rest_prior
@@ -215,14 +216,20 @@ class SceneModel:
         return own, regularisation.regularisation_kernels(self, state.poses, weights, hidden & ~own)
 
     def after_resampling(self, state: ParticleState, kernels: dict[int, np.ndarray],
-                         rng: np.random.Generator) -> np.ndarray:
+                         rng: np.random.Generator, before: ParticleState | None = None,
+                         own: np.ndarray | None = None) -> np.ndarray:
         """In place on the resampled ``state`` (its K is the new count): regularisation
-        (:meth:`regularise`); nothing is weighed since. Returns ``(K, M)`` bool: the entries the
-        jitter only slid along static geometry at rest
-        (:func:`~estimator.model.regularisation.slid_at_rest`), for :meth:`carried_at_rest`."""
+        (:func:`~estimator.model.regularisation.regularise`), and, when K changed, the objects
+        ``own (M,)`` each particle kept moved back to where they averaged in ``before``, the state
+        before resampling (:func:`~estimator.model.regularisation.own_centres`); nothing is weighed
+        since. Returns ``(K, M)`` bool: the entries the jitter only slid along static geometry at
+        rest (:func:`~estimator.model.regularisation.slid_at_rest`), for :meth:`carried_at_rest`."""
         self.K = len(state.log_weights)
         self.weighed = np.zeros(self.M, dtype=bool)
-        return regularisation.regularise(self, state, kernels, rng)
+        centres = None
+        if before is not None and own is not None and len(before.log_weights) != self.K:
+            centres = regularisation.own_centres(self, before, own & self.dynamic)
+        return regularisation.regularise(self, state, kernels, rng, centres)
 
     def carried_at_rest(self, before: ParticleState, after: ParticleState, ancestors: np.ndarray,
                         own: np.ndarray, boxes: np.ndarray, slid: np.ndarray | None = None
@@ -241,7 +248,8 @@ class SceneModel:
     # -- the prior ------------------------------------------------------------------------------------
     def initial_state(self, rng: np.random.Generator) -> ParticleState:
         """K particles at the prior's poses (:attr:`prior`), with physical parameters drawn from their priors and the
-        positions of known dynamic objects perturbed horizontally by ``position_std``."""
+        positions of known dynamic objects perturbed horizontally by ``position_std`` (the perturbations centred:
+        each object's cloud has the prior's mean, :func:`~estimator.model.noise.centred_normal`)."""
         K, M, nz = self.K, self.M, self.config.noise
         poses = np.repeat(self.prior[None], K, axis=0)
         base = self.base_params
@@ -263,7 +271,7 @@ class SceneModel:
         self.perturbed = np.any(params != params[:1], axis=0) | (np.ptp(params, axis=0) > 0)  # (M, 5)
         if nz.position_std > 0:  # horizontally: pushed into its support or dropped onto it, an object
             known_dyn = np.flatnonzero(self.dynamic & self.known)  # starts by bouncing (a duck tips over)
-            poses[:, known_dyn, :2] += rng.normal(0, nz.position_std, (K, len(known_dyn), 2))
+            poses[:, known_dyn, :2] += centred_normal(rng, nz.position_std, (K, len(known_dyn), 2))
             self._just_initialised[known_dyn] = True
         self._placing = True
         declared = dict(ARRAYS)
