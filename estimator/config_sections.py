@@ -351,7 +351,7 @@ class AdaptiveConfig:
       within its one bin a well-known object is: its reported position is a mean over the
       particles, whose Monte Carlo error adds a factor ``sqrt(1 + 1 / K)`` to the error of the
       estimate; 64 keeps that under 1 % (16 gave final errors 0.8 mm larger than K = 256, paired,
-      p = 1e-4, over the built-in scenarios; 64 none measurable: docs/concepts/adaptive-particles.md).
+      p = 1e-4, over the built-in scenarios; 64 +0.1 mm, p = 0.001: docs/concepts/adaptive-particles.md).
     * ``epsilon``, ``delta``, ``bin_size`` (m), ``shrink_below``: as above.
     """
 
