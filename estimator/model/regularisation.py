@@ -55,15 +55,15 @@ def regularisation_kernels(model, poses: np.ndarray, weights: np.ndarray,
     return kernels_of(poses, mixed, hidden, nz.regularisation, nz.max_jitter_std)
 
 
-def own_centres(model, state: ParticleState, own: np.ndarray) -> dict[int, np.ndarray]:
+def own_centres(state: ParticleState, own: np.ndarray) -> dict[int, np.ndarray]:
     """Where the free copies of each object ``own (M,)`` (each particle keeps its own values:
-    :meth:`~estimator.model.SceneModel.before_resampling`) are on average, ``{m: (3,)}`` (m), equal
-    weights: nothing weighed them."""
+    :meth:`~estimator.model.SceneModel.before_resampling`) are on average horizontally, ``{m: (2,)}``
+    (m), equal weights: nothing weighed them."""
     out = {}
     for m in np.flatnonzero(own).tolist():
         free = is_free(state.modes[:, m])
         if np.any(free):
-            out[m] = state.poses[free, m, :3].mean(axis=0)
+            out[m] = state.poses[free, m, :2].mean(axis=0)
     return out
 
 
@@ -88,7 +88,7 @@ def regularise(model, state: ParticleState, kernels: dict[int, np.ndarray], rng:
     for m, centre in (centres or {}).items():
         free = is_free(state.modes[:, m])
         if np.any(free):
-            gap = centre - state.poses[free, m, :3].mean(axis=0)
+            gap = centre - state.poses[free, m, :2].mean(axis=0)
             shifts.append((m, np.broadcast_to([gap[0], gap[1], 0.0], (model.K, 3))))
     for m, chol in kernels.items():
         shifts.append((m, rng.standard_normal((model.K, 3)) @ chol.T))

@@ -216,8 +216,7 @@ class SceneModel:
         return own, regularisation.regularisation_kernels(self, state.poses, weights, hidden & ~own)
 
     def after_resampling(self, state: ParticleState, kernels: dict[int, np.ndarray],
-                         rng: np.random.Generator, before: ParticleState | None = None,
-                         own: np.ndarray | None = None) -> np.ndarray:
+                         rng: np.random.Generator, before: ParticleState, own: np.ndarray) -> np.ndarray:
         """In place on the resampled ``state`` (its K is the new count): regularisation
         (:func:`~estimator.model.regularisation.regularise`), and, when K changed, the objects
         ``own (M,)`` each particle kept moved back to where they averaged in ``before``, the state
@@ -226,9 +225,7 @@ class SceneModel:
         rest (:func:`~estimator.model.regularisation.slid_at_rest`), for :meth:`carried_at_rest`."""
         self.K = len(state.log_weights)
         self.weighed = np.zeros(self.M, dtype=bool)
-        centres = None
-        if before is not None and own is not None and len(before.log_weights) != self.K:
-            centres = regularisation.own_centres(self, before, own & self.dynamic)
+        centres = regularisation.own_centres(before, own) if len(before.log_weights) != self.K else None
         return regularisation.regularise(self, state, kernels, rng, centres)
 
     def carried_at_rest(self, before: ParticleState, after: ParticleState, ancestors: np.ndarray,
