@@ -181,14 +181,14 @@ class NoiseConfig:
       spread (log units: 0.1 is 10 %; linear for restitution), so that a resampling driven by
       something else does not fix a parameter for good before the evidence about it arrives.
     * ``param_widen``: the floor of the frictions' kernel (log units) of an object whose motion
-      surprises every particle the same way (its perceived velocity consistently two standard
-      deviations from theirs: :meth:`~estimator.model.mechanisms.velocity.VelocityEvidence.after_weighing`): the evidence says
-      its friction is not where the particles have it; 0.35 is about the spread of a factor-two
-      prior.
+      surprises every particle the same way (its perceived velocity consistently two standard deviations
+      from theirs: :meth:`~estimator.model.mechanisms.velocity.VelocityEvidence.after_weighing`): the
+      evidence says its friction is not where the particles have it; 0.35 is about a factor-two prior.
     * ``param_reach``: evidence may carry a parameter beyond its prior range by this factor (a
       friction prior of 0.3-1.0 bounds it to 0.075-4.0 with the default 4).
     * ``regularisation``: after resampling, hidden free objects are jittered with a Gaussian kernel
-      of this bandwidth times their weighted covariance (a regularised particle filter); 0 disables.
+      of this bandwidth times their weighted covariance (a regularised particle filter), each copy
+      first drawn towards the cloud's mean so that the cloud keeps its spread (Liu-West); 0 disables.
     * ``max_jitter_std`` (m): cap of the motion noise and of the regularisation kernel per update,
       so that a jittered object does not jump through a container's wall.
     * ``outlier_prob``: weight of the uniform-outlier component of the pose likelihood (heavy tails).

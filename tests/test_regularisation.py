@@ -4,6 +4,7 @@ import pytest
 
 from actions.modes import HELD
 from estimator.config import EstimatorConfig, NoiseConfig
+from estimator.model.noise import Kernel
 from estimator.model.params import param_bounds
 from estimator.model.regularisation import (
     bounding_radii,
@@ -31,7 +32,7 @@ def test_regularisation_jitters_only_free_copies_of_hidden_objects():
     hidden_ball = np.zeros(5, bool)
     hidden_ball[BALL] = True
     kernels = regularisation_kernels(model, st.poses, w, hidden_ball)
-    cov = kernels[BALL] @ kernels[BALL].T
+    cov = kernels[BALL].chol @ kernels[BALL].chol.T
     assert np.sqrt(np.max(np.linalg.eigvalsh(cov))) <= 0.01 + 1e-12
     before = st.poses.copy()
     params = st.params.copy()
@@ -56,17 +57,48 @@ def test_a_hidden_objects_kernel_keeps_its_spread_when_the_weights_pick_one_part
     hidden = np.zeros(5, bool)
     hidden[BALL] = True
     cov = np.cov(st.poses[:, BALL, :3].T, bias=True)
-    even = regularisation_kernels(model, st.poses, np.full(400, 1 / 400), hidden)[BALL]
+    even = regularisation_kernels(model, st.poses, np.full(400, 1 / 400), hidden)[BALL].chol
     assert np.allclose(even @ even.T, 0.25 * cov, rtol=1e-6, atol=1e-12)
     w = np.full(400, 1e-12)
     w[0] = 1.0
     w /= w.sum()
-    one = regularisation_kernels(model, st.poses, w, hidden)[BALL]
+    one = regularisation_kernels(model, st.poses, w, hidden)[BALL].chol
     share = 1.0 / (400 * np.sum(w ** 2))
     mixed = share * w + (1.0 - share) / 400
     assert np.allclose(one @ one.T, 0.25 * np.cov(st.poses[:, BALL, :3].T, aweights=mixed, bias=True),
                        rtol=1e-6, atol=1e-12)
     assert np.trace(one @ one.T) > 0.9 * np.trace(even @ even.T)
+
+
+def test_the_jitter_keeps_a_hidden_clouds_mean_and_spread():
+    """Liu-West: each copy is drawn towards the mean by sqrt(1 - h^2) before its jitter of h^2 times
+    the covariance, so one regularisation keeps the cloud's mean (within 3 standard errors of the
+    jitter's mean) and its covariance's trace (within 3 standard deviations of the ratio of the
+    sample traces: per axis sqrt((2 h^4 + 4 (1 - h^2) h^2) / n) relative, the axes weighted by their
+    share of the trace), where the plain jitter would multiply it by 1 + h^2 = 1.25."""
+    n, h = 4000, 0.5
+    nz = NoiseConfig(regularisation=h, max_jitter_std=1.0, param_jitter=0.0)
+    model = make(EstimatorConfig(particles=n, noise=nz))
+    rng = np.random.default_rng(11)
+    st = model.initial_state(rng)
+    st.poses[:, BALL, :3] = [0.0, 0.0, 1.2] + rng.normal(0.0, [0.01, 0.02, 0.005], (n, 3))  # in the air
+    st.poses[:, BALL, 3:] = [0.0, 0.0, 0.0, 1.0]
+    hidden = np.zeros(5, bool)
+    hidden[BALL] = True
+    kernels = regularisation_kernels(model, st.poses, np.full(n, 1.0 / n), hidden)
+    assert kernels[BALL].shrink == pytest.approx(np.sqrt(1.0 - h ** 2))
+    before = st.poses[:, BALL, :3].copy()
+    regularise(model, st, kernels, np.random.default_rng(12))
+    after = st.poses[:, BALL, :3]
+    assert np.all(after != before)
+    se = h * before.std(axis=0) / np.sqrt(n)
+    assert np.all(np.abs(after.mean(axis=0) - before.mean(axis=0)) < 3.0 * se)
+    var = before.var(axis=0)
+    share = var / var.sum()  # each axis's part of the trace
+    ratio = np.trace(np.cov(after.T)) / np.trace(np.cov(before.T))
+    band = 3.0 * np.sqrt((2 * h ** 4 + 4 * (1 - h ** 2) * h ** 2) / n * np.sum(share ** 2))
+    assert abs(ratio - 1.0) < band < 0.25
+    model.close()
 
 
 def test_an_object_kept_by_its_particle_is_carried_at_rest_with_its_level_support_and_nothing_in_its_way():
@@ -148,8 +180,8 @@ def test_regularise_loads_the_copies_it_only_slid_at_rest_and_jolts_the_others()
     st.on_top[:, CUP, TABLE] = True
     st.is_in[:, BALL, CRATE] = True
     before = st.take(np.arange(50))
-    chol = np.diag([0.004, 0.004, 1e-6])
-    slid = regularise(model, st, {CUP: chol, BALL: chol}, np.random.default_rng(2))
+    kernel = Kernel(np.diag([0.004, 0.004, 1e-6]), 0.9)  # drawn towards the mean along the table too
+    slid = regularise(model, st, {CUP: kernel, BALL: kernel}, np.random.default_rng(2))
     assert slid[:, CUP].all() and not slid[:, [TABLE, CRATE, BALL, MYSTERY]].any()
     assert np.array_equal(st.poses[:, CUP, 2], before.poses[:, CUP, 2])
     assert np.all(st.poses[:, CUP, :2] != before.poses[:, CUP, :2])

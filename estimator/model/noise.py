@@ -4,6 +4,7 @@ particles, M objects, metres, seconds, quaternions x, y, z, w."""
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -58,13 +59,25 @@ def process_noise(poses: np.ndarray, free_unseen: np.ndarray, supported: np.ndar
     return jolted
 
 
+class Kernel(NamedTuple):
+    """A hidden object's regularisation kernel (:func:`regularisation_kernels`): the Cholesky
+    factor ``chol (3, 3)`` (m) of the jitter's covariance ``beta^2 Sigma`` (``Sigma`` the object's
+    weighted position covariance, ``beta`` the bandwidth after the cap), and ``shrink`` =
+    ``sqrt(1 - beta^2)``, how far each copy is first drawn towards the cloud's mean (Liu and West,
+    2001): ``x' = mean + shrink (x - mean) + jitter`` keeps the cloud's mean and covariance, where a
+    plain jitter would add ``beta^2 Sigma`` to the covariance at every resampling."""
+
+    chol: np.ndarray
+    shrink: float
+
+
 def regularisation_kernels(poses: np.ndarray, weights: np.ndarray, hidden: np.ndarray, bandwidth: float,
-                           max_std: float) -> dict[int, np.ndarray]:
-    """Per hidden object m (``hidden (M,)``) with a spread, the Cholesky factor ``(3, 3)`` (m) of the
-    jitter kernel: ``bandwidth`` times the weighted covariance of ``poses (K, M, 7)`` under
-    ``weights (K,)``, scaled down so that its largest std is at most ``max_std`` (m). Empty when
-    ``bandwidth`` is 0."""
-    kernels: dict[int, np.ndarray] = {}
+                           max_std: float) -> dict[int, Kernel]:
+    """Per hidden object m (``hidden (M,)``) with a spread, its :class:`Kernel`: a jitter of
+    ``bandwidth`` times the weighted covariance of ``poses (K, M, 7)`` under ``weights (K,)``
+    (``bandwidth`` < 1), scaled down so that its largest std is at most ``max_std`` (m), and the
+    shrinkage that keeps the covariance. Empty when ``bandwidth`` is 0."""
+    kernels: dict[int, Kernel] = {}
     if bandwidth > 0:
         _, covs, _, _ = pose_stats(poses, weights)
         for m in np.flatnonzero(hidden):
@@ -72,5 +85,6 @@ def regularisation_kernels(poses: np.ndarray, weights: np.ndarray, hidden: np.nd
             if np.trace(cov) > 1e-10:
                 chol = np.linalg.cholesky(cov * bandwidth ** 2 + 1e-12 * np.eye(3))
                 largest = np.sqrt(np.max(np.linalg.eigvalsh(cov)) * bandwidth ** 2)
-                kernels[int(m)] = chol * min(1.0, max_std / largest)
+                beta = bandwidth * min(1.0, max_std / largest)
+                kernels[int(m)] = Kernel(chol * min(1.0, max_std / largest), math.sqrt(max(0.0, 1.0 - beta ** 2)))
     return kernels

@@ -14,6 +14,7 @@ from physics.transforms import quat_conjugate, quat_multiply, quat_rotate
 from ..resampling import effective_sample_size
 from ..state import ParticleState
 from ..worlds.resting import slow
+from .noise import Kernel
 from .noise import regularisation_kernels as kernels_of
 from .params import shrink_params
 from .step import Settled
@@ -67,11 +68,13 @@ def own_centres(state: ParticleState, own: np.ndarray) -> dict[int, np.ndarray]:
     return out
 
 
-def regularise(model, state: ParticleState, kernels: dict[int, np.ndarray], rng: np.random.Generator,
+def regularise(model, state: ParticleState, kernels: dict[int, Kernel], rng: np.random.Generator,
                centres: dict[int, np.ndarray] | None = None) -> np.ndarray:
     """In place, after resampling: jitter the free copies of each hidden object with its kernel (a
     regularised particle filter: copies of one particle must not leave a hidden object with no
-    spread; a jitter into static geometry stops at its surface, ``static_clip``), then the
+    spread), drawn towards their mean first so that the cloud keeps its spread (Liu-West,
+    :class:`~estimator.model.noise.Kernel`; a jitter into static geometry stops at its surface,
+    ``static_clip``), then the
     physical parameters (Liu-West shrinkage, :func:`shrink_params`). A jittered entry is
     ``jolted`` (pushed out of what it penetrates before physics, loaded awake) unless it only slid
     along static geometry at rest (:func:`slid_at_rest`; its height is then its own again, the
@@ -90,8 +93,13 @@ def regularise(model, state: ParticleState, kernels: dict[int, np.ndarray], rng:
         if np.any(free):
             gap = centre - state.poses[free, m, :2].mean(axis=0)
             shifts.append((m, np.broadcast_to([gap[0], gap[1], 0.0], (model.K, 3))))
-    for m, chol in kernels.items():
-        shifts.append((m, rng.standard_normal((model.K, 3)) @ chol.T))
+    for m, kernel in kernels.items():
+        jitter = rng.standard_normal((model.K, 3)) @ kernel.chol.T
+        free = is_free(state.modes[:, m])
+        if np.count_nonzero(free) > 1:  # Liu-West: towards the mean first, or the jitter widens the cloud
+            offset = state.poses[free, m, :3] - state.poses[free, m, :3].mean(axis=0)
+            jitter[free] += (kernel.shrink - 1.0) * offset
+        shifts.append((m, jitter))
     for m, noise in shifts:
         free = is_free(state.modes[:, m])
         before = state.poses[free, m].copy()
