@@ -187,8 +187,8 @@ class NoiseConfig:
     * ``param_reach``: evidence may carry a parameter beyond its prior range by this factor (a
       friction prior of 0.3-1.0 bounds it to 0.075-4.0 with the default 4).
     * ``regularisation``: after resampling, hidden free objects are jittered with a Gaussian kernel
-      of this bandwidth times their weighted covariance (a regularised particle filter), each copy
-      first drawn towards the cloud's mean so that the cloud keeps its spread (Liu-West); 0 disables.
+      of this bandwidth (under 1) times their weighted covariance (a regularised particle filter), each
+      copy first drawn towards the cloud's mean so that the cloud keeps its spread (Liu-West); 0 disables.
     * ``max_jitter_std`` (m): cap of the motion noise and of the regularisation kernel per update,
       so that a jittered object does not jump through a container's wall.
     * ``outlier_prob``: weight of the uniform-outlier component of the pose likelihood (heavy tails).
@@ -256,8 +256,8 @@ class NoiseConfig:
         if dof is not None and not (isinstance(dof, (int, float)) and math.isfinite(dof) and dof > 2):
             raise ValueError(f"NoiseConfig.position_dof must be > 2 (None: Gaussian), got {dof!r}")
         check_positive(self, "held_offset_time")
-        if self.param_jitter >= 1:
-            raise ValueError("NoiseConfig.param_jitter must be < 1")
+        if self.param_jitter >= 1 or self.regularisation >= 1:
+            raise ValueError("NoiseConfig.param_jitter and regularisation (Liu-West bandwidths) must be < 1")
         if self.outlier_prob >= 1 or not 0 < self.miss_prob <= 1:
             raise ValueError("NoiseConfig.outlier_prob must be < 1 and miss_prob in (0, 1]")
         if not (isinstance(self.hand_occlusion, (int, float)) and 0.0 <= self.hand_occlusion <= 1.0):

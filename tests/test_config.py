@@ -33,6 +33,7 @@ def test_defaults_are_the_papers_table_one():
     lambda: NoiseConfig(position_std=-0.1),
     lambda: NoiseConfig(friction_range=(1.0, 0.5)),
     lambda: NoiseConfig(param_jitter=1.0),
+    lambda: NoiseConfig(regularisation=1.0),
     lambda: NoiseConfig(position_dof=2.0),
     lambda: NoiseConfig(position_dof=float("inf")),
     lambda: NoiseConfig(covariance_speed_time=-0.1),

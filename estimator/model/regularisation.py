@@ -74,8 +74,8 @@ def regularise(model, state: ParticleState, kernels: dict[int, Kernel], rng: np.
     regularised particle filter: copies of one particle must not leave a hidden object with no
     spread), drawn towards their mean first so that the cloud keeps its spread (Liu-West,
     :class:`~estimator.model.noise.Kernel`; a jitter into static geometry stops at its surface,
-    ``static_clip``), then the
-    physical parameters (Liu-West shrinkage, :func:`shrink_params`). A jittered entry is
+    ``static_clip``), then the physical parameters (Liu-West shrinkage, :func:`shrink_params`). A
+    jittered entry is
     ``jolted`` (pushed out of what it penetrates before physics, loaded awake) unless it only slid
     along static geometry at rest (:func:`slid_at_rest`; its height is then its own again, the
     kernel's vertical part being a regulariser's micrometres for an object at rest on a support).
