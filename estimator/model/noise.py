@@ -84,7 +84,6 @@ def regularisation_kernels(poses: np.ndarray, weights: np.ndarray, hidden: np.nd
             cov = covs[m]
             if np.trace(cov) > 1e-10:
                 chol = np.linalg.cholesky(cov * bandwidth ** 2 + 1e-12 * np.eye(3))
-                largest = np.sqrt(np.max(np.linalg.eigvalsh(cov)) * bandwidth ** 2)
-                beta = bandwidth * min(1.0, max_std / largest)
-                kernels[int(m)] = Kernel(chol * min(1.0, max_std / largest), math.sqrt(max(0.0, 1.0 - beta ** 2)))
+                scale = min(1.0, max_std / np.sqrt(np.max(np.linalg.eigvalsh(cov)) * bandwidth ** 2))  # the cap
+                kernels[int(m)] = Kernel(chol * scale, math.sqrt(max(0.0, 1.0 - (bandwidth * scale) ** 2)))
     return kernels

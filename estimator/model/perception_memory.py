@@ -38,7 +38,8 @@ millimetres of detection noise into tenths of a metre per second, which a hidden
 STILL_FRAMES = 30
 """A still object's position is the mean of its still detections, the latest :data:`STILL_FRAMES`
 weighing most (an exponential average of weight ``max(1 / n, 1 / STILL_FRAMES)``): it does not follow
-a slow slide."""
+a slow slide. Its standard error is the detection noise over ``sqrt(min(n, STILL_EFFECTIVE))``."""
+STILL_EFFECTIVE = 2 * STILL_FRAMES - 1  # the effective count of those weights once they are 1 / STILL_FRAMES
 
 
 class PerceptionMemory(HandsInMemory):
@@ -388,8 +389,7 @@ class PerceptionMemory(HandsInMemory):
     def _stayed(self, m: int, t: float, position: np.ndarray, distance: float) -> bool:
         """Whether object m's new detection at ``position`` (m) is within ``distance`` (m, its
         :meth:`onset`) of its stored detection ``place_dwell`` before ``t`` (s, its latest one; True
-        when there is none): a box that a hand starts moving slowly looks still over the detections
-        before, and is not."""
+        when there is none): a box that a hand starts moving slowly looks still before, and is not."""
         old = self._dwell_back(m, t)
         return old is None or math.dist(old[1], position) <= distance
 

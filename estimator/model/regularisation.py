@@ -56,16 +56,19 @@ def regularisation_kernels(model, poses: np.ndarray, weights: np.ndarray,
     return kernels_of(poses, mixed, hidden, nz.regularisation, nz.max_jitter_std)
 
 
+def _free_mean(state: ParticleState, m: int, dims: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """Object ``m``'s free copies ``(K,)`` bool and the mean of their first ``dims`` coordinates
+    (m; None when no copy is free)."""
+    free = is_free(state.modes[:, m])
+    return free, (state.poses[free, m, :dims].mean(axis=0) if np.any(free) else None)
+
+
 def own_centres(state: ParticleState, own: np.ndarray) -> dict[int, np.ndarray]:
     """Where the free copies of each object ``own (M,)`` (each particle keeps its own values:
     :meth:`~estimator.model.SceneModel.before_resampling`) are on average horizontally, ``{m: (2,)}``
     (m), equal weights: nothing weighed them."""
-    out = {}
-    for m in np.flatnonzero(own).tolist():
-        free = is_free(state.modes[:, m])
-        if np.any(free):
-            out[m] = state.poses[free, m, :2].mean(axis=0)
-    return out
+    means = {m: _free_mean(state, m, 2)[1] for m in np.flatnonzero(own).tolist()}
+    return {m: c for m, c in means.items() if c is not None}
 
 
 def regularise(model, state: ParticleState, kernels: dict[int, Kernel], rng: np.random.Generator,
@@ -75,33 +78,30 @@ def regularise(model, state: ParticleState, kernels: dict[int, Kernel], rng: np.
     spread), drawn towards their mean first so that the cloud keeps its spread (Liu-West,
     :class:`~estimator.model.noise.Kernel`; a jitter into static geometry stops at its surface,
     ``static_clip``), then the physical parameters (Liu-West shrinkage, :func:`shrink_params`). A
-    jittered entry is
-    ``jolted`` (pushed out of what it penetrates before physics, loaded awake) unless it only slid
-    along static geometry at rest (:func:`slid_at_rest`; its height is then its own again, the
-    kernel's vertical part being a regulariser's micrometres for an object at rest on a support).
-    ``centres``: for a resampling that changed K, where the free copies of each object that every
-    particle kept (:func:`own_centres`) were on average before it; they are moved back there
-    horizontally, every copy by the same shift, as a jitter is (a change of K drops the values of
-    the particles beyond the new count, or repeats ancestors' values, and would move the average of
-    a hidden object that nothing weighs by the chance of which). Returns ``(K, M)`` bool: the
+    jittered entry is ``jolted`` (pushed out of what it penetrates before physics, loaded awake)
+    unless it only slid along static geometry at rest (:func:`slid_at_rest`; its height is then its
+    own again, the kernel's vertical part being a regulariser's micrometres for an object at rest on
+    a support). ``centres``: for a resampling that changed K, where the free copies of each object
+    that every particle kept (:func:`own_centres`) were on average before it; they are moved back
+    there horizontally, every copy by the same shift, as a jitter is (a change of K drops the values
+    of the particles beyond the new count, or repeats ancestors' values, and would move the average
+    of a hidden object that nothing weighs by the chance of which). Returns ``(K, M)`` bool: the
     entries that slid."""
     slid = np.zeros((model.K, model.M), dtype=bool)
     jittered, start = [], state.poses.copy()
-    shifts = []
+    shifts = []  # (object, its free copies (K,), each copy's shift (K, 3))
     for m, centre in (centres or {}).items():
-        free = is_free(state.modes[:, m])
-        if np.any(free):
-            gap = centre - state.poses[free, m, :2].mean(axis=0)
-            shifts.append((m, np.broadcast_to([gap[0], gap[1], 0.0], (model.K, 3))))
+        free, mean = _free_mean(state, m, 2)
+        if mean is not None:
+            gap = centre - mean
+            shifts.append((m, free, np.broadcast_to([gap[0], gap[1], 0.0], (model.K, 3))))
     for m, kernel in kernels.items():
         jitter = rng.standard_normal((model.K, 3)) @ kernel.chol.T
-        free = is_free(state.modes[:, m])
-        if np.count_nonzero(free) > 1:  # Liu-West: towards the mean first, or the jitter widens the cloud
-            offset = state.poses[free, m, :3] - state.poses[free, m, :3].mean(axis=0)
-            jitter[free] += (kernel.shrink - 1.0) * offset
-        shifts.append((m, jitter))
-    for m, noise in shifts:
-        free = is_free(state.modes[:, m])
+        free, mean = _free_mean(state, m, 3)
+        if mean is not None:  # Liu-West: towards the mean first, or the jitter widens the cloud
+            jitter[free] += (kernel.shrink - 1.0) * (state.poses[free, m, :3] - mean)
+        shifts.append((m, free, jitter))
+    for m, free, noise in shifts:
         before = state.poses[free, m].copy()
         was = state.jolted[free, m].copy()
         state.poses[free, m, :3] += noise[free]

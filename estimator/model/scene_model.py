@@ -42,7 +42,7 @@ from .hand_memory import HAND_RADIUS
 from .inputs import StepInputs
 from .mechanisms import PHASES, Draft, Mechanism, mechanisms_for
 from .motion import out_of_reach, roll_released, rolled_along
-from .noise import centred_normal
+from .noise import Kernel, centred_normal
 from .params import param_bounds, world_params
 from .perception_memory import PerceptionMemory
 from .prior import REACH_SIGMAS, rest_prior
@@ -205,7 +205,7 @@ class SceneModel:
                                 self.config.adaptive)[0]
 
     def before_resampling(self, state: ParticleState, settled: Settled, perceived: np.ndarray,
-                          weights: np.ndarray) -> tuple[np.ndarray, dict[int, np.ndarray]]:
+                          weights: np.ndarray) -> tuple[np.ndarray, dict[int, Kernel]]:
         """What resampling needs from the model: the objects ``(M,)`` each particle keeps its own
         values of (hidden, known and dynamic, weighed by nothing since the last resampling,
         :meth:`unweighable`: the weights are about other objects, and resampling them too would only
@@ -215,7 +215,7 @@ class SceneModel:
         own = hidden & ~self.weighed & regularisation.unweighable(self, settled)
         return own, regularisation.regularisation_kernels(self, state.poses, weights, hidden & ~own)
 
-    def after_resampling(self, state: ParticleState, kernels: dict[int, np.ndarray],
+    def after_resampling(self, state: ParticleState, kernels: dict[int, Kernel],
                          rng: np.random.Generator, before: ParticleState, own: np.ndarray) -> np.ndarray:
         """In place on the resampled ``state`` (its K is the new count): regularisation
         (:func:`~estimator.model.regularisation.regularise`), and, when K changed, the objects

@@ -11,7 +11,7 @@ from actions.modes import is_free
 from ...resampling import normalise_log_weights
 from ...worlds.resting import slow
 from ..fusion import ensemble_kalman_step, shift_inconsistent
-from ..perception_memory import STILL_FRAMES
+from ..perception_memory import STILL_EFFECTIVE
 from .base import Draft, Mechanism
 
 FUSION_MIN_STEP = 5e-4
@@ -22,11 +22,10 @@ SHIFT_SIGNIFICANCE = 3.0
 """A resting object's cloud moves whole to the average of its still detections when its weighted
 mean is more than this many standard deviations of the gap from it
 (:func:`~estimator.model.fusion.shift_inconsistent`: the cloud's spread along the gap and the
-average's standard error, the detection noise over the square root of the detections averaged, at
-most the average's effective ``2 STILL_FRAMES - 1``). A narrow cloud that the detections reject (put
-at one detection in every particle, or thinned by resampling) is not moved by the Kalman step, and
-a gap that the average's own noise explains is not worth a shift (each wakes the object in every
-world)."""
+average's standard error, :data:`~estimator.model.perception_memory.STILL_FRAMES`). A narrow cloud
+that the detections reject (put at one detection in every particle, or thinned by resampling) is
+not moved by the Kalman step, and a gap that the average's own noise explains is not worth a shift
+(each wakes the object in every world)."""
 
 FUSION_SETTLED = 1.5e-3
 """A resting object whose particles' weighted mean is within this (m, horizontally) of the average of
@@ -71,7 +70,7 @@ class FusionAtRest(Mechanism):
         std = np.where(np.isfinite(std), std, max(nz.position_std, 1e-3))
         # a cloud that the still detections reject moves whole to where they average (a Kalman step
         # hardly moves a narrow cloud); the others take a Kalman step
-        se = std / np.sqrt(np.minimum(mem.still_count[idx], 2 * STILL_FRAMES - 1))
+        se = std / np.sqrt(np.minimum(mem.still_count[idx], STILL_EFFECTIVE))
         x, shifted = shift_inconsistent(poses[:, idx, :2], weights, mem.still_position[idx, :2], se, mask,
                                         SHIFT_SIGNIFICANCE)
         new, moved = ensemble_kalman_step(x, weights, mem.last_pose[idx, :2], std, mask & ~shifted, rng,
