@@ -246,3 +246,15 @@ def test_the_steps_bound_is_the_simulated_time_over_the_slowest_shards_steps():
     assert timing_row(st)["steps_bound_factor"] == pytest.approx((20 + 40) * 0.005 / 0.3)
     st.shard_parts_s = [{"load": 0.04}, {}]
     assert math.isnan(timing_row(st)["steps_bound_factor"])
+
+
+def test_the_ratio_floors_add_the_main_process_and_then_the_shards_read_and_loads_to_bare_stepping():
+    """``ratio_floor_main``: (main process + exchange + bare stepping) / bare stepping, medians over the
+    updates; ``ratio_floor_read_load`` adds the slowest shard's median read and load."""
+    st = StreamTiming(startup_s=0.1, time_step=0.005, update_s=[0.2, 0.3], bare_s=[0.1, 0.1], steps=[20, 40],
+                      main_s=[0.01, 0.03], exchange_s=[0.002, 0.002], shard_s=[0.1, 0.2], over_s=[0.0, 0.0],
+                      parts_s=[{}, {}], shard_parts_s=[{"step": 0.05, "load": 0.04, "read": 0.01},
+                                                      {"step": 0.25, "load": 0.02, "read": 0.01}])
+    row = timing_row(st)
+    assert row["ratio_floor_main"] == pytest.approx((0.02 + 0.002 + 0.1) / 0.1)
+    assert row["ratio_floor_read_load"] == pytest.approx((0.02 + 0.002 + 0.1 + 0.03 + 0.01) / 0.1)

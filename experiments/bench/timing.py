@@ -156,12 +156,13 @@ def timing_row(st: StreamTiming) -> dict:
     parts = model_parts_ms(st.parts_s)
     shard_parts = model_parts_ms(st.shard_parts_s)
     stepped = sum(p.get("step", 0.0) for p in st.shard_parts_s)  # the slowest shard's Bullet steps
+    main, exchange = float(np.median(st.main_s)), float(np.median(st.exchange_s))
+    read_load = 1e-3 * (shard_parts.get("read", 0.0) + shard_parts.get("load", 0.0))
     return {"updates": len(st.update_s), "steps_per_update": int(np.median(st.steps)),
             "update_ms_median": 1e3 * med, "update_ms_p95": 1e3 * float(np.percentile(st.update_s, 95)),
             "bare_step_ms_median": 1e3 * bare_med, "ratio": med / bare_med, "updates_per_s": 1.0 / med,
             "startup_s": st.startup_s, "peak_memory_mb": st.peak_memory_mb,
-            "main_ms_median": 1e3 * float(np.median(st.main_s)),
-            "exchange_ms_median": 1e3 * float(np.median(st.exchange_s)),
+            "main_ms_median": 1e3 * main, "exchange_ms_median": 1e3 * exchange,
             "slowest_shard_ms_median": 1e3 * float(np.median(st.shard_s)),
             "worker_overhead_us_per_particle": 1e6 * float(np.median(st.over_s)),
             "model_parts_ms_median": parts, "model_parts_slowest": slowest_parts(parts),
@@ -170,6 +171,12 @@ def timing_row(st: StreamTiming) -> dict:
             # them: the real-time factor with no work around the physics (an upper bound on what
             # cutting that work can reach; below 1, Bullet alone cannot keep up on this machine)
             "steps_bound_factor": sum(st.steps) * st.time_step / stepped if stepped > 0 else math.nan,
+            # lower bounds on ``ratio`` that no cut of the workers' other work can pass (sums of the
+            # medians): the main process's part and the exchange, which do not overlap the workers',
+            # over bare stepping; then also the slowest shard's read and loads, which any filter of
+            # simulated worlds must do
+            "ratio_floor_main": (main + exchange + bare_med) / bare_med,
+            "ratio_floor_read_load": (main + exchange + bare_med + read_load) / bare_med,
             **({"mean_particles": float(np.mean(st.particles)), "max_particles": int(np.max(st.particles))}
                if st.particles else {}),
             # dynamic objects per particle the update moved (loaded awake, held, pushed out), and
@@ -213,6 +220,8 @@ def slowest_parts(parts_ms: dict[str, float], n: int = 3) -> str:
 
 
 BREAKDOWN_COLUMNS = [("steps_bound_factor", "real-time factor of Bullet's steps alone", "{:.2f}"),
+                     ("ratio_floor_main", "ratio floor: main process", "{:.2f}"),
+                     ("ratio_floor_read_load", "ratio floor: + read, load", "{:.2f}"),
                      ("main_ms_median", "main process (ms)", "{:.2f}"),
                      ("slowest_shard_ms_median", "slowest shard (ms)", "{:.1f}"),
                      ("exchange_ms_median", "exchange (ms)", "{:.2f}"),
