@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from experiments.bench import scenarios as bench_scenario
@@ -31,6 +32,9 @@ def test_bench_one_reports_consistent_figures(workers):
     assert r["update_ms_p95"] >= r["update_ms_median"]
     assert math.isfinite(r["exchange_ms_median"]) and math.isfinite(r["worker_overhead_us_per_particle"])
     assert r["updates"] == 3 and r["startup_s"] > 0
+    # each update's floor (main process, exchange, the workers' mean Bullet steps) is part of it
+    assert 0 < r["update_floor_ms_median"] <= r["update_ms_median"]
+    assert 0 < r["update_floor_ms_p95"] <= r["update_ms_p95"]
     assert len(bench_scene(2).objects) == 3  # the table and two boxes
 
 
@@ -89,6 +93,12 @@ def test_bench_scenario_mode_one_row_per_scenario_and_particle_count(capsys):
     for r in rows:
         _check_scenario_row(r)
         assert r["updates"] == 3 and r["workers"] == 0
+        # the timed updates one by one: at increasing stream times, each no faster than its floor
+        per = r["per_update"]
+        assert [len(per[k]) for k in ("t", "update_ms", "floor_ms", "bare_ms", "particles")] == [3] * 5
+        assert np.all(np.diff(per["t"]) > 0) and per["particles"] == [r["particles"]] * 3
+        assert np.all(np.array(per["floor_ms"]) <= np.array(per["update_ms"]) + 0.01)
+        assert r["update_ms_p95"] == pytest.approx(np.percentile(per["update_ms"], 95), abs=0.01)
 
 
 def test_bench_scenario_replays_the_whole_stream(capsys):
@@ -258,3 +268,19 @@ def test_the_ratio_floors_add_the_main_process_and_then_the_shards_read_and_load
     row = timing_row(st)
     assert row["ratio_floor_main"] == pytest.approx((0.02 + 0.002 + 0.1) / 0.1)
     assert row["ratio_floor_read_load"] == pytest.approx((0.02 + 0.002 + 0.1 + 0.03 + 0.01) / 0.1)
+
+
+def test_the_update_floors_are_main_process_exchange_and_the_workers_mean_steps_per_update():
+    """``update_floor_ms_median`` / ``_p95``: per update, main process + exchange + the mean over the
+    workers of their Bullet steps; then the median and the 95th percentile (NaN without step times)."""
+    st = StreamTiming(startup_s=0.1, time_step=0.005, update_s=[0.2, 0.3, 0.4], bare_s=[0.1] * 3, steps=[20] * 3,
+                      main_s=[0.01, 0.03, 0.02], exchange_s=[0.002] * 3, shard_s=[0.1] * 3, over_s=[0.0] * 3,
+                      parts_s=[{}] * 3, shard_parts_s=[{}] * 3, step_mean_s=[0.05, 0.2, 0.1])
+    floor = np.array([0.062, 0.232, 0.122])
+    row = timing_row(st)
+    assert row["update_floor_ms_median"] == pytest.approx(1e3 * 0.122)
+    assert row["update_floor_ms_p95"] == pytest.approx(1e3 * np.percentile(floor, 95))
+    assert row["per_update"]["floor_ms"] == pytest.approx(1e3 * floor)
+    st.step_mean_s = []
+    row = timing_row(st)
+    assert math.isnan(row["update_floor_ms_p95"]) and all(math.isnan(x) for x in row["per_update"]["floor_ms"])
