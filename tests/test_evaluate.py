@@ -88,6 +88,9 @@ def test_a_perfect_estimate_scores_zero_error_and_f1_one():
     for f in ("brier_plausible", "ece_plausible", "brier_isin", "ece_isin", "brier_isontop", "ece_isontop"):
         assert s[f] == 0.0, f
     assert s["cover50_hidden"] == 1.0 and s["cover90_hidden"] == 1.0
+    # the hidden samples split into the first second of each occlusion and the rest
+    assert s["n_hidden_early"] > 0 and s["n_hidden_early"] + s["n_hidden_late"] == s["n_hidden"]
+    assert s["err_hidden_early_median"] == 0.0 and s["cover90_hidden_early"] == 1.0
 
 
 def test_a_point_estimate_off_by_ten_cm_is_scored_as_such():

@@ -30,6 +30,19 @@ def test_error_quantiles_select_by_mask_and_skip_nan():
     assert empty["n"] == 0 and math.isnan(empty["median"]) and math.isnan(empty["p90"])
 
 
+def test_hidden_durations_count_from_the_last_visible_step_or_the_first_step():
+    t = np.array([0.0, 0.1, 0.2, 0.3, 0.4])
+    vis = np.array([[True, False], [False, False], [False, True], [True, False], [False, False]])
+    d = M.hidden_durations(t, vis)
+    # object 0: seen at 0, hidden 0.1 and 0.2 later, seen at 0.3, hidden 0.1 later
+    np.testing.assert_allclose(d[:, 0], [0.0, 0.1, 0.2, 0.0, 0.1])
+    # object 1: hidden from the first step (counted from it), seen at 0.2, then hidden
+    np.testing.assert_allclose(d[:, 1], [0.0, 0.1, 0.0, 0.1, 0.2])
+    assert M.hidden_durations(np.zeros(0), np.zeros((0, 3), bool)).shape == (0, 3)
+    with pytest.raises(ValueError, match="do not agree"):
+        M.hidden_durations(t[:4], vis)
+
+
 def test_truth_support_priority_isin_then_isontop_then_held_then_none():
     rels = [{"subject": "ball", "predicate": "isOnTop", "object": "table", "p": 1.0},
             {"subject": "ball", "predicate": "isIn", "object": "box", "p": 1.0},

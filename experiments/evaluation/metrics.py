@@ -8,6 +8,9 @@ state or draws random numbers. Conventions:
 * **support**: where an object is, ``(relation, support)`` with ``relation`` in isIn, isOnTop,
   held, none. The truth's support is derived from the true relations by priority isIn X > isOnTop X
   > held > none; when several supports tie at the winning level, any of them counts as correct.
+* **early / late hidden**: a hidden sample is *early* when its object was last visible (at a scored
+  step) at most :data:`EARLY_HIDDEN` seconds before, *late* otherwise; an object hidden from the
+  first step counts from that step. Coverage, NLL and the median error are also reported over each.
 * **success** (at the end of a trial): error < 5 cm *and* the estimate's top hypothesis is a true
   support.
 * **events**: greedy one-to-one matching of estimated to true events with the same action and
@@ -39,6 +42,10 @@ SUCCESS_DISTANCE = 0.05
 """Success needs the final position error below this (m)."""
 EVENT_WINDOW = 0.5
 """Estimated and true events match within this many seconds."""
+EARLY_HIDDEN = 1.0
+"""Hidden samples at most this many seconds after their object was last visible are *early*: the
+first second of an occlusion, while the belief's spread is still growing from what it was when the
+object vanished."""
 COV_FLOOR_STD = 0.005
 """Standard deviation (m) added isotropically to every predicted covariance."""
 N_BINS = 10
@@ -66,6 +73,20 @@ def error_quantiles(errors: np.ndarray, mask: np.ndarray | None = None) -> dict[
     if v.size == 0:
         return {"median": math.nan, "p90": math.nan, "n": 0}
     return {"median": float(np.median(v)), "p90": float(np.percentile(v, 90)), "n": int(v.size)}
+
+
+def hidden_durations(times: np.ndarray, visible: np.ndarray) -> np.ndarray:
+    """How long (s) each object has been hidden at each step: ``times (T,)`` s, increasing;
+    ``visible (T, D)`` bool. Returns ``(T, D)`` float: 0 where visible, else the time since the
+    object's last visible step (since the first step for an object hidden from the start)."""
+    t = np.asarray(times, float)
+    vis = np.asarray(visible, bool)
+    if vis.ndim != 2 or t.shape != vis.shape[:1]:
+        raise ValueError(f"hidden_durations: times {t.shape} and visible {vis.shape} do not agree")
+    if t.size == 0:
+        return np.zeros(vis.shape)
+    last = np.maximum.accumulate(np.where(vis, t[:, None], -np.inf), axis=0)
+    return np.where(vis, 0.0, t[:, None] - np.where(np.isfinite(last), last, t[0]))
 
 
 def truth_supports(relations: list[dict], subject: str, held: bool) -> set[tuple[str, str | None]]:

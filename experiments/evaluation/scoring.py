@@ -106,6 +106,12 @@ def score_run(scene, truth: list[dict], true_events: list[dict], run: MethodRun,
     q_all, q_hid = M.error_quantiles(err), M.error_quantiles(err, hidden)
     out.update(n_hidden=q_hid["n"], err_median=q_all["median"], err_p90=q_all["p90"],
                err_hidden_median=q_hid["median"], err_hidden_p90=q_hid["p90"])
+    # hidden samples in the first second of their occlusion, and after it
+    hidden_s = M.hidden_durations(np.array([s.t for s in steps]), vis)
+    early = hidden & (hidden_s <= M.EARLY_HIDDEN)
+    for suffix, mask in (("_early", early), ("_late", hidden & ~early)):
+        q = M.error_quantiles(err, mask)
+        out[f"n_hidden{suffix}"], out[f"err_hidden{suffix}_median"] = q["n"], q["median"]
     # the end of the run
     if T:
         end_err = err[-1]
@@ -138,7 +144,8 @@ def score_run(scene, truth: list[dict], true_events: list[dict], run: MethodRun,
     # (each position with its own distribution: dof inf for Gaussian ones)
     ok = np.isfinite(est).all(axis=-1)
     nll = np.where(ok, M.gaussian_nll(np.where(ok[..., None], est, 0.0), cov, tru, dof=dof), np.nan)
-    for suffix, mask in (("", ok), ("_hidden", ok & hidden)):
+    for suffix, mask in (("", ok), ("_hidden", ok & hidden), ("_hidden_early", ok & early),
+                         ("_hidden_late", ok & hidden & ~early)):
         v = nll[mask]
         out[f"nll{suffix}"] = float(np.mean(v)) if v.size else math.nan
         out[f"nll{suffix}_median"] = float(np.median(v)) if v.size else math.nan

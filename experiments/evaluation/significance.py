@@ -66,8 +66,13 @@ def paired_tests(rows: list[dict], baseline: str = "paper") -> list[dict]:
     return out
 
 
-AUTO_TEST_METRICS = TEST_METRICS + (("cover90_hidden", "90% coverage hidden", 1.0),)
-"""Metrics of the paired tests of the adaptive particle count against each fixed K."""
+AUTO_TEST_METRICS = TEST_METRICS + (("cover90_hidden", "90% coverage hidden", 1.0),
+                                     ("err_hidden_early_median", "hidden err. median, first s (cm)", 100.0),
+                                     ("cover90_hidden_early", "90% coverage hidden, first s", 1.0),
+                                     ("cover90_hidden_late", "90% coverage hidden, later", 1.0))
+"""Metrics of the paired tests of the adaptive particle count against each fixed K (*first s*: the
+hidden samples of the first second of each occlusion, :data:`~experiments.evaluation.metrics.EARLY_HIDDEN`;
+*later*: the others)."""
 
 
 def adaptive_tests(rows: list[dict]) -> list[dict]:
