@@ -163,6 +163,7 @@ def timing_row(st: StreamTiming) -> dict:
     stepped = sum(p.get("step", 0.0) for p in st.shard_parts_s)  # the slowest shard's Bullet steps
     main, exchange = float(np.median(st.main_s)), float(np.median(st.exchange_s))
     read_load = 1e-3 * (shard_parts.get("read", 0.0) + shard_parts.get("load", 0.0))
+    floor = update_floors(st)
     return {"updates": len(st.update_s), "steps_per_update": int(np.median(st.steps)),
             "update_ms_median": 1e3 * med, "update_ms_p95": 1e3 * float(np.percentile(st.update_s, 95)),
             "bare_step_ms_median": 1e3 * bare_med, "ratio": med / bare_med, "updates_per_s": 1.0 / med,
@@ -185,9 +186,9 @@ def timing_row(st: StreamTiming) -> dict:
             # the update's time with nothing in the workers but the Bullet steps it took, spread
             # evenly over them: per update, main process + exchange + the workers' mean stepping
             # time; its median and 95th percentile bound the update's from below
-            **update_floors_ms(st),
+            **update_floors_ms(floor),
             # the timed updates one by one (``--json`` only): which ones make the p95
-            "per_update": per_update(st),
+            "per_update": per_update(st, floor),
             **({"mean_particles": float(np.mean(st.particles)), "max_particles": int(np.max(st.particles))}
                if st.particles else {}),
             # dynamic objects per particle the update moved (loaded awake, held, pushed out), and
@@ -212,25 +213,24 @@ def update_floors(st: StreamTiming) -> np.ndarray:
     return np.add(np.add(st.main_s, st.exchange_s), st.step_mean_s)
 
 
-def update_floors_ms(st: StreamTiming) -> dict[str, float]:
+def update_floors_ms(floor: np.ndarray) -> dict[str, float]:
     """``update_floor_ms_median`` and ``update_floor_ms_p95`` (ms): the median and 95th percentile of
-    :func:`update_floors` over the timed updates (NaN when none is known); they bound the update's
-    median and p95 from below."""
-    floor = update_floors(st)
+    the per-update floors ``floor (n,)`` s (:func:`update_floors`; NaN when none is known); they
+    bound the update's median and p95 from below."""
     if np.all(np.isnan(floor)):
         return {"update_floor_ms_median": math.nan, "update_floor_ms_p95": math.nan}
     return {"update_floor_ms_median": 1e3 * float(np.nanmedian(floor)),
             "update_floor_ms_p95": 1e3 * float(np.nanpercentile(floor, 95))}
 
 
-def per_update(st: StreamTiming) -> dict[str, list]:
+def per_update(st: StreamTiming, floor: np.ndarray) -> dict[str, list]:
     """The timed updates one by one: ``t`` (s, the stream time of the frame that ran each),
-    ``update_ms``, ``floor_ms`` (:func:`update_floors`), ``bare_ms`` and ``particles``; times
-    rounded to 0.01 ms."""
+    ``update_ms``, ``floor_ms`` (``floor (n,)`` s, :func:`update_floors`), ``bare_ms`` and
+    ``particles``; times rounded to 0.01 ms."""
     def ms(xs):
         return [round(1e3 * float(x), 2) for x in xs]
     return {"t": [round(float(t), 4) for t in st.update_t], "update_ms": ms(st.update_s),
-            "floor_ms": ms(update_floors(st)), "bare_ms": ms(st.bare_s), "particles": [int(k) for k in st.particles]}
+            "floor_ms": ms(floor), "bare_ms": ms(st.bare_s), "particles": [int(k) for k in st.particles]}
 
 
 def bench_config(k: int | str, workers: int, config: EstimatorConfig | None = None) -> EstimatorConfig:
