@@ -10,10 +10,11 @@ import math
 from statistics import NormalDist
 
 import numpy as np
+from scipy.special import fdtr, gammaincinv
 
 from .config import AdaptiveConfig
 
-__all__ = ["kld_bound", "occupied_bins", "particles_needed"]
+__all__ = ["kld_bound", "occupied_bins", "particles_needed", "region_coverage", "coverage_min_particles"]
 
 
 def kld_bound(k: int | np.ndarray, epsilon: float, delta: float) -> np.ndarray:
@@ -28,6 +29,39 @@ def kld_bound(k: int | np.ndarray, epsilon: float, delta: float) -> np.ndarray:
     a = 2.0 / (9.0 * d)
     n = d / (2.0 * epsilon) * (1.0 - a + np.sqrt(a) * z) ** 3
     return np.where(k > 1, n, 0.0)
+
+
+def region_coverage(k: int | np.ndarray, level: float = 0.9, dim: int = 3) -> np.ndarray:
+    """How often, on average, a new draw from a ``dim``-dimensional Gaussian falls in the ``level``
+    region fitted to ``k`` samples of it (mean and covariance estimated from them, radius the
+    chi-square quantile as though they were exact). Hotelling: with ``x`` the new draw and ``m, S`` the
+    samples' mean and (unbiased) covariance, ``(x - m)' S^-1 (x - m) * k (k - dim) / ((k + 1) (k - 1)
+    dim)`` is F(dim, k - dim) distributed. ``k`` an int or an array of ints (> ``dim``); returns float,
+    same shape, under ``level`` and rising to it as ``k`` grows."""
+    k = np.asarray(k, dtype=float)
+    if np.any(k <= dim) or not 0.0 < level < 1.0:
+        raise ValueError(f"region_coverage: k must exceed dim ({dim}) and level be in (0, 1), got {k!r}, {level!r}")
+    radius = 2.0 * gammaincinv(0.5 * dim, level)  # the chi-square quantile
+    return fdtr(dim, k - dim, radius * k * (k - dim) / ((k + 1.0) * (k - 1.0) * dim))
+
+
+def coverage_min_particles(levels=(0.5, 0.9), shortfall: float = 0.01, dim: int = 3) -> int:
+    """The least K whose fitted regions at every one of ``levels`` cover, on average, at least their
+    level less ``shortfall`` (:func:`region_coverage`): the fewest particles from which a cloud's
+    regions can be estimated to that tolerance. The defaults are the regions the estimator's priors
+    are calibrated for (``fit-priors --regions``) and one percentage point."""
+    need = 0
+    for level in levels:
+        if not 0.0 < shortfall < level < 1.0:
+            raise ValueError(f"coverage_min_particles: need 0 < shortfall < level < 1, got {shortfall!r}, {level!r}")
+        lo, hi = dim + 1, dim + 2
+        while region_coverage(hi, level, dim) < level - shortfall:  # bracket, then bisect
+            lo, hi = hi, 2 * hi
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            lo, hi = (lo, mid) if region_coverage(mid, level, dim) >= level - shortfall else (mid, hi)
+        need = max(need, hi if region_coverage(lo, level, dim) < level - shortfall else lo)
+    return need
 
 
 def occupied_bins(positions: np.ndarray, modes: np.ndarray, weights: np.ndarray, bin_size: float,

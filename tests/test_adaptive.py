@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from estimator.adaptive import kld_bound, occupied_bins, particles_needed
+from estimator.adaptive import coverage_min_particles, kld_bound, occupied_bins, particles_needed, region_coverage
 from estimator.config import AdaptiveConfig
 
 
@@ -39,6 +39,40 @@ def test_samples_of_the_bound_s_size_keep_the_divergence_under_epsilon_as_often_
         # and the bound is not loose: half as many samples break it far more often
         half = np.mean(_kl_to_uniform(rng.multinomial(n // 2, np.full(k, 1.0 / k), size=trials)) > eps)
         assert half > 5 * delta
+
+
+def test_a_region_fitted_to_k_samples_covers_a_new_draw_as_often_as_hotelling_says():
+    # k samples of a Gaussian, their mean and covariance, the chi-square region at the level; a new
+    # draw of the same Gaussian falls in it at the rate region_coverage gives, within three binomial
+    # standard errors (the Gaussian's own mean and covariance do not matter: the statistic is invariant)
+    rng = np.random.default_rng(5)
+    trials = 40000
+    shape = np.array([[2.0, 0, 0], [0.5, 1.0, 0], [0, 0.3, 0.2]])
+    for k, level, dim in ((8, 0.9, 3), (30, 0.5, 3), (12, 0.9, 2)):
+        draws = rng.normal(size=(trials, k + 1, dim)) @ shape[:dim, :dim]
+        x, new = draws[:, :k], draws[:, k]
+        m = x.mean(axis=1)
+        d = x - m[:, None]
+        S = np.einsum("tki,tkj->tij", d, d) / (k - 1)
+        r = new - m
+        m2 = np.einsum("ti,ti->t", r, np.linalg.solve(S, r[..., None])[..., 0])
+        rate = np.mean(m2 <= chi2.ppf(level, dim))
+        p = float(region_coverage(k, level, dim))
+        assert p < level and abs(rate - p) < 3 * np.sqrt(p * (1 - p) / trials)
+    assert np.all(np.diff(region_coverage(np.arange(4, 2000))) > 0)
+    assert region_coverage(10**6) == pytest.approx(0.9, abs=1e-5)
+    with pytest.raises(ValueError):
+        region_coverage(3, 0.9, 3)
+
+
+def test_the_default_minimum_is_the_least_count_whose_regions_cover_within_a_point():
+    n = coverage_min_particles()
+    assert AdaptiveConfig().min_particles == n
+    assert all(region_coverage(n, lv) >= lv - 0.01 for lv in (0.5, 0.9))
+    assert any(region_coverage(n - 1, lv) < lv - 0.01 for lv in (0.5, 0.9))
+    assert coverage_min_particles((0.9,)) <= n and coverage_min_particles((0.9,), 0.02) < coverage_min_particles((0.9,))
+    with pytest.raises(ValueError):
+        coverage_min_particles((0.9,), 0.95)
 
 
 def test_bins_are_centred_on_the_mean_split_by_mode_and_ignore_light_or_missing_particles():

@@ -126,8 +126,8 @@ def test_the_adaptive_count_is_switched_on_within_bounds_a_low_maximum_lowering_
 
     base = EstimatorConfig(particles=64, noise=NoiseConfig())
     on = with_adaptive_count(base)
-    assert on.adaptive.enabled and (on.adaptive.min_particles, on.adaptive.max_particles) == (64, 1024)
-    assert on.initial_particles == 64 and on.max_particles == 1024 and not on.paper_mode
+    assert on.adaptive.enabled and (on.adaptive.min_particles, on.adaptive.max_particles) == (164, 1024)
+    assert on.initial_particles == 164 and on.max_particles == 1024 and not on.paper_mode
     low = with_adaptive_count(base, max_particles=32)
     assert (low.adaptive.min_particles, low.adaptive.max_particles, low.initial_particles) == (32, 32, 32)
     assert with_adaptive_count(base, 8, 96).initial_particles == 64  # it starts from the count asked for

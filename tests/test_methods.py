@@ -88,7 +88,7 @@ def test_the_adaptive_count_is_a_particle_count_of_its_own():
     from experiments.evaluation.trials import TrialSpec
 
     cfg = method_config("particles", AUTO)
-    assert cfg.adaptive.enabled and cfg.particles == AdaptiveConfig().min_particles == 64 and cfg.workers == 0
+    assert cfg.adaptive.enabled and cfg.particles == AdaptiveConfig().min_particles == 164 and cfg.workers == 0
     assert not method_config("particles", 64).adaptive.enabled
     assert not method_config("paper", AUTO).adaptive.enabled  # the paper's reasoner stays one world
     assert method_label("particles", AUTO) == "particles (K=auto)"
