@@ -347,14 +347,11 @@ class AdaptiveConfig:
 
     * ``enabled``: False keeps K fixed at ``EstimatorConfig.particles`` (the default).
     * ``min_particles``, ``max_particles``: bounds on K (the worlds are built for the maximum as K
-      first reaches it, and parked, not destroyed, when K falls). The bound says nothing of how well
-      the particles of a well-known object, all in its one bin, estimate its cloud: its mean and
-      covariance, hence the regions the belief reports, are taken from them. The minimum is the least
-      K whose 50 % and 90 % regions fitted to K samples of a Gaussian cover on average within one
-      percentage point of their level (:func:`~estimator.adaptive.coverage_min_particles`; at K = 64
-      a fitted 90 % region covers 0.875, at 164 0.890, at 256 0.894). It shows most when an object
-      vanishes: its hidden cloud grows from the particles it had, and K growing afterwards copies
-      them (docs/concepts/adaptive-particles.md).
+      first reaches it, and parked, not destroyed, when K falls). The minimum is the least K whose
+      50 % and 90 % regions fitted to K samples of a Gaussian cover on average within one point of
+      their level (:func:`~estimator.adaptive.coverage_min_particles`; a fitted 90 % region covers
+      0.875 at K = 64, 0.890 at 164): an object's cloud in one bin is estimated from its particles, and
+      a vanished object's grows out of them (docs/concepts/adaptive-particles.md).
     * ``epsilon``, ``delta``, ``bin_size`` (m), ``shrink_below``: as above.
     """
 
