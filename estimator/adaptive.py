@@ -10,8 +10,9 @@ import math
 from statistics import NormalDist
 
 import numpy as np
-from scipy.special import fdtr, gammaincinv
+from scipy.special import fdtr
 
+from .belief import chi2_quantile
 from .config import AdaptiveConfig
 
 __all__ = ["kld_bound", "occupied_bins", "particles_needed", "region_coverage", "coverage_min_particles"]
@@ -41,7 +42,7 @@ def region_coverage(k: int | np.ndarray, level: float = 0.9, dim: int = 3) -> np
     k = np.asarray(k, dtype=float)
     if np.any(k <= dim) or not 0.0 < level < 1.0:
         raise ValueError(f"region_coverage: k must exceed dim ({dim}) and level be in (0, 1), got {k!r}, {level!r}")
-    radius = 2.0 * gammaincinv(0.5 * dim, level)  # the chi-square quantile
+    radius = chi2_quantile(level, dim)
     return fdtr(dim, k - dim, radius * k * (k - dim) / ((k + 1.0) * (k - 1.0) * dim))
 
 
