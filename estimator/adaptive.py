@@ -3,6 +3,8 @@
 Pure functions on arrays (see :class:`~estimator.config.AdaptiveConfig` for the bound and its
 assumptions); the filter (:class:`~estimator.filter.SceneEstimator`) resamples to the count they
 give (under the compute budget's cap, :func:`~estimator.config.budget_cap`, when there is one).
+The minimum they are clipped to comes from how well a cloud's regions can be estimated from K
+samples (:func:`region_coverage`, :func:`coverage_min_particles`).
 """
 from __future__ import annotations
 
