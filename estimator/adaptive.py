@@ -52,19 +52,14 @@ def coverage_min_particles(levels=(0.5, 0.9), shortfall: float = 0.01, dim: int 
     """The least K whose fitted regions at every one of ``levels`` cover, on average, at least their
     level less ``shortfall`` (:func:`region_coverage`): the fewest particles from which a cloud's
     regions can be estimated to that tolerance. The defaults are the regions the estimator's priors
-    are calibrated for (``fit-priors --regions``) and one percentage point."""
-    need = 0
-    for level in levels:
-        if not 0.0 < shortfall < level < 1.0:
-            raise ValueError(f"coverage_min_particles: need 0 < shortfall < level < 1, got {shortfall!r}, {level!r}")
-        lo, hi = dim + 1, dim + 2
-        while region_coverage(hi, level, dim) < level - shortfall:  # bracket, then bisect
-            lo, hi = hi, 2 * hi
-        while hi - lo > 1:
-            mid = (lo + hi) // 2
-            lo, hi = (lo, mid) if region_coverage(mid, level, dim) >= level - shortfall else (mid, hi)
-        need = max(need, hi if region_coverage(lo, level, dim) < level - shortfall else lo)
-    return need
+    are calibrated for (``fit-priors --regions``) and one percentage point. Searched up to 10^5."""
+    if not all(0.0 < shortfall < level < 1.0 for level in levels):
+        raise ValueError(f"coverage_min_particles: need 0 < shortfall < level < 1, got {shortfall!r}, {levels!r}")
+    k = np.arange(dim + 1, 10**5)
+    ok = np.all([region_coverage(k, level, dim) >= level - shortfall for level in levels], axis=0)
+    if not ok[-1]:
+        raise ValueError(f"coverage_min_particles: no K under 10^5 covers within {shortfall!r}")
+    return int(k[np.argmax(ok)])  # coverage rises with K: the first that holds
 
 
 def occupied_bins(positions: np.ndarray, modes: np.ndarray, weights: np.ndarray, bin_size: float,

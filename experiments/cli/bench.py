@@ -23,7 +23,7 @@ import os
 import sys
 from typing import Iterable
 
-from estimator.config import AdaptiveConfig, EstimatorConfig, config_from_dict, read_config_file
+from estimator.config import EstimatorConfig, config_from_dict, read_config_file
 from experiments.bench.synthetic import bench_one
 from experiments.bench.timing import (
     BREAKDOWN_COLUMNS,
@@ -32,9 +32,7 @@ from experiments.bench.timing import (
     TIMING_COLUMNS,
     bench_config,
 )
-from experiments.cli.common import add_fixed_particles_argument, live_config, particle_count
-
-_A = AdaptiveConfig()  # the adaptive count's default bounds, for the help
+from experiments.cli.common import AUTO_RANGE, add_fixed_particles_argument, live_config, particle_count
 
 
 def report(args, columns: list[tuple[str, str, str]], rows: Iterable[dict], meta: dict) -> int:
@@ -73,8 +71,8 @@ def particle_configs(args) -> list[tuple[int, EstimatorConfig]]:
 def add_bench_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--particles", type=particle_count, nargs="+", default=[16, 64, 256],
                    help="particle counts to time (default 16 64 256); auto: the adaptive count (KLD-sampling "
-                        f"from {_A.min_particles}, {_A.min_particles}-{_A.max_particles}; the table's K column then "
-                        "shows the mean K of the timed updates)")
+                        f"{AUTO_RANGE}, from the fewest; the table's K column then shows the mean K of the "
+                        "timed updates)")
     what = p.add_mutually_exclusive_group()
     what.add_argument("--objects", type=int, nargs="+", default=None,
                       help="synthetic scenes: resting boxes on a table (default 4 8 12)")

@@ -24,6 +24,9 @@ DEFAULT_PARTICLES = 64
 command line (``--particles``, ``--paper``) nor a configuration file says: every built-in scenario
 runs in real time at K = 64 on two cores (README, *Speed*)."""
 
+AUTO_RANGE = f"{AdaptiveConfig().min_particles}-{AdaptiveConfig().max_particles}"
+"""``--particles auto``'s default bounds, for the commands' help (:class:`~estimator.config.AdaptiveConfig`)."""
+
 
 def particle_count(text: str) -> int | str:
     """``--particles``: a positive integer, or ``auto`` (a count that follows the belief's spread)."""
@@ -96,7 +99,7 @@ def add_estimator_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--particles", type=particle_count, default=None,
                    help=f"particle worlds K (default {DEFAULT_PARTICLES}, or the configuration file's; "
                         "1: the paper's reasoner; auto: a count that follows the belief's spread, "
-                        f"KLD-sampling, starting at {DEFAULT_PARTICLES})")
+                        f"KLD-sampling, {AUTO_RANGE}, starting at the fewest)")
     a = AdaptiveConfig()
     p.add_argument("--max-particles", type=int, default=None,
                    help=f"with --particles auto: the most particles (default {a.max_particles})")

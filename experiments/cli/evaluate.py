@@ -23,11 +23,9 @@ import json
 import sys
 import time
 
-from estimator.config import AdaptiveConfig
+from experiments.cli.common import AUTO_RANGE
 from experiments.evaluation.methods import AUTO
 from physics.errors import InputError
-
-_A = AdaptiveConfig()  # the adaptive count's default bounds, for the help
 
 
 def _positive_int_list(text: str) -> tuple[int, ...]:
@@ -69,8 +67,7 @@ def add_evaluate_arguments(parser: argparse.ArgumentParser) -> None:
                              "particles-no-negative")
     parser.add_argument("--particles", type=_positive_int_list, default=(64,), metavar="K[,K...]",
                         help="particle worlds of the particle methods; several values for a scaling "
-                             f"study; auto: the adaptive count, KLD-sampling, {_A.min_particles}-{_A.max_particles} "
-                             "(default 64)")
+                             f"study; auto: the adaptive count, KLD-sampling, {AUTO_RANGE} (default 64)")
     parser.add_argument("--workers", type=int, default=None,
                         help="trials run in parallel (default: number of CPUs; 1: in this process)")
     parser.add_argument("--backend", choices=("local", "ray"), default="local",
