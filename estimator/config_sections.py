@@ -341,9 +341,9 @@ class AdaptiveConfig:
     max_particles]``: a joint bound over every object would count the product of their bins. The
     orientation and the physical parameters are not binned.
 
-    The filter resamples to that count when its effective sample size falls under the threshold, as
-    always, and also when the count exceeds the present K (an object vanished in motion, a
-    hypothesis split) or falls under ``shrink_below`` times it (everything seen and at rest).
+    The filter resamples to that count when its effective sample size falls under the threshold or
+    the count under ``shrink_below`` times K (all seen, at rest); a count over K (a vanished object, a
+    split) adds weighed copies instead (:func:`~estimator.resampling.split_ancestors`).
 
     * ``enabled``: False keeps K fixed at ``EstimatorConfig.particles`` (the default).
     * ``min_particles``, ``max_particles``: bounds on K (the worlds are built for the maximum as K

@@ -22,9 +22,12 @@ effective sample size is below the threshold, then regularise (model).
 
 With :class:`~estimator.config.AdaptiveConfig` enabled the number of particles K changes at
 resampling: each update computes the count the belief needs (:func:`~estimator.adaptive.particles_needed`,
-KLD-sampling) and resamples to it when it exceeds K or falls under ``shrink_below`` K (and, at
-every resampling, resamples to it). Particle ``i`` always lives in the same world slot; the pool
-parks the worlds of the slots beyond K and builds new ones as K first reaches them. With
+KLD-sampling). When it exceeds K the particles are split, not resampled: the new ones are copies of
+particles drawn by weight, every weight shared among a particle and its copies, and only the copies
+are regularised (:func:`~estimator.resampling.split_ancestors`). When it falls under
+``shrink_below`` K the filter resamples to it, and every resampling resamples to it. Particle ``i``
+always lives in the same world slot; the pool parks the worlds of the slots beyond K and builds new
+ones as K first reaches them. With
 :class:`~estimator.config.BudgetConfig` enabled (live use), the count is also capped by what the
 machine affords: each step's wall time (the worlds' part of it scaling with K) against the stream
 time it covered sets the cap (:func:`~estimator.config.budget_cap`), and the filter resamples to
@@ -40,7 +43,13 @@ import numpy as np
 from .collect import Belief, Collectors
 from .config import EstimatorConfig, budget_cap, reasoning_due
 from .model import SceneModel
-from .resampling import effective_sample_size, keep_survivors_in_place, normalise_log_weights, systematic_resample
+from .resampling import (
+    effective_sample_size,
+    keep_survivors_in_place,
+    normalise_log_weights,
+    split_ancestors,
+    systematic_resample,
+)
 from .worlds.pool import WorldPool
 
 log = logging.getLogger(__name__)
@@ -236,9 +245,11 @@ class SceneEstimator:
         n = min(n, self.cap)
         reseed = K > 1 and np.any(bad) and np.any(weights > 0)
         pending = None
-        if K > 1 and (ess < cfg.resample_threshold * K or n > K or n < cfg.adaptive.shrink_below * K
+        if K > 1 and (ess < cfg.resample_threshold * K or (n > K and reseed) or n < cfg.adaptive.shrink_below * K
                       or K > self.cap):
             pending = (self._resample, (weights, weighed.settled, proposal.perceived, n))
+        elif K > 1 and n > K:
+            pending = (self._grow, (weights, weighed.settled, proposal.perceived, n))
         elif reseed:
             pending = (self._reseed, (bad, weights))
         if reseed:
@@ -267,6 +278,20 @@ class SceneEstimator:
         slid = self.model.after_resampling(self.state, kernels, self.rng, before, own)
         # (slots beyond n: the pool parks their worlds at its next run)
         self.pool.follow(anc, self.model.carried_at_rest(before, self.state, anc, own, self.pool.scene_boxes, slid))
+
+    def _grow(self, weights: np.ndarray, settled, perceived: np.ndarray, n: int) -> None:
+        """Grow to ``n`` particles by splitting, not resampling (:func:`~estimator.resampling.split_ancestors`):
+        the particles stay in their slots with their worlds, the new ones are copies of particles
+        drawn by weight, each particle's weight shared among it and its copies; then the model
+        regularises the copies alone (:meth:`~estimator.model.SceneModel.after_growth`). The belief
+        is the same weighted average, and only the new slots' worlds load."""
+        anc, w = split_ancestors(weights, self.rng, n)
+        _, kernels = self.model.before_resampling(self.state, settled, perceived, weights)
+        self.state = self.state.take(anc)
+        with np.errstate(divide="ignore"):
+            self.state.log_weights = np.log(w / w.max())
+        slid = self.model.after_growth(self.state, kernels, self.rng, np.arange(n) >= len(weights), w)
+        self.pool.follow(anc, (slid, self.state.poses) if slid.any() else None)
 
     def _reseed(self, bad: np.ndarray, weights: np.ndarray) -> None:
         """Particles ``bad (K,)`` take the state (and weight) of survivors drawn by ``weights (K,)``

@@ -70,3 +70,20 @@ def keep_survivors_in_place(ancestors: np.ndarray) -> np.ndarray:
     extra = np.repeat(np.arange(len(counts)), counts)  # one entry per copy not yet placed, sorted
     out[out < 0] = extra
     return out
+
+
+def split_ancestors(weights: np.ndarray, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Grow K particles to ``n > K`` without resampling: ancestor indices ``(n,)`` and the new
+    normalised weights ``(n,)``. The first K entries are the particles themselves (``out[i] == i``);
+    the ``n - K`` others are copies drawn by systematic resampling of ``weights (K,)`` (normalised),
+    in increasing order of ancestor. Each particle's weight is shared equally among it and its
+    copies, so every weighted average over the particles is the same before and after: nothing is
+    lost and no resampling noise is added (splitting, as against resampling to ``n``)."""
+    w = np.asarray(weights, dtype=float)
+    k = len(w)
+    if not n > k:
+        raise ValueError(f"split_ancestors grows K: need n > {k}, got {n}")
+    extra = np.sort(systematic_resample(w, rng, n - k))
+    anc = np.concatenate([np.arange(k), extra])
+    counts = np.bincount(anc, minlength=k)
+    return anc, w[anc] / counts[anc]

@@ -1074,6 +1074,7 @@ def test_a_rolling_balls_friction_posterior_follows_its_motion_beyond_the_prior(
 
 # -- the adaptive particle count (AdaptiveConfig) ------------------------------------------------------
 from estimator.config import AdaptiveConfig, with_budget  # noqa: E402
+from estimator.resampling import normalise_log_weights  # noqa: E402
 
 
 def _adaptive(max_particles=512, workers=0):
@@ -1110,6 +1111,45 @@ def test_the_adaptive_count_gives_the_same_output_whatever_the_number_of_workers
     assert outs[0] == outs[1] == outs[2]
     ks = {json.loads(line)["particles"] for line in outs[0][0]}
     assert min(ks) == 16 and max(ks) == 160  # it shrank and grew in the run compared
+
+
+def test_a_growing_count_splits_the_particles_instead_of_resampling_them():
+    """Each time the count grows (the ball rolled out of view), the particles before stay in their
+    slots as they were (poses, velocities, parameters, bit for bit), each one's weight shared with
+    its copies (an integer number of them, n in all): the weighted belief is the one the weights
+    gave. Once the ball is out of sight its copies are jittered: none sits where a particle does
+    (while it is seen, the detections place it, as after a resampling)."""
+    scene, frs, *_ = _flicked_ball()
+    grown = 0
+    with SceneEstimator(scene, _adaptive(), np.random.default_rng(4)) as est:
+        for f in frs:
+            est.observe(f)
+            if not reasoning_due(est.t_tick, f.t, est.config.reasoner.horizon):
+                continue
+            est.step(defer=True)
+            if est._pending is None or est._pending[0].__name__ != "_grow":
+                est.finish()
+                continue
+            seen = est._pending[1][2][scene.object_ids.index("ball")]  # (weights, settled, perceived, n)
+            grown += not seen
+            before = est.state
+            w, _ = normalise_log_weights(before.log_weights)
+            K = len(w)
+            est.finish()
+            after = est.state
+            n = len(after.log_weights)
+            assert n > K and est.K == n
+            for name in ("poses", "velocities", "params", "modes"):
+                assert np.array_equal(getattr(after, name)[:K], getattr(before, name)[:K])
+            w2, _ = normalise_log_weights(after.log_weights)
+            live = w > 0
+            copies = w[live] / w2[:K][live]
+            assert np.allclose(copies, np.round(copies), rtol=1e-9) and np.all(np.round(copies) >= 1)
+            assert round(copies.sum()) + np.count_nonzero(~live) == n  # no copy of a weightless particle
+            ball = scene.object_ids.index("ball")
+            old = {tuple(p) for p in before.poses[:, ball, :3]}
+            assert seen or not any(tuple(p) in old for p in after.poses[K:, ball, :3])
+    assert grown >= 2
 
 
 def _timed_by_k(est, cost):

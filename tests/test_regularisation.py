@@ -45,6 +45,36 @@ def test_regularisation_jitters_only_free_copies_of_hidden_objects():
     assert np.all(st.params[:, TABLE] == params[:, TABLE])
 
 
+def test_a_growth_regularises_only_the_new_copies_towards_the_weighted_mean():
+    """``rows``: 2000 particles and 2000 copies of them drawn by weight (a growth by splitting, the
+    weights shared among each particle and its copies); only the copies' hidden ball and parameters
+    move. They keep the weighted mean of the ball within four standard errors (sd / sqrt(2000):
+    0.18 cm), where a shrinkage towards the plain mean of the rows (0.5 cm off it: two clusters 4 cm
+    apart, weighed 3 to 1) would move them by (1 - sqrt(1 - 0.9^2)) 0.5 cm = 0.28 cm; and its spread."""
+    nz = NoiseConfig(regularisation=0.9, max_jitter_std=0.05, param_jitter=0.1)
+    model = make(EstimatorConfig(particles=4000, noise=nz))
+    rng = np.random.default_rng(21)
+    st = model.initial_state(rng)
+    st.poses[:2000, BALL, 0] += rng.normal(0.0, 0.01, 2000) + np.where(np.arange(2000) < 1000, 0.0, 0.04)
+    w = np.where(np.arange(2000) < 1000, 3.0, 1.0)
+    w /= w.sum()
+    copies = rng.choice(2000, 2000, p=w)
+    st.poses[2000:], st.params[2000:] = st.poses[copies], st.params[copies]
+    counts = 1 + np.bincount(copies, minlength=2000)
+    weights = np.concatenate([w / counts, w[copies] / counts[copies]])
+    hidden = np.zeros(5, bool)
+    hidden[BALL] = True
+    kernels = regularisation_kernels(model, st.poses[:2000], w, hidden)
+    before, params = st.poses.copy(), st.params.copy()
+    regularise(model, st, kernels, np.random.default_rng(22), rows=np.arange(4000) >= 2000, weights=weights)
+    assert np.array_equal(st.poses[:2000], before[:2000]) and np.array_equal(st.params[:2000], params[:2000])
+    assert np.all(st.poses[2000:, BALL, 0] != before[2000:, BALL, 0]) and np.any(st.params[2000:] != params[2000:])
+    x0 = before[:2000, BALL, 0]
+    mean, sd = w @ x0, np.sqrt(w @ (x0 - w @ x0) ** 2)
+    assert abs(st.poses[2000:, BALL, 0].mean() - mean) < 4 * sd / np.sqrt(2000)
+    assert abs(st.poses[2000:, BALL, 0].std() / sd - 1.0) < 4 / np.sqrt(2 * 2000)
+
+
 def test_a_hidden_objects_kernel_keeps_its_spread_when_the_weights_pick_one_particle():
     """Weights that leave one particle (about another object) size the kernel by the equal-weight
     spread mixed in at ``1 - ESS / K``: h^2 times that covariance, not the near-zero covariance of the

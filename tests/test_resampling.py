@@ -6,6 +6,7 @@ from estimator.resampling import (
     keep_survivors_in_place,
     multinomial_resample,
     normalise_log_weights,
+    split_ancestors,
     systematic_resample,
 )
 
@@ -82,3 +83,26 @@ def test_resampling_to_another_count_keeps_the_weights_proportions_and_survivors
     assert keep_survivors_in_place(np.array([5, 5, 1])).tolist() == [5, 1, 5]
     with pytest.raises(ValueError):
         systematic_resample(w, rng, 0)
+
+
+def test_splitting_keeps_every_particle_in_place_and_every_weighted_average():
+    """Growing 10 particles to 37: the first 10 entries are the particles themselves, each one's weight
+    is shared equally among it and its copies (so every weighted average is the same, to round-off),
+    and the 27 copies are spread by weight: systematic resampling gives particle i floor or ceil of
+    27 w_i of them."""
+    rng = np.random.default_rng(11)
+    w = rng.dirichlet(np.ones(10))
+    w[3] = 0.0
+    w /= w.sum()
+    anc, nw = split_ancestors(w, np.random.default_rng(12), 37)
+    assert anc.shape == nw.shape == (37,) and np.array_equal(anc[:10], np.arange(10))
+    assert np.all(np.diff(anc[10:]) >= 0)
+    assert np.allclose(np.bincount(anc, weights=nw, minlength=10), w, rtol=0, atol=1e-15)
+    values = rng.normal(size=10)
+    assert np.isclose(nw @ values[anc], w @ values, rtol=0, atol=1e-12)
+    extra = np.bincount(anc[10:], minlength=10)
+    assert np.all((extra >= np.floor(27 * w) - 1e-9) & (extra <= np.ceil(27 * w) + 1e-9)) and extra[3] == 0
+    counts = np.bincount(anc, minlength=10)
+    assert np.allclose(nw, w[anc] / counts[anc]) and np.isclose(nw.sum(), 1.0)
+    with pytest.raises(ValueError, match="n > 10"):
+        split_ancestors(w, rng, 10)

@@ -50,28 +50,42 @@ def param_bounds(config: EstimatorConfig) -> np.ndarray:
 
 
 def shrink_params(p: np.ndarray, h: float, bounds: np.ndarray, rng: np.random.Generator,
-                  floor: float | np.ndarray = 0.0, spread: np.ndarray | None = None) -> np.ndarray:
+                  floor: float | np.ndarray = 0.0, spread: np.ndarray | None = None,
+                  rows: np.ndarray | None = None, weights: np.ndarray | None = None) -> np.ndarray:
     """Liu-West shrinkage of parameters ``p (K, N, 5)``: ``a x + (1 - a) mean + h std eps`` with
     ``a = sqrt(1 - h^2)``, ``x`` the parameter (its log for :data:`LOG_COLUMNS` where all particles
     have it positive), mean and std over the K particles (the spread is kept); where ``spread (N, 5)``
     bool says the prior perturbs it and its std is under ``floor`` (one, or ``(N, 5)``), plus normal noise of std
     ``sqrt(floor^2 - std^2)`` (the spread is restored to the floor). Clipped to ``bounds (5, 2)``.
-    Two standard normal draws per entry when there is a floor, one without."""
+    Two standard normal draws per entry when there is a floor, one without. ``rows (K,)`` bool:
+    only these particles are shrunk (the others returned as they are; draws for these alone), and
+    ``weights (K,)`` normalised: the mean and std are weighted (default equal)."""
     a = math.sqrt(1.0 - h * h)
     p = np.asarray(p, dtype=float)
     logs = np.zeros(p.shape[1:], dtype=bool)
     logs[:, list(LOG_COLUMNS)] = True
     logs &= np.all(p > 0, axis=0)
     x = np.where(logs[None], np.log(np.where(logs[None], p, 1.0)), p)
-    mean = np.mean(x, axis=0)
-    std = np.std(x, axis=0)
-    x = a * x + (1 - a) * mean + h * std * rng.standard_normal(p.shape)
+    if weights is None:
+        mean = np.mean(x, axis=0)
+        std = np.std(x, axis=0)
+    else:
+        mean = np.tensordot(weights, x, axes=1)
+        std = np.sqrt(np.tensordot(weights, (x - mean) ** 2, axes=1))
+    whole = rows is None
+    sel = x if whole else x[rows]
+    sel = a * sel + (1 - a) * mean + h * std * rng.standard_normal(sel.shape)
     floor = np.broadcast_to(np.asarray(floor, dtype=float), std.shape)
     if spread is not None and np.any(floor > 0):  # spread back to the floor what a resampling collapsed
         extra = np.where(spread, np.sqrt(np.maximum(floor * floor - std * std, 0.0)), 0.0)
-        x = x + extra * rng.standard_normal(p.shape)
-    out = np.where(logs[None], np.exp(x), x)
-    return np.clip(out, bounds[:, 0], bounds[:, 1])
+        sel = sel + extra * rng.standard_normal(sel.shape)
+    out = np.where(logs[None], np.exp(sel), sel)
+    out = np.clip(out, bounds[:, 0], bounds[:, 1])
+    if whole:
+        return out
+    full = p.copy()
+    full[rows] = out
+    return full
 
 
 def resting_friction(params: np.ndarray, on_top: np.ndarray, is_in: np.ndarray,

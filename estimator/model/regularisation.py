@@ -56,11 +56,15 @@ def regularisation_kernels(model, poses: np.ndarray, weights: np.ndarray,
     return kernels_of(poses, mixed, hidden, nz.regularisation, nz.max_jitter_std)
 
 
-def _free_mean(state: ParticleState, m: int, dims: int) -> tuple[np.ndarray, np.ndarray | None]:
+def _free_mean(state: ParticleState, m: int, dims: int,
+               weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     """Object ``m``'s free copies ``(K,)`` bool and the mean of their first ``dims`` coordinates
-    (m; None when no copy is free)."""
+    (m; None when no copy is free, or none has weight), under ``weights (K,)`` (default equal)."""
     free = is_free(state.modes[:, m])
-    return free, (state.poses[free, m, :dims].mean(axis=0) if np.any(free) else None)
+    if weights is None:
+        return free, (state.poses[free, m, :dims].mean(axis=0) if np.any(free) else None)
+    w = weights[free]
+    return free, (w @ state.poses[free, m, :dims] / w.sum() if np.sum(w) > 0 else None)
 
 
 def own_centres(state: ParticleState, own: np.ndarray) -> dict[int, np.ndarray]:
@@ -72,7 +76,8 @@ def own_centres(state: ParticleState, own: np.ndarray) -> dict[int, np.ndarray]:
 
 
 def regularise(model, state: ParticleState, kernels: dict[int, Kernel], rng: np.random.Generator,
-               centres: dict[int, np.ndarray] | None = None) -> np.ndarray:
+               centres: dict[int, np.ndarray] | None = None, rows: np.ndarray | None = None,
+               weights: np.ndarray | None = None) -> np.ndarray:
     """In place, after resampling: jitter the free copies of each hidden object with its kernel (a
     regularised particle filter: copies of one particle must not leave a hidden object with no
     spread), drawn towards their mean first so that the cloud keeps its spread (Liu-West,
@@ -85,8 +90,11 @@ def regularise(model, state: ParticleState, kernels: dict[int, Kernel], rng: np.
     that every particle kept (:func:`own_centres`) were on average before it; they are moved back
     there horizontally, every copy by the same shift, as a jitter is (a change of K drops the values
     of the particles beyond the new count, or repeats ancestors' values, and would move the average
-    of a hidden object that nothing weighs by the chance of which). Returns ``(K, M)`` bool: the
-    entries that slid."""
+    of a hidden object that nothing weighs by the chance of which). ``rows (K,)`` bool: only these
+    particles are jittered and shrunk (default all; a growth by splitting jitters the new copies
+    alone, :meth:`~estimator.model.SceneModel.after_growth`), towards means under ``weights (K,)``
+    (default equal, as after a resampling). Returns ``(K, M)`` bool: the entries that slid."""
+    given, rows = rows, np.ones(model.K, dtype=bool) if rows is None else np.asarray(rows, dtype=bool)
     slid = np.zeros((model.K, model.M), dtype=bool)
     jittered, start = [], state.poses.copy()
     shifts = []  # (object, its free copies (K,), each copy's shift (K, 3))
@@ -97,10 +105,10 @@ def regularise(model, state: ParticleState, kernels: dict[int, Kernel], rng: np.
             shifts.append((m, free, np.broadcast_to([gap[0], gap[1], 0.0], (model.K, 3))))
     for m, kernel in kernels.items():
         jitter = rng.standard_normal((model.K, 3)) @ kernel.chol.T
-        free, mean = _free_mean(state, m, 3)
+        free, mean = _free_mean(state, m, 3, weights)
         if mean is not None:  # Liu-West: towards the mean first, or the jitter widens the cloud
             jitter[free] += (kernel.shrink - 1.0) * (state.poses[free, m, :3] - mean)
-        shifts.append((m, free, jitter))
+        shifts.append((m, free & rows, jitter))
     for m, free, noise in shifts:
         before = state.poses[free, m].copy()
         was = state.jolted[free, m].copy()
@@ -120,7 +128,7 @@ def regularise(model, state: ParticleState, kernels: dict[int, Kernel], rng: np.
         floor = np.full((len(dyn), 5), nz.param_floor)
         floor[model.surprise[dyn] > SURPRISE, :2] = nz.param_widen  # frictions: surprised by its motion
         state.params[:, dyn] = shrink_params(state.params[:, dyn], nz.param_jitter, model.param_bounds, rng,
-                                             floor, model.perturbed[dyn])
+                                             floor, model.perturbed[dyn], given, weights)
     return slid
 
 

@@ -228,6 +228,16 @@ class SceneModel:
         centres = regularisation.own_centres(before, own) if len(before.log_weights) != self.K else None
         return regularisation.regularise(self, state, kernels, rng, centres)
 
+    def after_growth(self, state: ParticleState, kernels: dict[int, Kernel], rng: np.random.Generator,
+                     new: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """In place on ``state`` grown by splitting (:func:`~estimator.resampling.split_ancestors`;
+        its K is the new count, ``weights (K,)`` its normalised weights): the copies ``new (K,)``
+        bool alone are regularised, towards the weighted means (a copy must not leave a hidden
+        object, or the physical parameters, with no spread). Nothing was resampled: the weights go
+        on, and what they weighed stays weighed. Returns what :meth:`after_resampling` does."""
+        self.K = len(state.log_weights)
+        return regularisation.regularise(self, state, kernels, rng, None, new, weights)
+
     def carried_at_rest(self, before: ParticleState, after: ParticleState, ancestors: np.ndarray,
                         own: np.ndarray, boxes: np.ndarray, slid: np.ndarray | None = None
                         ) -> tuple[np.ndarray, np.ndarray] | None:
