@@ -21,17 +21,17 @@ first update simulates nothing, so that simulated time is the stream's time): pe
 effective sample size is below the threshold, then regularise (model).
 
 With :class:`~estimator.config.AdaptiveConfig` enabled the number of particles K changes at
-resampling: each update computes the count the belief needs (:func:`~estimator.adaptive.particles_needed`,
-KLD-sampling). When it exceeds K the particles are split, not resampled: the new ones are copies of
-particles drawn by weight, every weight shared among a particle and its copies, and only the copies
-are regularised (:func:`~estimator.resampling.split_ancestors`). When it falls under
-``shrink_below`` K the filter resamples to it, and every resampling resamples to it. Particle ``i``
-always lives in the same world slot; the pool parks the worlds of the slots beyond K and builds new
-ones as K first reaches them. With
-:class:`~estimator.config.BudgetConfig` enabled (live use), the count is also capped by what the
-machine affords: each step's wall time (the worlds' part of it scaling with K) against the stream
-time it covered sets the cap (:func:`~estimator.config.budget_cap`), and the filter resamples to
-it when it holds more.
+resampling or splitting: each update computes the count the belief needs
+(:func:`~estimator.adaptive.particles_needed`, KLD-sampling). When it exceeds K the particles are
+split, not resampled: the new ones are copies of particles drawn by weight, every weight shared
+among a particle and its copies, and only the copies are regularised
+(:func:`~estimator.resampling.split_ancestors`). When it falls under ``shrink_below`` K the filter
+resamples to it, and every resampling resamples to it. Particle ``i`` always lives in the same world
+slot; the pool parks the worlds of the slots beyond K and builds new ones as K first reaches them.
+With :class:`~estimator.config.BudgetConfig` enabled (live use), the count is also capped by what
+the machine affords: each step's wall time (the worlds' part of it scaling with K) against the
+stream time it covered sets the cap (:func:`~estimator.config.budget_cap`), and the filter
+resamples to it when it holds more.
 """
 from __future__ import annotations
 
