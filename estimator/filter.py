@@ -126,7 +126,7 @@ class SceneEstimator:
         self.clock = time.perf_counter
         self.last_belief: Belief | None = None
         self.t_tick: float | None = None
-        self._pending: tuple | None = None  # a resampling deferred by step(defer=True): (method, args)
+        self._pending: tuple | None = None  # a resampling or split deferred by step(defer=True): (method, args)
 
     # -- what the state, the model and the collectors hold ----------------------------------------------
     @property
@@ -261,7 +261,7 @@ class SceneEstimator:
         return belief
 
     def finish(self) -> None:
-        """Run the resampling (or re-seeding) the last :meth:`step` deferred, if any (see ``defer``)."""
+        """Run the resampling (or split, or re-seeding) the last :meth:`step` deferred, if any (see ``defer``)."""
         if self._pending is not None:
             run, args = self._pending
             self._pending = None

@@ -1120,17 +1120,16 @@ def test_a_growing_count_splits_the_particles_instead_of_resampling_them():
     gave. Once the ball is out of sight its copies are jittered: none sits where a particle does
     (while it is seen, the detections place it, as after a resampling)."""
     scene, frs, *_ = _flicked_ball()
-    grown = 0
+    ball, grown = scene.object_ids.index("ball"), 0
     with SceneEstimator(scene, _adaptive(), np.random.default_rng(4)) as est:
         for f in frs:
             est.observe(f)
             if not reasoning_due(est.t_tick, f.t, est.config.reasoner.horizon):
                 continue
-            est.step(defer=True)
+            seen = est.step(defer=True).objects["ball"].perceived
             if est._pending is None or est._pending[0].__name__ != "_grow":
                 est.finish()
                 continue
-            seen = est._pending[1][2][scene.object_ids.index("ball")]  # (weights, settled, perceived, n)
             grown += not seen
             before = est.state
             w, _ = normalise_log_weights(before.log_weights)
@@ -1146,7 +1145,6 @@ def test_a_growing_count_splits_the_particles_instead_of_resampling_them():
             copies = w[live] / w2[:K][live]
             assert np.allclose(copies, np.round(copies), rtol=1e-9) and np.all(np.round(copies) >= 1)
             assert round(copies.sum()) + np.count_nonzero(~live) == n  # no copy of a weightless particle
-            ball = scene.object_ids.index("ball")
             old = {tuple(p) for p in before.poses[:, ball, :3]}
             assert seen or not any(tuple(p) in old for p in after.poses[K:, ball, :3])
     assert grown >= 2

@@ -94,7 +94,6 @@ def regularise(model, state: ParticleState, kernels: dict[int, Kernel], rng: np.
     particles are jittered and shrunk (default all; a growth by splitting jitters the new copies
     alone, :meth:`~estimator.model.SceneModel.after_growth`), towards means under ``weights (K,)``
     (default equal, as after a resampling). Returns ``(K, M)`` bool: the entries that slid."""
-    given, rows = rows, np.ones(model.K, dtype=bool) if rows is None else np.asarray(rows, dtype=bool)
     slid = np.zeros((model.K, model.M), dtype=bool)
     jittered, start = [], state.poses.copy()
     shifts = []  # (object, its free copies (K,), each copy's shift (K, 3))
@@ -108,7 +107,7 @@ def regularise(model, state: ParticleState, kernels: dict[int, Kernel], rng: np.
         free, mean = _free_mean(state, m, 3, weights)
         if mean is not None:  # Liu-West: towards the mean first, or the jitter widens the cloud
             jitter[free] += (kernel.shrink - 1.0) * (state.poses[free, m, :3] - mean)
-        shifts.append((m, free & rows, jitter))
+        shifts.append((m, free if rows is None else free & rows, jitter))
     for m, free, noise in shifts:
         before = state.poses[free, m].copy()
         was = state.jolted[free, m].copy()
@@ -128,7 +127,7 @@ def regularise(model, state: ParticleState, kernels: dict[int, Kernel], rng: np.
         floor = np.full((len(dyn), 5), nz.param_floor)
         floor[model.surprise[dyn] > SURPRISE, :2] = nz.param_widen  # frictions: surprised by its motion
         state.params[:, dyn] = shrink_params(state.params[:, dyn], nz.param_jitter, model.param_bounds, rng,
-                                             floor, model.perturbed[dyn], given, weights)
+                                             floor, model.perturbed[dyn], rows, weights)
     return slid
 
 

@@ -24,8 +24,9 @@ DEFAULT_PARTICLES = 64
 command line (``--particles``, ``--paper``) nor a configuration file says: every built-in scenario
 runs in real time at K = 64 on two cores (README, *Speed*)."""
 
-AUTO_RANGE = f"{AdaptiveConfig().min_particles}-{AdaptiveConfig().max_particles}"
-"""``--particles auto``'s default bounds, for the commands' help (:class:`~estimator.config.AdaptiveConfig`)."""
+AUTO_DEFAULTS = AdaptiveConfig()
+"""``--particles auto``'s default bounds, for the commands' help."""
+AUTO_RANGE = f"{AUTO_DEFAULTS.min_particles}-{AUTO_DEFAULTS.max_particles}"
 
 
 def particle_count(text: str) -> int | str:
@@ -100,11 +101,10 @@ def add_estimator_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"particle worlds K (default {DEFAULT_PARTICLES}, or the configuration file's; "
                         "1: the paper's reasoner; auto: a count that follows the belief's spread, "
                         f"KLD-sampling, {AUTO_RANGE}, starting at the fewest)")
-    a = AdaptiveConfig()
     p.add_argument("--max-particles", type=int, default=None,
-                   help=f"with --particles auto: the most particles (default {a.max_particles})")
+                   help=f"with --particles auto: the most particles (default {AUTO_DEFAULTS.max_particles})")
     p.add_argument("--min-particles", type=int, default=None,
-                   help=f"with --particles auto: the fewest particles (default {a.min_particles})")
+                   help=f"with --particles auto: the fewest particles (default {AUTO_DEFAULTS.min_particles})")
     p.add_argument("--paper", action="store_true",
                    help="the paper's reasoner: one world, no noise (same as --particles 1)")
     p.add_argument("--workers", type=int, default=None,
