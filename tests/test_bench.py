@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from experiments.bench import scenarios as bench_scenario
+from experiments.bench.repeat import kept_up, rounds, summarise, summary_table
 from experiments.bench.synthetic import bench_one, bench_scene
 from experiments.bench.timing import StreamTiming, timing_row
 from experiments.cli import main
@@ -284,3 +285,95 @@ def test_the_update_floors_are_main_process_exchange_and_the_workers_mean_steps_
     st.step_mean_s = []
     row = timing_row(st)
     assert math.isnan(row["update_floor_ms_p95"]) and all(math.isnan(x) for x in row["per_update"]["floor_ms"])
+
+
+def test_repeat_goes_round_by_round_and_numbers_the_runs():
+    seen = []
+    rows = list(rounds(["a", "b"], lambda item: seen.append(item) or {"item": item}, 3))
+    assert seen == ["a", "b"] * 3  # every configuration once per round, not three in a row
+    assert [(r["item"], r["run"]) for r in rows] == [("a", 1), ("b", 1), ("a", 2), ("b", 2), ("a", 3), ("b", 3)]
+    with pytest.raises(ValueError, match="--repeat must be >= 1"):
+        list(rounds(["a"], lambda item: {}, 0))
+
+
+def test_a_run_keeps_up_when_faster_than_the_stream_with_its_median_and_p95_under_the_horizon():
+    ok = {"realtime_factor": 1.2, "update_ms_median": 79.0, "update_ms_p95": 119.0}
+    assert kept_up(ok, 0.08)
+    assert not kept_up({**ok, "realtime_factor": 1.0}, 0.08)
+    assert not kept_up({**ok, "update_ms_median": 80.0}, 0.08)
+    assert not kept_up({**ok, "update_ms_p95": 120.0}, 0.08)
+    assert kept_up({"update_ms_median": 79.0, "update_ms_p95": 119.0}, 0.08)  # synthetic rows: no stream
+    assert not kept_up(ok, 0.05)  # a shorter horizon asks for more
+
+
+def test_the_summary_gives_each_configurations_median_range_and_runs_that_kept_up():
+    rows = []
+    for run, (p95, rt) in enumerate([(100.0, 2.0), (130.0, 1.5), (110.0, 0.9)], start=1):
+        rows.append({"scenario": "s", "particles": 256, "realtime_factor": rt, "update_ms_median": 50.0,
+                     "update_ms_p95": p95, "ratio": float(run), "run": run})
+        rows.append({"scenario": "s", "particles": f"auto ({150 + run}, max 1024)", "realtime_factor": 3.0,
+                     "update_ms_median": 10.0 * run, "update_ms_p95": 20.0, "ratio": math.nan, "run": run})
+    fixed, auto = summarise(rows, 3, 0.08)
+    assert (fixed["scenario"], fixed["particles"], fixed["runs"]) == ("s", "256", 3)
+    assert fixed["kept_up"] == 1  # the second run's p95 is over 120 ms, the third is slower than the stream
+    assert (fixed["update_ms_p95"], fixed["update_ms_p95_min"], fixed["update_ms_p95_max"]) == (110.0, 100.0, 130.0)
+    assert (fixed["realtime_factor"], fixed["ratio"]) == (1.5, 2.0)
+    assert auto["particles"] == "auto" and auto["kept_up"] == 3  # one configuration whatever each run's mean K
+    assert (auto["update_ms_median"], auto["update_ms_median_min"], auto["update_ms_median_max"]) == (20.0, 10.0, 30.0)
+    assert "ratio" not in auto  # no finite value to summarise
+    lines = summary_table([fixed, auto])
+    assert lines[0].startswith("| scenario | K | runs | kept up | real-time factor: median [range]")
+    assert lines[2].startswith("| s | 256 | 3 | 1/3 | 1.50 [0.90-2.00] | 50.0 [50.0-50.0] | 110.0 [100.0-130.0]")
+    with pytest.raises(ValueError, match="not 2 rounds"):
+        summarise(rows[:5], 2, 0.08)
+    assert len(summarise(rows[:4], 2, 0.08)) == 2  # two rounds of (256, auto)...
+    swapped = [rows[0], rows[1], rows[3], rows[2]]  # ...but not if the second holds them in another order
+    with pytest.raises(ValueError, match="same configurations"):
+        summarise(swapped, 2, 0.08)
+
+
+def test_bench_repeat_measures_every_configuration_n_times_and_simulates_each_scenario_once(monkeypatch, capsys):
+    streams, calls = [], []
+
+    def fake_stream(name):
+        streams.append(name)
+        return _NoStream()
+
+    def fake_time(*args, **kwargs):
+        calls.append(len(calls))
+        slow = 0.01 * len(calls)  # each run a little slower than the one before: the figures differ
+        return StreamTiming(startup_s=0.5, time_step=1 / 240, peak_memory_mb=100.0, processing_s=0.2,
+                            frame_times=[0.1, 0.2, 0.3], update_s=[0.01 + slow, 0.03 + slow], bare_s=[0.005, 0.01],
+                            steps=[24, 24], main_s=[0.001] * 2, exchange_s=[0.001] * 2, shard_s=[0.008] * 2,
+                            over_s=[1e-5] * 2)
+
+    monkeypatch.setattr(bench_scenario, "scenario_stream", fake_stream)
+    monkeypatch.setattr(bench_scenario, "time_stream", fake_time)
+    assert main(["bench", "--scenario", "static_floating", "--scenario", "stacked_tower", "--particles", "16", "64",
+                 "--repeat", "3", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert streams == ["static_floating", "stacked_tower"]  # simulated once each, kept for the three rounds
+    rows = out["results"]
+    assert [(r["scenario"], r["particles"], r["run"]) for r in rows] == [
+        (n, k, run) for run in (1, 2, 3) for n in ("static_floating", "stacked_tower") for k in (16, 64)]
+    summary = out["summary"]
+    assert [(s["scenario"], s["particles"], s["runs"]) for s in summary] == [
+        (n, k, 3) for n in ("static_floating", "stacked_tower") for k in ("16", "64")]
+    for j, s in enumerate(summary):
+        runs = [r["update_ms_median"] for r in rows[j::4]]
+        assert (s["update_ms_median_min"], s["update_ms_median"], s["update_ms_median_max"]) == pytest.approx(
+            (min(runs), float(np.median(runs)), max(runs)))
+        # realtime factor 1.5 in every run; medians 30-140 ms over the 12 calls: kept up while under 80 ms
+        assert s["kept_up"] == sum(r["update_ms_median"] < 80.0 and r["update_ms_p95"] < 120.0 for r in rows[j::4])
+    assert 0 < sum(s["kept_up"] for s in summary) < 12  # both answers occur
+    assert main(["bench", "--scenario", "static_floating", "--particles", "16", "--repeat", "2"]) == 0
+    text = capsys.readouterr().out
+    assert "| scenario | K | run |" in text and "Over 2 runs (kept up:" in text
+    assert "| static_floating | 16 | 2 |" in text
+
+
+def test_bench_repeat_bad_values_are_clear_errors(capsys):
+    assert main(["bench", "--particles", "2", "--repeat", "0"]) == 2
+    assert "--repeat must be >= 1, got 0" in capsys.readouterr().err
+    assert main(["bench", "--scenario", "static_floating", "--particles", "2", "--bag", "--repeat", "2"]) == 2
+    assert "--repeat goes with the timing tables" in capsys.readouterr().err

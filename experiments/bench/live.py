@@ -115,18 +115,18 @@ def live_row(name: str, scene: Scene, frames: list[Frame], cfg: EstimatorConfig,
             "load_1min": os.getloadavg()[0]}
 
 
-def live_rows(names: list[str], configs: list[tuple[int, EstimatorConfig]], speed: float = 1.0) -> Iterator[dict]:
-    """One :func:`live_row` per scenario and ``(K, configuration)``, as each is measured; progress
-    on stderr."""
-    from experiments.bench.scenarios import SEED, scenario_stream
+def live_rows(names: list[str], configs: list[tuple[int | str, EstimatorConfig]], speed: float = 1.0,
+              repeat: int = 1) -> Iterator[dict]:
+    """One :func:`live_row` per scenario and ``(K, configuration)``, as each is measured, ``repeat``
+    rounds of them (:func:`~experiments.bench.scenarios.scenario_rounds`); progress on stderr."""
+    from experiments.bench.scenarios import SEED, scenario_rounds
 
-    for name in names:
-        print(f"bench: simulating {name} (seed {SEED})", file=sys.stderr, flush=True)
-        with scenario_stream(name) as (scene, frames):
-            for k, cfg in configs:
-                print(f"bench: {name}, K={k}, live: {len(frames)} frames over "
-                      f"{(frames[-1].t - frames[0].t) / speed:.1f} s", file=sys.stderr, flush=True)
-                t0 = time.perf_counter()
-                row = live_row(name, scene, frames, cfg, SEED, speed)
-                row["wall_s"] = time.perf_counter() - t0
-                yield row
+    def measure(name: str, scene: Scene, frames: list[Frame], k: int | str, cfg: EstimatorConfig) -> dict:
+        print(f"bench: {name}, K={k}, live: {len(frames)} frames over "
+              f"{(frames[-1].t - frames[0].t) / speed:.1f} s", file=sys.stderr, flush=True)
+        t0 = time.perf_counter()
+        row = live_row(name, scene, frames, cfg, SEED, speed)
+        row["wall_s"] = time.perf_counter() - t0
+        return row
+
+    yield from scenario_rounds(names, configs, repeat, measure)

@@ -15,12 +15,13 @@ from __future__ import annotations
 import contextlib
 import sys
 import tempfile
-from typing import Iterator
+from typing import Callable, Iterator
 
 import numpy as np
 
 from estimator.config import EstimatorConfig
 from estimator.observations import Frame, ObservationReader
+from experiments.bench.repeat import rounds
 from experiments.bench.timing import RESOURCE_COLUMNS, TIMING_COLUMNS, time_stream, timing_row
 from physics.scene import Scene, load_scene
 
@@ -56,22 +57,40 @@ def bag_table(names: list[str], configs: list[tuple[int, EstimatorConfig]]) -> I
             yield from bag_rows(name, scene, frames, configs)
 
 
-def scenario_rows(names: list[str], configs: list[tuple[int, EstimatorConfig]],
-                  max_updates: int | None = None, resting: bool = False) -> Iterator[dict]:
+def scenario_rounds(names: list[str], configs: list[tuple[int | str, EstimatorConfig]], repeat: int,
+                    measure: Callable[[str, Scene, list[Frame], int | str, EstimatorConfig], dict]) -> Iterator[dict]:
+    """``measure(name, scene, frames, k, cfg)`` for every scenario and ``(K, configuration)``,
+    ``repeat`` rounds of them (:func:`~experiments.bench.repeat.rounds`): each scenario simulated once,
+    when first measured, its stream kept until the last round; progress on stderr."""
+    with contextlib.ExitStack() as stack:
+        streams: dict[str, tuple[Scene, list[Frame]]] = {}
+
+        def one(item: tuple[str, int | str, EstimatorConfig]) -> dict:
+            name, k, cfg = item
+            if name not in streams:
+                print(f"bench: simulating {name} (seed {SEED})", file=sys.stderr, flush=True)
+                streams[name] = stack.enter_context(scenario_stream(name))
+            return measure(name, *streams[name], k, cfg)
+
+        yield from rounds([(name, k, cfg) for name in names for k, cfg in configs], one, repeat)
+
+
+def scenario_rows(names: list[str], configs: list[tuple[int | str, EstimatorConfig]],
+                  max_updates: int | None = None, resting: bool = False, repeat: int = 1) -> Iterator[dict]:
     """One row (:data:`SCENARIO_COLUMNS` and more) per scenario and ``(K, configuration)``, as each
-    is measured; progress on stderr. ``max_updates``: stop each stream after that many timed updates;
-    ``resting``: measure the resting objects' share of bare stepping too
-    (:func:`~experiments.bench.timing.time_stream`)."""
-    for name in names:
-        print(f"bench: simulating {name} (seed {SEED})", file=sys.stderr, flush=True)
-        with scenario_stream(name) as (scene, frames):
-            for k, cfg in configs:
-                print(f"bench: {name}, K={k}: {len(frames)} frames", file=sys.stderr, flush=True)
-                st = time_stream(scene, cfg, frames, np.random.default_rng(SEED), max_updates=max_updates,
-                                 resting=resting)
-                shown = f"auto ({np.mean(st.particles):.0f}, max {max(st.particles)})" if k == "auto" and \
-                    st.particles else k
-                yield {"scenario": name, "particles": shown, "workers": cfg.workers,
-                       "frames": len(st.frame_times), "stream_s": st.stream_s,
-                       "processing_s": st.processing_s, "realtime_factor": st.stream_s / st.processing_s,
-                       **timing_row(st)}
+    is measured, ``repeat`` rounds of them (:func:`scenario_rounds`); progress on stderr.
+    ``max_updates``: stop each stream after that many timed updates; ``resting``: measure the
+    resting objects' share of bare stepping too (:func:`~experiments.bench.timing.time_stream`)."""
+
+    def measure(name: str, scene: Scene, frames: list[Frame], k: int | str, cfg: EstimatorConfig) -> dict:
+        print(f"bench: {name}, K={k}: {len(frames)} frames", file=sys.stderr, flush=True)
+        st = time_stream(scene, cfg, frames, np.random.default_rng(SEED), max_updates=max_updates,
+                         resting=resting)
+        shown = f"auto ({np.mean(st.particles):.0f}, max {max(st.particles)})" if k == "auto" and \
+            st.particles else k
+        return {"scenario": name, "particles": shown, "workers": cfg.workers,
+                "frames": len(st.frame_times), "stream_s": st.stream_s,
+                "processing_s": st.processing_s, "realtime_factor": st.stream_s / st.processing_s,
+                **timing_row(st)}
+
+    yield from scenario_rounds(names, configs, repeat, measure)

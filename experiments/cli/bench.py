@@ -24,6 +24,7 @@ import sys
 from typing import Iterable
 
 from estimator.config import EstimatorConfig, config_from_dict, read_config_file
+from experiments.bench.repeat import P95_HORIZONS, rounds, summarise, summary_table
 from experiments.bench.synthetic import bench_one
 from experiments.bench.timing import (
     BREAKDOWN_COLUMNS,
@@ -35,11 +36,17 @@ from experiments.bench.timing import (
 from experiments.cli.common import AUTO_RANGE, add_fixed_particles_argument, live_config, particle_count
 
 
-def report(args, columns: list[tuple[str, str, str]], rows: Iterable[dict], meta: dict) -> int:
+def report(args, columns: list[tuple[str, str, str]], rows: Iterable[dict], meta: dict,
+           horizon_s: float | None = None) -> int:
     """Print ``rows`` as they come as a Markdown table (``--breakdown``: with its columns), or, with
-    ``--json``, all of them at the end as one JSON object ``{**meta, "results": rows}``."""
+    ``--json``, all of them at the end as one JSON object ``{**meta, "results": rows}``. With
+    ``--repeat`` N > 1 each row shows its run, and a second table (JSON: ``"summary"``) follows with
+    each configuration's figures over its runs and how many kept up with the reasoning horizon
+    ``horizon_s`` (s; :func:`~experiments.bench.repeat.summarise`)."""
     if args.breakdown:
         columns = columns + BREAKDOWN_COLUMNS
+    if args.repeat > 1:
+        columns = columns[:2] + [("run", "run", "{}")] + columns[2:]
     if not args.json:
         print("| " + " | ".join(c[1] for c in columns) + " |")
         print("|" + "---|" * len(columns), flush=True)
@@ -48,8 +55,13 @@ def report(args, columns: list[tuple[str, str, str]], rows: Iterable[dict], meta
         done.append(r)
         if not args.json:
             print("| " + " | ".join(fmt.format(r[key]) for key, _, fmt in columns) + " |", flush=True)
+    summary = summarise(done, args.repeat, horizon_s) if args.repeat > 1 and horizon_s is not None else None
     if args.json:
-        print(json.dumps({**meta, "results": done}))
+        print(json.dumps({**meta, "results": done, **({"summary": summary} if summary is not None else {})}))
+    elif summary is not None:
+        print(f"\nOver {args.repeat} runs (kept up: real-time factor above 1 where measured, median update under the "
+              f"{1e3 * horizon_s:.0f} ms horizon, p95 under {P95_HORIZONS * 1e3 * horizon_s:.0f} ms):\n")
+        print("\n".join(summary_table(summary)), flush=True)
     return 0
 
 
@@ -103,12 +115,21 @@ def add_bench_arguments(p: argparse.ArgumentParser) -> None:
                         "(run --live) and report the latency from a frame's arrival to the estimate that used it "
                         "(median, p95, max), the frames merged and the particle count (shed while a step cannot "
                         "keep up, as in run --live; --fixed-particles: not)")
+    p.add_argument("--repeat", type=int, default=1, metavar="N",
+                   help="measure every configuration N times, round by round (every configuration once, then "
+                        "again), each row with its run; then a table of each configuration's median and range "
+                        "over the runs and how many kept up (real-time factor above 1, median update under the "
+                        "reasoning horizon, p95 under 1.5 horizons: 80 and 120 ms by default)")
     add_fixed_particles_argument(p)
 
 
 def run_bench(args) -> int:
     if args.updates is not None and args.updates < 1:
         raise ValueError(f"--updates must be >= 1, got {args.updates}")
+    if args.repeat < 1:
+        raise ValueError(f"--repeat must be >= 1, got {args.repeat}")
+    if args.repeat > 1 and (args.bag or args.rerun_overhead):
+        raise ValueError("--repeat goes with the timing tables: drop --bag and --rerun-overhead")
     if args.bag and not args.scenario:
         raise ValueError("--bag compares the streams of scenarios: give --scenario NAME")
     if args.bag and args.breakdown:
@@ -135,16 +156,16 @@ def run_bench(args) -> int:
         return 0
     configs = particle_configs(args)
 
-    def rows():
-        for k, cfg in configs:
-            for n in objects:
-                print(f"bench: K={k}, {n} objects", file=sys.stderr, flush=True)
-                yield bench_one(k, n, args.workers, updates, config=cfg, resting=args.breakdown)
+    def measure(item: tuple[int | str, EstimatorConfig, int]) -> dict:
+        k, cfg, n = item
+        print(f"bench: K={k}, {n} objects", file=sys.stderr, flush=True)
+        return bench_one(k, n, args.workers, updates, config=cfg, resting=args.breakdown)
 
     columns = (SYNTHETIC_COLUMNS + TIMING_COLUMNS + [("updates_per_s", "updates/s", "{:.1f}")]
                + RESOURCE_COLUMNS)
     meta = {"mode": "synthetic", "workers": args.workers, "cpu_count": os.cpu_count(), "config": args.config}
-    return report(args, columns, rows(), meta)
+    rows = rounds([(k, cfg, n) for k, cfg in configs for n in objects], measure, args.repeat)
+    return report(args, columns, rows, meta, configs[0][1].reasoner.horizon)
 
 
 def _scenario_bench(args) -> int:
@@ -162,5 +183,7 @@ def _scenario_bench(args) -> int:
         from experiments.bench.live import LIVE_COLUMNS, live_rows
         meta.update(mode="live", load_average_at_start=list(os.getloadavg()),
                     fixed_particles=bool(args.fixed_particles))
-        return report(args, LIVE_COLUMNS, live_rows(names, configs), meta)
-    return report(args, SCENARIO_COLUMNS, scenario_rows(names, configs, args.updates, args.breakdown), meta)
+        return report(args, LIVE_COLUMNS, live_rows(names, configs, repeat=args.repeat), meta,
+                      configs[0][1].reasoner.horizon)
+    return report(args, SCENARIO_COLUMNS, scenario_rows(names, configs, args.updates, args.breakdown, args.repeat),
+                  meta, configs[0][1].reasoner.horizon)
