@@ -64,11 +64,8 @@ def summarise(rows: Iterable[dict], repeat: int, horizon_s: float) -> list[dict]
     out = []
     for j in range(per_round):
         runs = rows[j::per_round]
-        first = runs[0]
-        label = {key: first[key] for key in ("scenario", "objects") if key in first}
-        label["particles"] = _particles(first)
-        if any(_particles(r) != label["particles"] or any(r.get(k) != v for k, v in label.items() if k != "particles")
-               for r in runs):
+        label = _configuration(runs[0])
+        if any(_configuration(r) != label for r in runs):
             raise ValueError("the rounds do not hold the same configurations in the same order")
         summary = {**label, "runs": len(runs), "kept_up": sum(kept_up(r, horizon_s) for r in runs)}
         for name, _, _ in SUMMARY_FIGURES:
@@ -81,10 +78,12 @@ def summarise(rows: Iterable[dict], repeat: int, horizon_s: float) -> list[dict]
     return out
 
 
-def _particles(row: dict) -> str:
-    """A row's particle count as configured: an adaptive count's shown mean and maximum dropped
-    (``"auto (205, max 1024)"`` -> ``"auto"``)."""
-    return str(row["particles"]).split(" (")[0]
+def _configuration(row: dict) -> dict:
+    """What a row measured: its ``scenario`` or ``objects``, and its particle count as configured
+    (an adaptive count's shown mean and maximum dropped: ``"auto (205, max 1024)"`` -> ``"auto"``)."""
+    label = {key: row[key] for key in ("scenario", "objects") if key in row}
+    label["particles"] = str(row["particles"]).split(" (")[0]
+    return label
 
 
 def summary_table(summary: list[dict]) -> list[str]:

@@ -42,7 +42,8 @@ def report(args, columns: list[tuple[str, str, str]], rows: Iterable[dict], meta
     ``--json``, all of them at the end as one JSON object ``{**meta, "results": rows}``. With
     ``--repeat`` N > 1 each row shows its run, and a second table (JSON: ``"summary"``) follows with
     each configuration's figures over its runs and how many kept up with the reasoning horizon
-    ``horizon_s`` (s; :func:`~experiments.bench.repeat.summarise`)."""
+    ``horizon_s`` (s; :func:`~experiments.bench.repeat.summarise`; None only for the tables never
+    repeated: ``--bag``)."""
     if args.breakdown:
         columns = columns + BREAKDOWN_COLUMNS
     if args.repeat > 1:
@@ -55,7 +56,7 @@ def report(args, columns: list[tuple[str, str, str]], rows: Iterable[dict], meta
         done.append(r)
         if not args.json:
             print("| " + " | ".join(fmt.format(r[key]) for key, _, fmt in columns) + " |", flush=True)
-    summary = summarise(done, args.repeat, horizon_s) if args.repeat > 1 and horizon_s is not None else None
+    summary = summarise(done, args.repeat, horizon_s) if args.repeat > 1 else None
     if args.json:
         print(json.dumps({**meta, "results": done, **({"summary": summary} if summary is not None else {})}))
     elif summary is not None:
@@ -174,6 +175,7 @@ def _scenario_bench(args) -> int:
 
     names = resolve_scenarios(args.scenario)
     configs = particle_configs(args)
+    horizon = configs[0][1].reasoner.horizon  # one reasoner for every K (the --config file's or the defaults)
     meta = {"mode": "bag" if args.bag else "scenario", "seed": SEED, "workers": args.workers,
             "cpu_count": os.cpu_count(), "config": args.config}
     if args.bag:
@@ -183,7 +185,6 @@ def _scenario_bench(args) -> int:
         from experiments.bench.live import LIVE_COLUMNS, live_rows
         meta.update(mode="live", load_average_at_start=list(os.getloadavg()),
                     fixed_particles=bool(args.fixed_particles))
-        return report(args, LIVE_COLUMNS, live_rows(names, configs, repeat=args.repeat), meta,
-                      configs[0][1].reasoner.horizon)
+        return report(args, LIVE_COLUMNS, live_rows(names, configs, repeat=args.repeat), meta, horizon)
     return report(args, SCENARIO_COLUMNS, scenario_rows(names, configs, args.updates, args.breakdown, args.repeat),
-                  meta, configs[0][1].reasoner.horizon)
+                  meta, horizon)
