@@ -174,9 +174,10 @@ def to_freeze(boxes: tuple[np.ndarray, np.ndarray], com_p: np.ndarray, com_v: np
     ``com_p (K, M, 7)``, ``com_v (K, M, 6)`` and the tests' targets at the update's start
     ``target_com (K, M, 3)`` moving at ``tvel (K, M, 3)``. A candidate is asleep: exactly zero
     velocity, and not ``moved`` (loaded, held, pushed out of penetration: ``moved`` must also hold
-    what a world holds but never stepped, which reads zero velocity awake; a settled load is a
-    candidate, put to sleep if frozen); not held; and if tested, one that cannot diverge while it
-    stays still (its target fixed and nearer than ``d_sim_perc``). Held and tested objects may go
+    what a world holds but never stepped, which reads zero velocity awake, and what it held at the
+    last update's end and is let go now, which reads its still hand's zero velocity awake, perhaps
+    in the air; a settled load is a candidate, put to sleep if frozen); not held; and if tested, one
+    that cannot diverge while it stays still (its target fixed and nearer than ``d_sim_perc``). Held and tested objects may go
     to their targets (orientations ``target_orn (K, M, 4)``); ``dyn (M,)`` bool: the dynamic objects.
     Returns that and, given the static objects' boxes ``statics (K, S, 2, 3)`` and the floor's
     height ``floor (K,)`` (None: no floor), the held objects that are :func:`alone` (else none)."""

@@ -175,9 +175,15 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     checked_l, target_l, due_l, tvel_l = checked.tolist(), target_com.tolist(), due.tolist(), tvel.tolist()
     frozen = alone = np.zeros((K, M), dtype=bool)
     if freeze and sleeping and n_steps > 0:
+        # held at the last update's end and let go now: awake at its hand's velocity, not at rest
+        let_go = np.zeros((K, M), dtype=bool)
+        for k, pw in enumerate(pws):
+            if pw.held:
+                let_go[k, list(pw.held)] = True
+        let_go &= ~held_mask
         frozen, alone = to_freeze(pws[0].boxes, com_p, com_v, target_com, tvel, target_orn, checked, held_mask,
-                                  moved | (reset & ~settled) | (~stepped & ~placed), dyn_mask, n_steps * dt, d_sim_perc,
-                                  w0.settings.gravity, w0.static_raw()[1][~dyn_mask][None] + origins[:, None],
+                                  moved | let_go | (reset & ~settled) | (~stepped & ~placed), dyn_mask, n_steps * dt,
+                                  d_sim_perc, w0.settings.gravity, w0.static_raw()[1][~dyn_mask][None] + origins[:, None],
                                   origins[:, 0, 2] if w0.floor_uid >= 0 else None)
     frozen_l = frozen.tolist()
     glides = held_glides([pw.world for pw in pws], batch.poses, batch.target, held_mask, alone, n_steps)
@@ -285,6 +291,9 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
             poses[k], vel[k], aabbs[k] = p[0], v[0], b[0]
     for k, i, d in switched_at:
         max_d[k, i] = d
+    held_out = is_held(modes_out) & dyn_mask  # what each world holds at the end (ParticleWorld.held)
+    for k, row in enumerate(held_out.any(axis=1).tolist()):
+        pws[k].held = set(np.flatnonzero(held_out[k]).tolist()) if row else set()
     if sleeping:
         sleep_resting(pws, dyn_mask & is_free(modes_out) & ~(held_mask if sleep_loads else moved), com_v, vel)
     finite = (np.isfinite(poses).all(axis=(1, 2)) & np.isfinite(vel).all(axis=(1, 2))
