@@ -177,8 +177,9 @@ def to_freeze(boxes: tuple[np.ndarray, np.ndarray], com_p: np.ndarray, com_v: np
     what a world holds but never stepped, which reads zero velocity awake, and what it held at the
     last update's end and is let go now, which reads its still hand's zero velocity awake, perhaps
     in the air; a settled load is a candidate, put to sleep if frozen); not held; and if tested, one
-    that cannot diverge while it stays still (its target fixed and nearer than ``d_sim_perc``). Held and tested objects may go
-    to their targets (orientations ``target_orn (K, M, 4)``); ``dyn (M,)`` bool: the dynamic objects.
+    that cannot diverge while it stays still (its target fixed and nearer than ``d_sim_perc``). Held
+    and tested objects may go to their targets (orientations ``target_orn (K, M, 4)``); ``dyn (M,)``
+    bool: the dynamic objects.
     Returns that and, given the static objects' boxes ``statics (K, S, 2, 3)`` and the floor's
     height ``floor (K,)`` (None: no floor), the held objects that are :func:`alone` (else none)."""
     centres = com_p[..., :3]

@@ -183,7 +183,8 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
         let_go &= ~held_mask
         frozen, alone = to_freeze(pws[0].boxes, com_p, com_v, target_com, tvel, target_orn, checked, held_mask,
                                   moved | let_go | (reset & ~settled) | (~stepped & ~placed), dyn_mask, n_steps * dt,
-                                  d_sim_perc, w0.settings.gravity, w0.static_raw()[1][~dyn_mask][None] + origins[:, None],
+                                  d_sim_perc, w0.settings.gravity,
+                                  w0.static_raw()[1][~dyn_mask][None] + origins[:, None],
                                   origins[:, 0, 2] if w0.floor_uid >= 0 else None)
     frozen_l = frozen.tolist()
     glides = held_glides([pw.world for pw in pws], batch.poses, batch.target, held_mask, alone, n_steps)
