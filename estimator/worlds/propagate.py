@@ -175,14 +175,12 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     checked_l, target_l, due_l, tvel_l = checked.tolist(), target_com.tolist(), due.tolist(), tvel.tolist()
     frozen = alone = np.zeros((K, M), dtype=bool)
     if freeze and sleeping and n_steps > 0:
-        # held at the last update's end and let go now: awake at its hand's velocity, not at rest
-        let_go = np.zeros((K, M), dtype=bool)
+        held_before = np.zeros((K, M), dtype=bool)  # let go since (or held still: moved): never asleep yet
         for k, pw in enumerate(pws):
             if pw.held:
-                let_go[k, list(pw.held)] = True
-        let_go &= ~held_mask
+                held_before[k, list(pw.held)] = True
         frozen, alone = to_freeze(pws[0].boxes, com_p, com_v, target_com, tvel, target_orn, checked, held_mask,
-                                  moved | let_go | (reset & ~settled) | (~stepped & ~placed), dyn_mask, n_steps * dt,
+                                  moved | held_before | (reset & ~settled) | (~stepped & ~placed), dyn_mask, n_steps * dt,
                                   d_sim_perc, w0.settings.gravity,
                                   w0.static_raw()[1][~dyn_mask][None] + origins[:, None],
                                   origins[:, 0, 2] if w0.floor_uid >= 0 else None)
