@@ -102,9 +102,10 @@ class ParticleWorld:
         self.contactless: set[int] = set()
         self.frozen: list[int] = []
         self.stepped = False  # stepped since its last loads (else what it holds is awake at zero velocity)
-        # objects held at the end of its last update: one let go since reads its hand's velocity, zero
-        # when the hand was still, and is awake and maybe unsupported: not at rest, whatever it reads
-        self.held: set[int] = set()
+        # (M,) bool: objects held at the end of its last update: one let go since reads its hand's
+        # velocity, zero when the hand was still, and is awake and maybe unsupported: not at rest,
+        # whatever it reads
+        self.held: np.ndarray = np.zeros(world.num_objects, dtype=bool)
         self.boxes: tuple[np.ndarray, np.ndarray] = local_boxes(world) if boxes is None else boxes
         self._params: np.ndarray | None = None
         self._params_key: bytes = b""

@@ -175,13 +175,10 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     checked_l, target_l, due_l, tvel_l = checked.tolist(), target_com.tolist(), due.tolist(), tvel.tolist()
     frozen = alone = np.zeros((K, M), dtype=bool)
     if freeze and sleeping and n_steps > 0:
-        held_before = np.zeros((K, M), dtype=bool)  # let go since (or held still: moved): never asleep yet
-        for k, pw in enumerate(pws):
-            if pw.held:
-                held_before[k, list(pw.held)] = True
+        held_before = np.stack([pw.held for pw in pws])  # let go since (held still: moved): not asleep yet
         frozen, alone = to_freeze(pws[0].boxes, com_p, com_v, target_com, tvel, target_orn, checked, held_mask,
-                                  moved | held_before | (reset & ~settled) | (~stepped & ~placed), dyn_mask, n_steps * dt,
-                                  d_sim_perc, w0.settings.gravity,
+                                  moved | held_before | (reset & ~settled) | (~stepped & ~placed), dyn_mask,
+                                  n_steps * dt, d_sim_perc, w0.settings.gravity,
                                   w0.static_raw()[1][~dyn_mask][None] + origins[:, None],
                                   origins[:, 0, 2] if w0.floor_uid >= 0 else None)
     frozen_l = frozen.tolist()
@@ -291,8 +288,8 @@ def propagate_batch(pws: list[ParticleWorld], batch: BatchInput, n_steps: int, d
     for k, i, d in switched_at:
         max_d[k, i] = d
     held_out = is_held(modes_out) & dyn_mask  # what each world holds at the end (ParticleWorld.held)
-    for k, row in enumerate(held_out.any(axis=1).tolist()):
-        pws[k].held = set(np.flatnonzero(held_out[k]).tolist()) if row else set()
+    for pw, row in zip(pws, held_out):
+        pw.held = row
     if sleeping:
         sleep_resting(pws, dyn_mask & is_free(modes_out) & ~(held_mask if sleep_loads else moved), com_v, vel)
     finite = (np.isfinite(poses).all(axis=(1, 2)) & np.isfinite(vel).all(axis=(1, 2))
